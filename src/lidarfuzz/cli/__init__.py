@@ -1,0 +1,1 @@
+"""The ``lidarfuzz`` command line (Typer). Commands are thin: they call the library."""

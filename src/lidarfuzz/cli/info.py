@@ -1,0 +1,77 @@
+"""``lidarfuzz info PATH``: what a frame file, data set folder or log holds, and what is wrong with it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from lidarfuzz.io.inspect import DatasetReport, inspect_source
+
+
+def render(report: DatasetReport) -> None:
+    from lidarfuzz.cli.app import console
+
+    console.print(f"[bold]{report.path}[/]  {report.kind} ({report.format}), {report.frames} frame(s)"
+                  + (f", {report.inspected} inspected" if report.inspected != report.frames else ""))
+    if report.time_span:
+        start, end = report.time_span
+        console.print(f"log: {end - start:.3f} s from t={start:.3f}; poses: {'yes' if report.has_poses else 'no'}")
+    if report.inspected:
+        console.print(f"points per frame: min {report.points_min:,}, max {report.points_max:,}, "
+                      f"mean {report.points_total / report.inspected:,.0f}")
+    if report.channels:
+        table = Table("channel", "min", "max", title="channels")
+        for name, stats in report.channels.items():
+            table.add_row(name, f"{stats.minimum:.4g}", f"{stats.maximum:.4g}")
+        console.print(table)
+    if report.classes:
+        table = Table("class", "objects", title=f"labels ({report.labelled_frames} labelled frame(s))")
+        for name, count in sorted(report.classes.items()):
+            table.add_row(name, str(count))
+        console.print(table)
+    console.print(f"calibrated frames: {report.calibrated_frames}; frames with a drivable-area map: {report.roi_frames}")
+    if report.log:
+        table = Table("topic", "type", "messages", title=f"log topics ({report.log.get('format')})")
+        for topic in report.log.get("topics", []):
+            table.add_row(topic.get("name", ""), topic.get("type", ""), str(topic.get("count", "")))
+        console.print(table)
+    if report.problems:
+        console.print(f"[bold]{len(report.problems)} problem(s):[/]")
+        for problem in report.problems[:50]:
+            colour = "red" if problem.severity == "error" else "yellow"
+            console.print(f"  [{colour}]{problem}[/]", highlight=False)
+        if len(report.problems) > 50:
+            console.print(f"  ... and {len(report.problems) - 50} more (use --json for all)")
+    else:
+        console.print("[green]no problems found[/]")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def info(
+        path: Annotated[Path, typer.Argument(help="A frame file, a data set folder (KITTI layout or frame files), "
+                                             "a ROS1/ROS2 bag or an MCAP file.")],
+        topic: Annotated[str | None, typer.Option(help="PointCloud2 topic of a log (default: the only one).")] = None,
+        limit: Annotated[int | None, typer.Option(min=1, help="Inspect only the first N frames.")] = None,
+        json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report as JSON to this file "
+                                                      "('-' for standard output).")] = None,
+    ) -> None:
+        """Summarise a frame, data set or log: counts, channels and ranges, classes, problems found.
+
+        Exits with code 1 when an error-level problem is found, so scripts can gate on it.
+        """
+        from lidarfuzz.cli.app import console
+
+        report = inspect_source(path, topic=topic, limit=limit)
+        if json_out is not None and str(json_out) == "-":
+            console.print_json(json.dumps(report.as_dict()))
+        else:
+            render(report)
+            if json_out is not None:
+                json_out.write_text(json.dumps(report.as_dict(), indent=2), encoding="utf-8")
+        if report.errors:
+            raise typer.Exit(1)

@@ -1,0 +1,69 @@
+"""Errors a user can act on.
+
+Every problem with user data is raised as a :class:`DataFormatError` that names the
+file, and where known the line and field, and says what was expected. Nothing in
+lidarfuzz lets a raw ``struct``/``numpy`` traceback reach the user for bad input.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+
+class LidarfuzzError(Exception):
+    """Base class of every error lidarfuzz raises on purpose."""
+
+
+class DataFormatError(LidarfuzzError, ValueError):
+    """A data file is malformed or does not match what lidarfuzz expects.
+
+    Args:
+        path: The offending file (or directory).
+        message: What is wrong and what was expected.
+        line: 1-based line number for text formats.
+        field: The field, key or column that is wrong.
+        hint: What the user can do about it.
+
+    Example:
+        >>> str(DataFormatError("calib/000001.txt", "missing key 'P2'", line=None))
+        "calib/000001.txt: missing key 'P2'"
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        message: str,
+        *,
+        line: int | None = None,
+        field: str | None = None,
+        hint: str | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.message = message
+        self.line = line
+        self.field = field
+        self.hint = hint
+        super().__init__(self._render())
+
+    def _render(self) -> str:
+        where = str(self.path)
+        if self.line is not None:
+            where += f":{self.line}"
+        text = f"{where}: "
+        if self.field is not None:
+            text += f"field '{self.field}': "
+        text += self.message
+        if self.hint:
+            text += f" ({self.hint})"
+        return text
+
+
+class MissingDependencyError(LidarfuzzError, ImportError):
+    """An optional dependency is needed; the message names the extra to install."""
+
+    def __init__(self, package: str, extra: str, purpose: str) -> None:
+        super().__init__(
+            f"{purpose} needs the '{package}' package; install it with "
+            f"\"pip install 'lidarfuzz[{extra}]'\""
+        )

@@ -1,0 +1,73 @@
+"""Atomic writes: a temporary file in the destination's folder, fsync, then rename.
+
+A reader never sees a half-written file and an interrupted write leaves nothing
+behind. Writers refuse to replace an existing file unless asked to, so an original
+can never be overwritten by accident.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from os import PathLike
+from pathlib import Path
+
+from lidarfuzz.errors import LidarfuzzError
+
+
+class OutputExistsError(LidarfuzzError, FileExistsError):
+    """The destination exists and overwriting was not requested."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        super().__init__(f"{path}: already exists; choose a new path or pass overwrite=True (--overwrite)")
+
+
+def check_destination(path: str | PathLike[str], overwrite: bool) -> Path:
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputExistsError(path)
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | PathLike[str], *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; on success it is renamed onto ``path``.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.txt"
+        >>> with atomic_path(out) as tmp:
+        ...     _ = tmp.write_text("hello")
+        >>> out.read_text()
+        'hello'
+    """
+    target = check_destination(path, overwrite)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        if tmp.is_file():
+            with open(tmp, "rb+") as handle:
+                os.fsync(handle.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def write_bytes(path: str | PathLike[str], data: bytes | memoryview, *, overwrite: bool = False) -> Path:
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def write_text(path: str | PathLike[str], text: str, *, overwrite: bool = False) -> Path:
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)

@@ -1,0 +1,106 @@
+"""Convert any supported source to any supported destination.
+
+* frame file → frame file (the destination suffix picks the format);
+* anything → folder in KITTI layout (the default for a destination without a suffix);
+* anything → folder of frame files (``to="pcd"``, ``"ply"``, ...);
+* anything → log (``.bag`` for ROS1, ``.mcap``, or ``to="ros2"`` for a ROS2 bag folder).
+
+The source is only read; the destination must be new (or ``overwrite`` given) and may
+not be the source or lie inside it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.common import NonFinitePolicy
+from lidarfuzz.io.frames import FRAME_FORMATS, write_frame
+from lidarfuzz.io.kitti import KittiWriter
+from lidarfuzz.io.open import open_dataset
+from lidarfuzz.scene.scene import Scene
+
+LOG_TARGETS = ("ros1", "ros2", "mcap")
+FOLDER_TARGETS = ("kitti", *(suffix[1:] for suffix in FRAME_FORMATS))
+
+
+@dataclass
+class ConvertResult:
+    destination: Path
+    target: str
+    frames: int
+
+
+def destination_kind(dst: Path, to: str | None) -> str:
+    """What to write: ``kitti``, a frame format name, ``frame:<fmt>``, or a log kind."""
+    if to is not None:
+        to = to.lower()
+        if to not in (*LOG_TARGETS, *FOLDER_TARGETS):
+            raise ValueError(f"unknown target format {to!r}; choose from {', '.join((*FOLDER_TARGETS, *LOG_TARGETS))}")
+        return to
+    suffix = dst.suffix.lower()
+    if suffix == ".bag":
+        return "ros1"
+    if suffix == ".mcap":
+        return "mcap"
+    if suffix in FRAME_FORMATS:
+        return f"frame:{suffix[1:]}"
+    return "kitti"
+
+
+def convert(
+    src: str | PathLike[str],
+    dst: str | PathLike[str],
+    *,
+    to: str | None = None,
+    topic: str | None = None,
+    overwrite: bool = False,
+    nonfinite: NonFinitePolicy = "drop",
+    on_frame: Callable[[int, int], None] | None = None,
+) -> ConvertResult:
+    """Convert ``src`` into ``dst``; ``on_frame(done, total)`` reports progress."""
+    src_path, dst_path = Path(src), Path(dst)
+    src_abs, dst_abs = src_path.resolve(), dst_path.resolve()
+    if dst_abs == src_abs or src_abs in dst_abs.parents:
+        raise DataFormatError(dst_path, "the destination is the source or inside it; originals are never modified")
+    target = destination_kind(dst_path, to)
+    dataset = open_dataset(src_path, topic=topic, nonfinite=nonfinite)
+    total = len(dataset)
+
+    def scenes() -> Iterator[Scene]:
+        for i, scene in enumerate(dataset, start=1):
+            yield scene
+            if on_frame:
+                on_frame(i, total)
+
+    if target.startswith("frame:"):
+        if total != 1:
+            raise DataFormatError(
+                dst_path, f"the source has {total} frames but the destination is a single file",
+                hint="give a folder as destination (KITTI layout by default, or --to pcd/ply/...)",
+            )
+        write_frame(dst_path, next(scenes()), overwrite=overwrite)
+        return ConvertResult(dst_path, target.split(":", 1)[1], 1)
+    if target in LOG_TARGETS:
+        from lidarfuzz.io.logs.bags import write_log
+
+        write_log(dst_path, scenes(), kind=target, overwrite=overwrite)
+        return ConvertResult(dst_path, target, total)
+    if target == "kitti":
+        writer = KittiWriter(dst_path, overwrite=overwrite)
+        for scene in scenes():
+            writer.add(scene)
+        writer.close()
+        return ConvertResult(dst_path, "kitti", total)
+    # A folder of frame files in one format.
+    if dst_path.exists() and any(dst_path.iterdir()) and not overwrite:
+        raise DataFormatError(dst_path, "folder exists and is not empty; choose a new folder or pass --overwrite")
+    suffix = f".{target}"
+    count = 0
+    for scene in scenes():
+        write_frame(dst_path / f"{scene.frame_id or f'{count:06d}'}{suffix}", scene, overwrite=overwrite)
+        count += 1
+    return ConvertResult(dst_path, target, count)

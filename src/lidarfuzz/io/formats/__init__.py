@@ -1,0 +1,1 @@
+"""Single-frame point-cloud file formats (one module per format)."""

@@ -1,0 +1,566 @@
+"""The KITTI object layout: ``velodyne/``, ``label_2/``, ``calib/``, ``image_2/``, ``ImageSets/``.
+
+Layout (``root`` may also contain ``training/`` and ``testing/`` with this inside)::
+
+    root/velodyne/000000.bin        N×4 float32 x, y, z, reflectance
+    root/label_2/000000.txt         one object per line (camera frame; score optional)
+    root/calib/000000.txt           P0–P3, R0_rect, Tr_velo_to_cam, Tr_imu_to_velo
+    root/image_2/000000.png         optional; only its size is read
+    root/ImageSets/{train,val}.txt  optional frame-id lists
+
+lidarfuzz adds side files that plain KITTI tools ignore:
+
+    root/velodyne_extra/000000.npz  point channels beyond x, y, z, intensity (ring, time, ...)
+    root/roi/000000.json            drivable-area polygons (GeoJSON, LiDAR frame)
+    root/timestamps.txt             "<frame_id> <seconds>" per line: the data set is a log
+    root/poses.txt                  "<frame_id> <12 numbers>" per line: 3×4 LiDAR → world
+
+Label lines are ``type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y [score]``
+with ``x y z`` the bottom centre in the rectified camera frame. Unknown values are
+written with KITTI's placeholders (truncation -1, occlusion -1, alpha -10, 2D box
+-1 -1 -1 -1) and read back as unknown (NaN / -1). Numbers are written in Python's
+shortest exact form so files read back bit-for-bit.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.atomic import write_bytes, write_text
+from lidarfuzz.io.common import NonFinitePolicy, Problem
+from lidarfuzz.io.dataset import Dataset, Log
+from lidarfuzz.io.formats import bin as bin_format
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
+from lidarfuzz.scene.roi import RoiMap
+from lidarfuzz.scene.scene import Scene
+
+KITTI_CLASSES: tuple[str, ...] = (
+    "Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc", "DontCare",
+)
+LABEL_FIELDS: tuple[str, ...] = (
+    "type", "truncated", "occluded", "alpha", "bbox_left", "bbox_top", "bbox_right", "bbox_bottom",
+    "height", "width", "length", "x", "y", "z", "rotation_y", "score",
+)
+
+
+# --------------------------------------------------------------------------- labels
+def parse_labels(
+    text: str,
+    calib: KittiCalibration | None,
+    path: str | PathLike[str] = "<labels>",
+    *,
+    classes: Iterable[str] = KITTI_CLASSES,
+) -> Boxes3D:
+    """Parse label (or detection) lines into LiDAR-frame boxes.
+
+    Args:
+        text: The file's text.
+        calib: The frame's calibration (needed to move boxes into the LiDAR frame;
+            may be ``None`` only when there are no objects other than DontCare).
+        path: Shown in error messages.
+        classes: Accepted class names.
+
+    Raises:
+        DataFormatError: Wrong field count, non-numbers, unknown class, negative size,
+            or objects without a calibration — naming the file, line and field.
+    """
+    allowed = set(classes)
+    rows: list[tuple[str, list[float]]] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        tokens = raw.split()
+        if not tokens:
+            continue
+        if len(tokens) not in (15, 16):
+            raise DataFormatError(
+                path, f"expected 15 fields (16 with a score), found {len(tokens)}", line=lineno,
+                hint="format: type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y [score]",
+            )
+        cls = tokens[0]
+        if cls not in allowed:
+            raise DataFormatError(
+                path, f"unknown class {cls!r}; expected one of {', '.join(sorted(allowed))}",
+                line=lineno, field="type",
+            )
+        values: list[float] = []
+        for name, token in zip(LABEL_FIELDS[1:], tokens[1:], strict=False):
+            try:
+                values.append(float(token))
+            except ValueError:
+                raise DataFormatError(path, f"{token!r} is not a number", line=lineno, field=name) from None
+            if not np.isfinite(values[-1]):
+                raise DataFormatError(path, f"{token!r} is not finite", line=lineno, field=name)
+        if cls != "DontCare":
+            for name, value in zip(("height", "width", "length"), values[7:10], strict=True):
+                if value < 0:
+                    raise DataFormatError(path, f"negative size {value}", line=lineno, field=name)
+            occ = values[1]
+            if occ != int(occ) or occ not in (-1, 0, 1, 2, 3):
+                raise DataFormatError(path, f"occlusion must be 0, 1, 2, 3 (or -1), got {occ}", line=lineno,
+                                      field="occluded")
+        rows.append((cls, values))
+
+    n = len(rows)
+    labels = [r[0] for r in rows]
+    v = np.array([r[1][:14] for r in rows], dtype=np.float64).reshape(n, 14)
+    has_score = [len(r[1]) == 15 for r in rows]
+    if any(has_score) and not all(has_score):
+        raise DataFormatError(path, "some lines have a score and some do not", field="score")
+    scores = np.array([r[1][14] for r in rows]) if n and all(has_score) else None
+
+    dontcare = np.array([c == "DontCare" for c in labels], dtype=bool)
+    boxes = np.full((n, 7), np.nan)
+    geometric = ~dontcare
+    if geometric.any():
+        if calib is None:
+            raise DataFormatError(path, "labels need the frame's calib file to be placed in the LiDAR frame")
+        boxes[geometric] = calib.boxes_from_camera(v[geometric, 10:13], v[geometric, 7:10], v[geometric, 13])
+    truncation = np.where(v[:, 0] == -1, np.nan, v[:, 0])
+    occlusion = np.where(dontcare, -1, v[:, 1]).astype(np.int64)
+    alpha = np.where(v[:, 2] == -10, np.nan, v[:, 2])
+    bbox2d = v[:, 3:7].copy()
+    bbox2d[np.all(bbox2d == -1, axis=1)] = np.nan
+    return Boxes3D.from_array(
+        boxes, labels, scores=scores, truncation=truncation, occlusion=occlusion, alpha=alpha, bbox2d=bbox2d
+    )
+
+
+def _num(value: float) -> str:
+    return repr(float(value))
+
+
+def format_labels(boxes: Boxes3D, calib: KittiCalibration | None, *, complete: bool = False) -> str:
+    """KITTI label lines for ``boxes`` (a score column when every box has a score).
+
+    Args:
+        boxes: LiDAR-frame boxes.
+        calib: Needed for boxes with geometry.
+        complete: Fill unknown ``alpha`` and 2D boxes by projection through ``calib``
+            (as OpenPCDet does for LiDAR-only detections).
+    """
+    n = len(boxes)
+    if n == 0:
+        return ""
+    geometric = boxes.has_geometry
+    if geometric.any() and calib is None:
+        raise ValueError("writing labels of 3D boxes needs a calibration")
+    arr = boxes.as_array()
+    loc = np.full((n, 3), -1000.0)
+    hwl = np.full((n, 3), -1.0)
+    ry = np.full(n, -10.0)
+    alpha = boxes.alpha.copy()
+    bbox2d = boxes.bbox2d.copy()
+    if geometric.any():
+        assert calib is not None
+        loc[geometric], hwl[geometric], ry[geometric] = calib.boxes_to_camera(arr[geometric])
+        if complete:
+            fill_alpha = geometric & np.isnan(alpha)
+            alpha[fill_alpha] = calib.alpha(arr[fill_alpha])
+            fill_box = geometric & np.isnan(bbox2d).any(axis=1)
+            bbox2d[fill_box] = calib.boxes_to_image(arr[fill_box])
+    alpha = np.where(np.isnan(alpha), -10.0, alpha)
+    bbox2d = np.where(np.isnan(bbox2d).any(axis=1, keepdims=True), -1.0, bbox2d)
+    truncation = np.where(np.isnan(boxes.truncation), -1.0, boxes.truncation)
+    with_score = bool(np.all(np.isfinite(boxes.scores)))
+    lines = []
+    for i in range(n):
+        fields = [
+            str(boxes.labels[i]), _num(truncation[i]), str(int(boxes.occlusion[i])), _num(alpha[i]),
+            *(_num(x) for x in bbox2d[i]), *(_num(x) for x in hwl[i]), *(_num(x) for x in loc[i]), _num(ry[i]),
+        ]
+        if with_score:
+            fields.append(_num(boxes.scores[i]))
+        lines.append(" ".join(fields))
+    return "\n".join(lines) + "\n"
+
+
+def read_label_file(path: str | PathLike[str], calib: KittiCalibration | None, **kwargs: object) -> Boxes3D:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise DataFormatError(path, "not a text file (expected KITTI label lines)") from None
+    return parse_labels(text, calib, path, **kwargs)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- small side files
+def png_size(path: Path) -> tuple[int, int] | None:
+    """(height, width) from a PNG header, without decoding the image; None if not a PNG."""
+    with open(path, "rb") as handle:
+        head = handle.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    return height, width
+
+
+def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
+    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt)."""
+    out: dict[str, NDArray[np.float64]] = {}
+    for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        tokens = raw.split()
+        if not tokens:
+            continue
+        if len(tokens) != width + 1:
+            raise DataFormatError(path, f"expected a frame id and {width} number(s), found {len(tokens)} fields",
+                                  line=lineno)
+        try:
+            values = np.array([float(t) for t in tokens[1:]])
+        except ValueError:
+            raise DataFormatError(path, "not a number", line=lineno) from None
+        if tokens[0] in out:
+            raise DataFormatError(path, f"duplicate frame id {tokens[0]!r}", line=lineno)
+        out[tokens[0]] = values
+    return out
+
+
+# --------------------------------------------------------------------------- data set
+def find_kitti_root(path: str | PathLike[str], split: str = "training") -> Path | None:
+    """The folder holding ``velodyne/`` (``path`` itself or ``path/<split>``), if any."""
+    path = Path(path)
+    if (path / "velodyne").is_dir():
+        return path
+    if (path / split / "velodyne").is_dir():
+        return path / split
+    return None
+
+
+class KittiDataset(Dataset[Scene]):
+    """A KITTI object data set (or a lidarfuzz data set in KITTI layout).
+
+    Args:
+        path: The root (holding ``velodyne/``) or a folder with ``training/``.
+        split: ``training`` or ``testing`` when ``path`` holds both.
+        subset: Name of an ``ImageSets/<subset>.txt`` list restricting the frames.
+        strict: Raise on structural problems (labels without frames, frames without
+            labels, duplicate ids, ...); when False they are only recorded in
+            :meth:`problems` (this is what ``lidarfuzz info`` does).
+        nonfinite: Policy for NaN/Inf coordinates (see :mod:`lidarfuzz.io.common`).
+        classes: Class names accepted in label files.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        split: str = "training",
+        subset: str | None = None,
+        strict: bool = True,
+        nonfinite: NonFinitePolicy = "drop",
+        classes: Iterable[str] = KITTI_CLASSES,
+    ) -> None:
+        root = find_kitti_root(path, split)
+        if root is None:
+            raise DataFormatError(path, "not a KITTI layout: no velodyne/ folder here or under training/")
+        super().__init__(root, name=Path(path).resolve().name)
+        self.root = root
+        self.nonfinite: NonFinitePolicy = nonfinite
+        self.classes = tuple(classes)
+        self.subset = subset
+        self._scan(Path(path), subset)
+        errors = [p for p in self._problems if p.severity == "error"]
+        if strict and errors:
+            more = f" (and {len(errors) - 1} more problem(s); run 'lidarfuzz info' to list them)" if len(errors) > 1 else ""
+            first = errors[0]
+            raise DataFormatError(first.path, first.message + more, line=first.line)
+
+    @property
+    def format(self) -> str:
+        return "kitti"
+
+    def _problem(self, severity: str, path: Path | str, message: str, line: int | None = None) -> None:
+        self._problems.append(Problem(severity, str(path), message, line))  # type: ignore[arg-type]
+
+    def _scan(self, given: Path, subset: str | None) -> None:
+        root = self.root
+        velodyne = root / "velodyne"
+        frames = sorted(p.stem for p in velodyne.glob("*.bin"))
+        others = sorted(p.name for p in velodyne.iterdir() if p.is_file() and p.suffix != ".bin")
+        if others:
+            self._problem("warning", velodyne, f"{len(others)} file(s) that are not .bin ignored, e.g. {others[0]}")
+        self._has_labels = (root / "label_2").is_dir()
+        self._has_calib = (root / "calib").is_dir()
+        frame_set = set(frames)
+        if self._has_labels:
+            labels = {p.stem for p in (root / "label_2").glob("*.txt")}
+            for stem in sorted(labels - frame_set):
+                self._problem("error", root / "label_2" / f"{stem}.txt", "label file without a point-cloud frame")
+            for stem in sorted(frame_set - labels):
+                self._problem("error", velodyne / f"{stem}.bin", "frame without a label file in label_2/")
+            if not self._has_calib and labels:
+                self._problem("error", root, "label_2/ present but no calib/ folder: labels cannot be placed")
+        if self._has_calib:
+            calibs = {p.stem for p in (root / "calib").glob("*.txt")}
+            for stem in sorted(frame_set - calibs):
+                self._problem("error" if self._has_labels else "warning",
+                              velodyne / f"{stem}.bin", "frame without a calib file in calib/")
+
+        if subset is not None:
+            candidates = [root / "ImageSets" / f"{subset}.txt", given / "ImageSets" / f"{subset}.txt"]
+            listing = next((c for c in candidates if c.is_file()), None)
+            if listing is None:
+                raise DataFormatError(candidates[0], f"no ImageSets list named {subset!r}")
+            chosen: list[str] = []
+            seen: dict[str, int] = {}
+            for lineno, raw in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+                frame_id = raw.strip()
+                if not frame_id:
+                    continue
+                if frame_id in seen:
+                    self._problem("error", listing, f"duplicate frame id {frame_id!r} (first on line {seen[frame_id]})",
+                                  lineno)
+                    continue
+                seen[frame_id] = lineno
+                if frame_id not in frame_set:
+                    self._problem("error", listing, f"frame id {frame_id!r} has no velodyne/{frame_id}.bin", lineno)
+                    continue
+                chosen.append(frame_id)
+            frames = chosen
+        self._frames = frames
+        self._frame_set = set(frames)
+
+        self._timestamps: dict[str, NDArray[np.float64]] | None = None
+        self._poses: dict[str, NDArray[np.float64]] | None = None
+        for name, width, attr in (("timestamps.txt", 1, "_timestamps"), ("poses.txt", 12, "_poses")):
+            side = root / name
+            if side.is_file():
+                try:
+                    values = _read_keyed_lines(side, width)
+                except DataFormatError as exc:
+                    self._problem("error", exc.path, exc.message, exc.line)
+                    continue
+                missing = [f for f in frames if f not in values]
+                if missing:
+                    self._problem("error", side, f"no entry for {len(missing)} frame(s), e.g. {missing[0]!r}")
+                setattr(self, attr, values)
+
+    # -- Dataset API ------------------------------------------------------------------
+    def frame_ids(self) -> Sequence[str]:
+        return self._frames
+
+    def _id_set(self) -> set[str]:
+        return self._frame_set
+
+    def points_path(self, frame_id: str) -> Path:
+        return self.root / "velodyne" / f"{frame_id}.bin"
+
+    def label_path(self, frame_id: str) -> Path:
+        return self.root / "label_2" / f"{frame_id}.txt"
+
+    def calib_path(self, frame_id: str) -> Path:
+        return self.root / "calib" / f"{frame_id}.txt"
+
+    def load_calib(self, frame_id: str) -> KittiCalibration | None:
+        path = self.calib_path(frame_id)
+        if not path.is_file():
+            return None
+        calib = KittiCalibration.from_file(path)
+        image = self.root / "image_2" / f"{frame_id}.png"
+        if image.is_file():
+            shape = png_size(image)
+            if shape is not None:
+                calib = KittiCalibration.from_mapping(
+                    {k: getattr(calib, k) for k in ("P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam",
+                                                     "Tr_imu_to_velo")},
+                    image_shape=shape,
+                )
+        return calib
+
+    def load_labels(self, frame_id: str, calib: KittiCalibration | None = None) -> Boxes3D:
+        path = self.label_path(frame_id)
+        if not path.is_file():
+            return Boxes3D.empty()
+        if calib is None:
+            calib = self.load_calib(frame_id)
+        return read_label_file(path, calib, classes=self.classes)
+
+    def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
+        cloud, dropped = bin_format.read_points(self.points_path(frame_id), nonfinite=self.nonfinite)
+        extra = self.root / "velodyne_extra" / f"{frame_id}.npz"
+        if extra.is_file():
+            cloud = _attach_extra(cloud, extra, dropped)
+        return cloud, dropped
+
+    def load(self, frame_id: str) -> Scene:
+        if frame_id not in self._frame_set:
+            raise KeyError(f"{self.root}: no frame with id {frame_id!r}")
+        cloud, dropped = self.load_points(frame_id)
+        calib = self.load_calib(frame_id)
+        boxes = self.load_labels(frame_id, calib) if self._has_labels else Boxes3D.empty()
+        roi_path = self.root / "roi" / f"{frame_id}.json"
+        roi = None
+        if roi_path.is_file():
+            try:
+                roi = RoiMap.from_geojson(roi_path.read_text(encoding="utf-8"))
+            except (ValueError, TypeError, KeyError, AttributeError) as exc:
+                raise DataFormatError(roi_path, f"not a GeoJSON Polygon/MultiPolygon: {exc}") from None
+        timestamp = float(self._timestamps[frame_id][0]) if self._timestamps and frame_id in self._timestamps else None
+        pose = None
+        if self._poses and frame_id in self._poses:
+            pose = np.eye(4)
+            pose[:3, :] = self._poses[frame_id].reshape(3, 4)
+        meta: dict[str, object] = {"source": str(self.points_path(frame_id)), "format": "kitti"}
+        if dropped:
+            meta["dropped_nonfinite"] = dropped
+        return Scene(cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose, roi=roi, metadata=meta)
+
+
+def _attach_extra(cloud: PointCloud, path: Path, dropped: int) -> PointCloud:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            columns = {name: archive[name] for name in archive.files}
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(path, f"cannot read extra channels: {exc}") from None
+    if dropped:
+        raise DataFormatError(path, "extra channels cannot be matched to a scan whose NaN points were dropped",
+                              hint="read with nonfinite='reject' to find the bad points")
+    for name, values in columns.items():
+        if values.shape != (len(cloud),):
+            raise DataFormatError(path, f"has {values.shape[0] if values.ndim else 0} values but the scan has "
+                                  f"{len(cloud)} points", field=name)
+        cloud = cloud.with_channel(name, values)
+    return cloud
+
+
+class KittiLog(KittiDataset, Log[Scene]):
+    """A KITTI-layout data set with ``timestamps.txt``: frames ordered by time, with poses if present."""
+
+    def __init__(self, path: str | PathLike[str], **kwargs: object) -> None:
+        super().__init__(path, **kwargs)  # type: ignore[arg-type]
+        if self._timestamps is None:
+            raise DataFormatError(self.root / "timestamps.txt", "a log needs timestamps.txt")
+        self._frames = sorted(self._frames, key=lambda f: (self._stamp(f), f))
+
+    def _stamp(self, frame_id: str) -> float:
+        assert self._timestamps is not None
+        return float(self._timestamps[frame_id][0]) if frame_id in self._timestamps else float("inf")
+
+    def timestamps(self) -> NDArray[np.float64]:
+        return np.array([self._stamp(f) for f in self._frames])
+
+    def poses(self) -> NDArray[np.float64] | None:
+        if self._poses is None:
+            return None
+        out = np.tile(np.eye(4), (len(self._frames), 1, 1))
+        for i, frame_id in enumerate(self._frames):
+            if frame_id in self._poses:
+                out[i, :3, :] = self._poses[frame_id].reshape(3, 4)
+        return out
+
+
+def open_kitti(path: str | PathLike[str], **kwargs: object) -> KittiDataset:
+    """A :class:`KittiLog` when the layout has ``timestamps.txt``, else a :class:`KittiDataset`."""
+    root = find_kitti_root(path, str(kwargs.get("split", "training")))
+    if root is not None and (root / "timestamps.txt").is_file():
+        return KittiLog(path, **kwargs)
+    return KittiDataset(path, **kwargs)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- writer
+class KittiWriter:
+    """Writes scenes into a new KITTI-layout folder, each file atomically.
+
+    The folder must not exist or be empty (unless ``overwrite``), so an existing data
+    set is never modified. Log side files and ImageSets are written by :meth:`close`.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "ds"
+        >>> with KittiWriter(out) as writer:
+        ...     writer.add(Scene(PointCloud(np.zeros((1, 4))), frame_id="000000"))
+        >>> sorted(p.name for p in out.iterdir())
+        ['velodyne']
+    """
+
+    def __init__(self, root: str | PathLike[str], *, overwrite: bool = False, complete_labels: bool = True) -> None:
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise DataFormatError(self.root, "exists and is not a folder")
+        if self.root.is_dir() and any(self.root.iterdir()) and not overwrite:
+            raise DataFormatError(self.root, "folder exists and is not empty; choose a new folder or pass --overwrite")
+        self.overwrite = overwrite
+        self.complete_labels = complete_labels
+        self._ids: list[str] = []
+        self._timestamps: dict[str, float] = {}
+        self._poses: dict[str, NDArray[np.float64]] = {}
+        self._labelled = False
+
+    def __enter__(self) -> KittiWriter:
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+
+    def add(self, scene: Scene, frame_id: str | None = None) -> str:
+        """Write one scene; returns its frame id (``scene.frame_id`` or the next index)."""
+        frame_id = frame_id or scene.frame_id or f"{len(self._ids):06d}"
+        if frame_id in self._ids:
+            raise ValueError(f"duplicate frame id {frame_id!r}")
+        if any(sep in frame_id for sep in "/\\") or frame_id in (".", ".."):
+            raise ValueError(f"frame id {frame_id!r} is not a valid file name")
+        ow = self.overwrite
+        bin_format.write_points(self.root / "velodyne" / f"{frame_id}.bin", scene.points, overwrite=ow)
+        extra = [c for c in scene.points.channels if c not in STANDARD_CHANNELS]
+        if extra:
+            import io
+
+            buffer = io.BytesIO()
+            np.savez(buffer, **{c: np.asarray(scene.points.channel(c)) for c in extra})
+            write_bytes(self.root / "velodyne_extra" / f"{frame_id}.npz", buffer.getvalue(), overwrite=ow)
+        if scene.calib is not None:
+            write_text(self.root / "calib" / f"{frame_id}.txt", scene.calib.to_text(), overwrite=ow)
+        if len(scene.boxes) or self._labelled:
+            self._labelled = True
+            text = format_labels(scene.boxes, scene.calib, complete=self.complete_labels)
+            write_text(self.root / "label_2" / f"{frame_id}.txt", text, overwrite=ow)
+        if scene.roi is not None:
+            write_text(self.root / "roi" / f"{frame_id}.json", json.dumps(scene.roi.to_geojson()), overwrite=ow)
+        if scene.timestamp is not None:
+            self._timestamps[frame_id] = scene.timestamp
+        if scene.pose is not None:
+            self._poses[frame_id] = np.asarray(scene.pose)[:3, :].ravel()
+        self._ids.append(frame_id)
+        return frame_id
+
+    def close(self, image_sets: dict[str, Sequence[str]] | None = None) -> None:
+        """Write frames' labels consistently, the log side files and ImageSets lists."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        ow = self.overwrite
+        if self._labelled:
+            # A labelled data set has a label file for every frame (possibly empty).
+            for frame_id in self._ids:
+                path = self.root / "label_2" / f"{frame_id}.txt"
+                if not path.exists():
+                    write_text(path, "", overwrite=ow)
+        if self._timestamps:
+            lines = [f"{f} {_num(self._timestamps[f])}" for f in self._ids if f in self._timestamps]
+            write_text(self.root / "timestamps.txt", "\n".join(lines) + "\n", overwrite=ow)
+        if self._poses:
+            lines = [f"{f} " + " ".join(_num(v) for v in self._poses[f]) for f in self._ids if f in self._poses]
+            write_text(self.root / "poses.txt", "\n".join(lines) + "\n", overwrite=ow)
+        for name, ids in (image_sets or {}).items():
+            write_text(self.root / "ImageSets" / f"{name}.txt", "".join(f"{i}\n" for i in ids), overwrite=ow)
+
+
+def write_kitti(
+    root: str | PathLike[str],
+    scenes: Iterable[Scene],
+    *,
+    overwrite: bool = False,
+    image_sets: dict[str, Sequence[str]] | None = None,
+) -> Path:
+    """Write scenes as a KITTI-layout data set in a new folder; returns the folder."""
+    writer = KittiWriter(root, overwrite=overwrite)
+    for scene in scenes:
+        writer.add(scene)
+    writer.close(image_sets)
+    return writer.root
