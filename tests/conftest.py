@@ -1,3 +1,4 @@
+# ruff: noqa: E501
 """Shared fixtures: a small labelled log from the sample world, KITTI calib text."""
 
 from __future__ import annotations

@@ -37,18 +37,18 @@ def test_label_geometry_hand_worked(calib):
     assert (length, width, height) == (1.20, 0.48, 1.89)
     # LiDAR centre: the bottom centre lifted by h/2 along LiDAR z.
     bottom = calib.rect_to_lidar([[1.84, 1.47, 8.41]])[0]
-    np.testing.assert_allclose([x, y, z], bottom + [0, 0, 1.89 / 2], atol=1e-12)
+    np.testing.assert_allclose([x, y, z], bottom + np.array([0, 0, 1.89 / 2]), atol=1e-12)
     assert x == pytest.approx(8.68, abs=0.05) and y == pytest.approx(-1.85, abs=0.05)
     assert yaw == pytest.approx(-0.01 - np.pi / 2)
     # Devkit alpha = -arctan2(-y, x) + ry reproduces the annotated -0.20.
     assert calib.alpha(boxes.as_array())[0] == pytest.approx(-0.20, abs=0.01)
     # The 2D box is the extent of the 8 corners built in the camera frame, as the devkit does:
-    h, w, l, ry = 1.89, 0.48, 1.20, 0.01
-    xc = np.array([l, l, -l, -l, l, l, -l, -l]) / 2
+    h, w, length, ry = 1.89, 0.48, 1.20, 0.01
+    xc = np.array([length, length, -length, -length] * 2) / 2
     yc = np.array([0, 0, 0, 0, -h, -h, -h, -h])
     zc = np.array([w, -w, -w, w, w, -w, -w, w]) / 2
     rot = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
-    corners = (rot @ np.stack([xc, yc, zc])).T + [1.84, 1.47, 8.41]
+    corners = (rot @ np.stack([xc, yc, zc])).T + np.array([1.84, 1.47, 8.41])
     projected = np.c_[corners, np.ones(8)] @ calib.P2.T
     uv = projected[:, :2] / projected[:, 2:]
     expected = [uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()]
@@ -78,7 +78,8 @@ def test_2d_box_is_clipped_to_the_image():
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("P2: 1 2 3\nR0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 0 0 0 0 0 0 0 0 0 0 0\n", r":1: field 'P2': expected 12"),
+        ("P2: 1 2 3\nR0_rect: 1 0 0 0 1 0 0 0 1\nTr_velo_to_cam: 0 0 0 0 0 0 0 0 0 0 0 0\n",
+         r":1: field 'P2': expected 12"),
         ("P2: 1 2 3 4 5 6 7 8 9 10 11 12\nTr_velo_to_cam: 0 0 0 0 0 0 0 0 0 0 0 0\n", "missing key R0_rect"),
         ("P2: 1 2 3 4 5 6 7 8 9 1O 11 12\n", r":1: field 'P2': value '1O' is not a number"),
         ("P2: 1 2 3 4 5 6 7 8 9 10 11 12\nP2: 1 2 3 4 5 6 7 8 9 10 11 12\n", "key appears twice"),

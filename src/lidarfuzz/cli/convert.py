@@ -27,6 +27,9 @@ def register(app: typer.Typer) -> None:
         """Convert between formats; the source is never modified and the destination is written atomically."""
         from lidarfuzz.cli.app import console
 
+        if to is not None and to.lower() not in (*FOLDER_TARGETS, *LOG_TARGETS):
+            raise typer.BadParameter(f"{to!r} is not one of {', '.join((*FOLDER_TARGETS, *LOG_TARGETS))}",
+                                     param_hint="--to")
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task("converting", total=None)
 

@@ -15,8 +15,13 @@ from lidarfuzz.io.inspect import DatasetReport, inspect_source
 def render(report: DatasetReport) -> None:
     from lidarfuzz.cli.app import console
 
+    status = []
+    if report.unreadable:
+        status.append(f"{report.unreadable} unreadable")
+    if report.inspected + report.unreadable < report.frames:
+        status.append(f"{report.inspected + report.unreadable} inspected")
     console.print(f"[bold]{report.path}[/]  {report.kind} ({report.format}), {report.frames} frame(s)"
-                  + (f", {report.inspected} inspected" if report.inspected != report.frames else ""))
+                  + (f" ({', '.join(status)})" if status else ""), soft_wrap=True)
     if report.time_span:
         start, end = report.time_span
         console.print(f"log: {end - start:.3f} s from t={start:.3f}; poses: {'yes' if report.has_poses else 'no'}")
@@ -33,7 +38,8 @@ def render(report: DatasetReport) -> None:
         for name, count in sorted(report.classes.items()):
             table.add_row(name, str(count))
         console.print(table)
-    console.print(f"calibrated frames: {report.calibrated_frames}; frames with a drivable-area map: {report.roi_frames}")
+    console.print(f"calibrated frames: {report.calibrated_frames}; "
+                  f"frames with a drivable-area map: {report.roi_frames}")
     if report.log:
         table = Table("topic", "type", "messages", title=f"log topics ({report.log.get('format')})")
         for topic in report.log.get("topics", []):
@@ -43,7 +49,7 @@ def render(report: DatasetReport) -> None:
         console.print(f"[bold]{len(report.problems)} problem(s):[/]")
         for problem in report.problems[:50]:
             colour = "red" if problem.severity == "error" else "yellow"
-            console.print(f"  [{colour}]{problem}[/]", highlight=False)
+            console.print(f"  [{colour}]{problem}[/]", highlight=False, soft_wrap=True)
         if len(report.problems) > 50:
             console.print(f"  ... and {len(report.problems) - 50} more (use --json for all)")
     else:

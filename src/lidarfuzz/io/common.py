@@ -73,7 +73,7 @@ def map_field_names(names: list[str]) -> dict[str, str]:
     for name in names:
         if name in mapping:
             continue
-        clean = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in name.lower()) or "field"
+        clean = "".join(ch if (ch.isascii() and ch.isalnum()) or ch == "_" else "_" for ch in name.lower()) or "field"
         if clean[0].isdigit():
             clean = "f_" + clean
         while clean in taken:

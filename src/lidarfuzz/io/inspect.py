@@ -42,6 +42,7 @@ class DatasetReport:
     format: str
     frames: int
     inspected: int = 0
+    unreadable: int = 0
     ordered: bool = False
     time_span: tuple[float, float] | None = None
     has_poses: bool = False
@@ -68,6 +69,7 @@ class DatasetReport:
             "format": self.format,
             "frames": self.frames,
             "inspected": self.inspected,
+            "unreadable": self.unreadable,
             "ordered": self.ordered,
             "time_span": list(self.time_span) if self.time_span else None,
             "has_poses": self.has_poses,
@@ -122,6 +124,7 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
                 scene = dataset.load(frame_id)
         except DataFormatError as exc:
             report.problems.append(Problem("error", str(exc.path), exc.message, exc.line))
+            report.unreadable += 1
             continue
         report.inspected += 1
         n = len(scene.points)

@@ -12,6 +12,7 @@ lidarfuzz adds side files that plain KITTI tools ignore:
 
     root/velodyne_extra/000000.npz  point channels beyond x, y, z, intensity (ring, time, ...)
     root/roi/000000.json            drivable-area polygons (GeoJSON, LiDAR frame)
+    root/label_2_extra/000000.json  per-object fields KITTI labels lack ({"track_ids": [...]})
     root/timestamps.txt             "<frame_id> <seconds>" per line: the data set is a log
     root/poses.txt                  "<frame_id> <12 numbers>" per line: 3×4 LiDAR → world
 
@@ -268,7 +269,9 @@ class KittiDataset(Dataset[Scene]):
         self._scan(Path(path), subset)
         errors = [p for p in self._problems if p.severity == "error"]
         if strict and errors:
-            more = f" (and {len(errors) - 1} more problem(s); run 'lidarfuzz info' to list them)" if len(errors) > 1 else ""
+            more = ""
+            if len(errors) > 1:
+                more = f" (and {len(errors) - 1} more problem(s); run 'lidarfuzz info' to list them)"
             first = errors[0]
             raise DataFormatError(first.path, first.message + more, line=first.line)
 
@@ -380,7 +383,16 @@ class KittiDataset(Dataset[Scene]):
             return Boxes3D.empty()
         if calib is None:
             calib = self.load_calib(frame_id)
-        return read_label_file(path, calib, classes=self.classes)
+        boxes = read_label_file(path, calib, classes=self.classes)
+        extra = self.root / "label_2_extra" / f"{frame_id}.json"
+        if extra.is_file():
+            try:
+                track_ids = json.loads(extra.read_text(encoding="utf-8")).get("track_ids")
+                if track_ids is not None:
+                    boxes = boxes.replace(track_ids=track_ids)
+            except (ValueError, AttributeError) as exc:
+                raise DataFormatError(extra, f"expected {{\"track_ids\": [one per label line]}}: {exc}") from None
+        return boxes
 
     def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
         cloud, dropped = bin_format.read_points(self.points_path(frame_id), nonfinite=self.nonfinite)
@@ -522,6 +534,9 @@ class KittiWriter:
             self._labelled = True
             text = format_labels(scene.boxes, scene.calib, complete=self.complete_labels)
             write_text(self.root / "label_2" / f"{frame_id}.txt", text, overwrite=ow)
+            if np.any(scene.boxes.track_ids >= 0):
+                extra_text = json.dumps({"track_ids": scene.boxes.track_ids.tolist()})
+                write_text(self.root / "label_2_extra" / f"{frame_id}.json", extra_text, overwrite=ow)
         if scene.roi is not None:
             write_text(self.root / "roi" / f"{frame_id}.json", json.dumps(scene.roi.to_geojson()), overwrite=ow)
         if scene.timestamp is not None:

@@ -102,7 +102,9 @@ class KittiCalibration:
         )
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, ArrayLike], image_shape: tuple[int, int] = KITTI_IMAGE_SHAPE) -> KittiCalibration:
+    def from_mapping(
+        cls, values: Mapping[str, ArrayLike], image_shape: tuple[int, int] = KITTI_IMAGE_SHAPE
+    ) -> KittiCalibration:
         kwargs = {}
         for key, rows, cols in CALIB_KEYS:
             if key in values and values[key] is not None:
@@ -237,9 +239,9 @@ class KittiCalibration:
     def camera_box_corners(location: ArrayLike, dims_hwl: ArrayLike, rotation_y: ArrayLike) -> NDArray[np.float64]:
         """M×8×3 corners of KITTI label boxes in the rectified camera frame (upright along camera y)."""
         loc = np.asarray(location, dtype=np.float64).reshape(-1, 3)
-        h, w, l = np.asarray(dims_hwl, dtype=np.float64).reshape(-1, 3).T
+        h, w, length = np.asarray(dims_hwl, dtype=np.float64).reshape(-1, 3).T
         ry = np.asarray(rotation_y, dtype=np.float64).reshape(-1)
-        x = np.stack([l, l, -l, -l, l, l, -l, -l], axis=1) / 2.0
+        x = np.stack([length, length, -length, -length] * 2, axis=1) / 2.0
         y = np.stack([np.zeros_like(h)] * 4 + [-h] * 4, axis=1)
         z = np.stack([w, -w, -w, w, w, -w, -w, w], axis=1) / 2.0
         c, s = np.cos(ry)[:, None], np.sin(ry)[:, None]

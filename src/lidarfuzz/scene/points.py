@@ -74,7 +74,7 @@ class PointCloud:
         [0.0, 1.0, 2.0]
     """
 
-    __slots__ = ("_data", "_channels")
+    __slots__ = ("_channels", "_data")
 
     def __init__(self, data: ArrayLike, channels: Sequence[str] = STANDARD_CHANNELS) -> None:
         names = _check_channels(channels)

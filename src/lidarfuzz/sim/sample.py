@@ -125,7 +125,7 @@ def sample_scene(seed: int, frame_index: int = 0, n_cars: int = 6, ego_speed: fl
     pose[0, 3] = ego_x
     pose[2, 3] = MOUNT_HEIGHT
     return Scene(
-        cloud, boxes, calib, frame_id=f"{frame_index:06d}", timestamp=frame_index * SWEEP_SECONDS, pose=pose,
+        cloud, boxes, calib, frame_id=f"{frame_index:06d}", timestamp=round(frame_index * SWEEP_SECONDS, 9), pose=pose,
         roi=road.transformed(np.linalg.inv(pose)),
         metadata={"generator": "lidarfuzz.sim.sample", "seed": seed, "points_per_object": visible[labelled].tolist()},
     )

@@ -44,7 +44,7 @@ def read_points(path: str | PathLike[str], *, nonfinite: NonFinitePolicy = "drop
 
 def read(path: str | PathLike[str], *, nonfinite: NonFinitePolicy = "drop") -> Scene:
     cloud, dropped = read_points(path, nonfinite=nonfinite)
-    meta = {"source": str(path), "format": "bin"}
+    meta: dict[str, object] = {"source": str(path), "format": "bin"}
     if dropped:
         meta["dropped_nonfinite"] = dropped
     return Scene(cloud, frame_id=Path(path).stem, metadata=meta)

@@ -1,4 +1,4 @@
-"""PCD, the Point Cloud Library's format: a text header, then ``ascii``, ``binary`` or ``binary_compressed`` data.
+"""PCD, the Point Cloud Library's format: a text header, then ascii, binary or binary_compressed data.
 
 The header (plain text lines up to ``DATA``) is parsed and validated here, so that a
 malformed or lying header is reported with the file, line and field instead of a
@@ -13,6 +13,8 @@ Reading:
   24 bits and ``F8`` fields are rounded to float32;
 * a field with ``COUNT`` k > 1 becomes channels ``name_0`` … ``name_{k-1}``;
   padding fields named ``_`` are skipped;
+* PCL's packed colour (a 4-byte ``rgb``/``rgba`` field) becomes ``red, green, blue``
+  (and ``alpha`` for ``rgba``) channels of 0…255 — as a float it is often NaN;
 * an organised cloud (``HEIGHT`` > 1) is flattened row by row;
 * a non-identity ``VIEWPOINT`` is kept in ``metadata["viewpoint"]``.
 
@@ -30,9 +32,9 @@ import struct
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
-import lzf  # pypcd4's own LZF binding (a dependency of pypcd4)
+import lzf  # type: ignore[import-not-found]  # pypcd4's own LZF binding (a dependency of pypcd4)
 import numpy as np
 import pypcd4
 from numpy.typing import NDArray
@@ -63,8 +65,10 @@ FIELD_TYPES: dict[tuple[str, int], type[np.generic]] = {
     ("U", 4): np.uint32,
     ("U", 8): np.uint64,
 }
-DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+DEFAULT_VIEWPOINT: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 PADDING_FIELD = "_"
+#: Fields holding PCL's packed 0xAARRGGBB colour, read as ``red, green, blue`` (and ``alpha``).
+PACKED_COLOUR = ("rgb", "rgba")
 _MAX_HEADER_LINE = 65536
 
 
@@ -137,7 +141,9 @@ def parse_header(data: bytes, path: str | PathLike[str] = "<pcd>") -> PcdHeader:
         upper = key.upper()
         if upper not in HEADER_KEYS:
             raise DataFormatError(
-                path, f"unknown header key {key!r}; a PCD header has lines {', '.join(HEADER_KEYS)}", line=lineno
+                path,
+                f"unknown header key {key!r}; a PCD header has lines {', '.join(HEADER_KEYS)}",
+                line=lineno,
             )
         if upper in found:
             raise DataFormatError(path, f"header key {upper} appears twice", line=lineno)
@@ -200,23 +206,25 @@ def parse_header(data: bytes, path: str | PathLike[str] = "<pcd>") -> PcdHeader:
             line=found["POINTS"][0],
         )
 
-    viewpoint = DEFAULT_VIEWPOINT
+    viewpoint: tuple[float, ...] = DEFAULT_VIEWPOINT
     if "VIEWPOINT" in found:
-        line, tokens = found["VIEWPOINT"]
+        key_line, tokens = found["VIEWPOINT"]
         try:
             viewpoint = tuple(float(t) for t in tokens)
         except ValueError:
             viewpoint = ()
         if len(viewpoint) != 7:
             raise DataFormatError(
-                path, f"VIEWPOINT needs 7 numbers (tx ty tz qw qx qy qz), got {' '.join(tokens)!r}", line=line
+                path, f"VIEWPOINT needs 7 numbers (tx ty tz qw qx qy qz), got {' '.join(tokens)!r}", line=key_line
             )
 
-    line, tokens = found["DATA"]
+    key_line, tokens = found["DATA"]
     encoding = tokens[0].lower() if len(tokens) == 1 else " ".join(tokens)
     if encoding not in ENCODINGS:
         raise DataFormatError(
-            path, f"unknown DATA encoding {encoding!r}; expected ascii, binary or binary_compressed", line=line
+            path,
+            f"unknown DATA encoding {encoding!r}; expected ascii, binary or binary_compressed",
+            line=key_line,
         )
     return PcdHeader(
         fields=fields,
@@ -255,7 +263,8 @@ def _decode_binary(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.voi
             raise DataFormatError(
                 path,
                 f"header claims {header.points} points ({need} bytes at {header.point_size} bytes per point) "
-                f"but the binary data section holds {len(body)} bytes ({len(body) // header.point_size} points)",
+                f"but the binary data section holds {len(body)} bytes "
+                f"({len(body) // header.point_size} points)",
                 hint="the file is truncated or its POINTS/WIDTH/HEIGHT are wrong",
             )
     else:
@@ -296,9 +305,7 @@ def _decode_binary(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.voi
         raise DataFormatError(path, f"cannot decode the {header.encoding} data: {exc}") from exc
     records: NDArray[np.void] = cloud.pc_data
     if records.shape != (header.points,):
-        raise DataFormatError(
-            path, f"header claims {header.points} points but the data holds {records.shape[0]}"
-        )
+        raise DataFormatError(path, f"header claims {header.points} points but the data holds {records.shape[0]}")
     return records
 
 
@@ -330,32 +337,67 @@ def _decode_ascii(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.floa
     return values
 
 
+def _unpack_colour(values: NDArray[np.generic], with_alpha: bool) -> dict[str, NDArray[np.generic]]:
+    """Split PCL's packed ``0xAARRGGBB`` colour into channels.
+
+    Binary ``F4`` colours are reinterpreted bit for bit (opaque colours are NaN as
+    floats). PCL writes them in ASCII as the unsigned integer, so integral ASCII values
+    are taken as that integer and others as the float's text.
+    """
+    array: NDArray[Any] = np.asarray(values)
+    bits: NDArray[np.uint32]
+    if array.dtype == np.float64:  # ASCII
+        integral = np.isfinite(array) & (array == np.round(array)) & (array >= 0) & (array < 2**32)
+        bits = array.astype(np.uint32) if integral.all() else array.astype(np.float32).view(np.uint32)
+    elif array.dtype == np.float32:
+        bits = np.ascontiguousarray(array).view(np.uint32)
+    else:
+        bits = array.astype(np.uint32)
+    parts: dict[str, NDArray[np.generic]] = {
+        "red": (bits >> 16) & 0xFF,
+        "green": (bits >> 8) & 0xFF,
+        "blue": bits & 0xFF,
+    }
+    if with_alpha:
+        parts["alpha"] = bits >> 24
+    return parts
+
+
 def _read(path: Path, nonfinite: NonFinitePolicy) -> tuple[PointCloud, int, PcdHeader]:
     try:
         data = path.read_bytes()
     except FileNotFoundError:
         raise DataFormatError(path, "file not found") from None
+    except OSError as exc:
+        raise DataFormatError(path, f"cannot read: {exc.strerror}") from None
     header = parse_header(data, path)
     wanted = _column_names(header)
     names = [name for _, _, name in wanted]
     for name in names:
         if names.count(name) > 1:
             raise DataFormatError(path, "two fields give the same name (an element of an array field?)", field=name)
-    columns: dict[str, NDArray[np.generic]] = {}
-    mapping = map_field_names(names)
+    raw: list[tuple[int, str, NDArray[np.generic]]] = []
     if header.points == 0:
-        for name in names:
-            columns[mapping[name]] = np.zeros(0, np.float32)
+        raw = [(index, name, np.zeros(0, np.float32)) for index, _, name in wanted]
     elif header.encoding == "ascii":
         values = _decode_ascii(data, header, path)
         starts = np.cumsum((0, *header.counts))
-        for index, element, name in wanted:
-            columns[mapping[name]] = values[:, starts[index] + element]
+        raw = [(index, name, values[:, starts[index] + element]) for index, element, name in wanted]
     else:
         records = _decode_binary(data, header, path)
         for index, element, name in wanted:
             key = f"f{index}" if header.counts[index] == 1 else f"f{index}__{element:04d}"
-            columns[mapping[name]] = records[key]
+            raw.append((index, name, records[key]))
+    sources: dict[str, NDArray[np.generic]] = {}
+    for index, name, column in raw:
+        unpack = name.lower() in PACKED_COLOUR and header.sizes[index] == 4 and header.counts[index] == 1
+        parts = _unpack_colour(column, name.lower() == "rgba") if unpack else {name: column}
+        for part, part_values in parts.items():
+            if part in sources:
+                raise DataFormatError(path, f"two fields give the channel {part!r}", field=name)
+            sources[part] = part_values
+    mapping = map_field_names(list(sources))
+    columns = {mapping[name]: column for name, column in sources.items()}
     cloud, dropped = cloud_from_columns(columns, path, nonfinite=nonfinite)
     return cloud, dropped, header
 

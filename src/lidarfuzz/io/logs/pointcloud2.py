@@ -18,9 +18,10 @@ Decoding supports:
   fields named ``""`` or only underscores are padding and are skipped;
 * per-point times stored as *absolute* float64 stamps (Apollo, Hesai and Livox
   drivers write seconds or nanoseconds since the epoch): when ``time_reference``
-  (the header stamp) is given they are made relative to it, because the ``time``
-  channel holds seconds since the frame timestamp and float32 cannot hold an
-  epoch time to better than two minutes.
+  (the header stamp) is given and the values' median lies within a day of it (and
+  much closer to it than to zero), they are made relative to it, because the
+  ``time`` channel holds seconds since the frame timestamp and float32 cannot hold
+  an epoch time to better than two minutes. Other time fields are kept as they are.
 
 Non-finite coordinates follow the shared policy of
 :func:`~lidarfuzz.io.common.cloud_from_columns`. Encoding writes every channel as
@@ -30,8 +31,9 @@ little-endian ``FLOAT32`` in a single row, which round-trips a cloud bit for bit
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from os import PathLike
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,7 +72,8 @@ DATATYPE_NAMES: dict[int, str] = {
 _ABSOLUTE_TIME_WINDOW_S = 86_400.0
 
 
-class PointField(NamedTuple):
+@dataclass(frozen=True, slots=True)
+class PointField:
     """One ``sensor_msgs/PointField``: where a named value sits inside a point."""
 
     name: str
@@ -110,12 +113,11 @@ def _layout(
         if field.datatype not in DATATYPES:
             raise DataFormatError(
                 path,
-                f"{_where(context)}unknown PointField datatype {field.datatype} "
+                f"{_where(context)}field {field.name!r}: unknown PointField datatype {field.datatype} "
                 f"(expected 1..8: {', '.join(f'{k}={v}' for k, v in DATATYPE_NAMES.items())})",
-                field=field.name,
             )
         if field.name in seen:
-            raise DataFormatError(path, f"{_where(context)}the field is listed twice", field=field.name)
+            raise DataFormatError(path, f"{_where(context)}field {field.name!r} is listed twice")
         seen.add(field.name)
         if field.count == 0:
             continue
@@ -124,9 +126,8 @@ def _layout(
         if field.offset < 0 or end > point_step:
             raise DataFormatError(
                 path,
-                f"{_where(context)}{DATATYPE_NAMES[field.datatype]}×{field.count} at offset {field.offset} "
-                f"runs past point_step {point_step} (ends at byte {end})",
-                field=field.name,
+                f"{_where(context)}field {field.name!r}: {DATATYPE_NAMES[field.datatype]}×{field.count} "
+                f"at offset {field.offset} runs past point_step {point_step} (ends at byte {end})",
                 hint="the message's fields and point_step disagree",
             )
         key = f"f{len(names)}"
@@ -144,9 +145,15 @@ def _relative_time(values: NDArray[Any], reference: float) -> NDArray[Any]:
     if reference <= 0 or finite.size == 0:
         return values
     middle = float(np.median(finite))
-    if abs(middle - reference) < _ABSOLUTE_TIME_WINDOW_S:
+
+    def near_reference(seconds: float) -> bool:
+        # Much closer to the stamp than to zero: sweep offsets of a sim-time log (stamp 5 s,
+        # offsets 0..0.1 s) are not mistaken for absolute times.
+        return abs(seconds - reference) < min(_ABSOLUTE_TIME_WINDOW_S, 0.5 * abs(seconds))
+
+    if near_reference(middle):
         return values - reference
-    if abs(middle * 1e-9 - reference) < _ABSOLUTE_TIME_WINDOW_S:
+    if near_reference(middle * 1e-9):
         return (values - reference * 1e9) * 1e-9
     return values
 
@@ -208,7 +215,6 @@ def decode(
         raise DataFormatError(
             path,
             f"{where}row_step {row_step} is smaller than width {width} × point_step {point_step}",
-            field="row_step",
         )
     buffer = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8)
     count = height * width
@@ -217,16 +223,15 @@ def decode(
             path,
             f"{where}data holds {buffer.size} bytes but height {height} × row_step {row_step} "
             f"needs {height * row_step}",
-            field="data",
             hint="the message is truncated or its header is wrong",
         )
     if count and point_step == 0:
-        raise DataFormatError(path, f"{where}point_step is 0 for {count} points", field="point_step")
+        raise DataFormatError(path, f"{where}point_step is 0 for {count} points")
 
     if count:
-        points = np.ndarray(
-            shape=(height, width), dtype=dtype, buffer=buffer, strides=(row_step, point_step)
-        ).reshape(-1)
+        points = np.ndarray(shape=(height, width), dtype=dtype, buffer=buffer, strides=(row_step, point_step)).reshape(
+            -1
+        )
     else:
         points = np.zeros(0, dtype=dtype)
 
@@ -247,7 +252,8 @@ def decode(
     except DataFormatError as err:
         if not context:
             raise
-        raise DataFormatError(path, f"{where}{err.message}", field=err.field, hint=err.hint) from None
+        prefix = f"field {err.field!r}: " if err.field else ""
+        raise DataFormatError(path, f"{where}{prefix}{err.message}", hint=err.hint) from None
 
 
 def encode(cloud: PointCloud) -> dict[str, Any]:

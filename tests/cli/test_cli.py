@@ -1,0 +1,108 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from lidarfuzz import __version__
+from lidarfuzz.cli.app import app
+from lidarfuzz.io import open_dataset
+
+runner = CliRunner()
+
+
+def lidarfuzz(*args: str) -> subprocess.CompletedProcess[str]:
+    """Run the real entry point, as a user would."""
+    return subprocess.run([sys.executable, "-c", "from lidarfuzz.cli.app import main; main()", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_version_and_help():
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0 and __version__ in result.output
+    for command in ([], ["info"], ["convert"], ["demo"]):
+        result = runner.invoke(app, [*command, "--help"])
+        assert result.exit_code == 0, result.output
+        assert "Usage" in result.output
+
+
+def test_info_on_kitti_log_reports_no_problems(kitti_log, tmp_path):
+    out = tmp_path / "report.json"
+    result = runner.invoke(app, ["info", str(kitti_log), "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "no problems found" in result.output
+    report = json.loads(out.read_text())
+    assert report["frames"] == 3 and report["classes"]["Car"] > 0 and report["ordered"]
+    assert set(report["channels"]) == {"x", "y", "z", "intensity", "ring", "time", "label", "instance"}
+
+
+def test_info_exit_code_and_problem_listing(kitti_log, tmp_path):
+    import shutil
+
+    root = tmp_path / "broken"
+    shutil.copytree(kitti_log, root)
+    (root / "label_2" / "000002.txt").write_text("Car 0 0 0 1 2 3\n")
+    result = runner.invoke(app, ["info", str(root)])
+    assert result.exit_code == 1
+    assert "000002.txt:1" in result.output and "expected 15 fields" in result.output
+
+
+def test_convert_log_to_mcap_and_back_to_kitti(kitti_log, tmp_path):
+    mcap = tmp_path / "log.mcap"
+    result = runner.invoke(app, ["convert", str(kitti_log), str(mcap)])
+    assert result.exit_code == 0, result.output
+    back = tmp_path / "back"
+    assert runner.invoke(app, ["convert", str(mcap), str(back)]).exit_code == 0
+    original, converted = open_dataset(kitti_log), open_dataset(back)
+    assert [s.points for s in original] == [s.points for s in converted]
+
+
+def test_convert_frame_to_each_format(kitti_log, tmp_path):
+    frame = kitti_log / "velodyne" / "000000.bin"
+    for suffix in (".pcd", ".ply", ".las", ".laz", ".npy", ".npz"):
+        result = runner.invoke(app, ["convert", str(frame), str(tmp_path / f"f{suffix}")])
+        assert result.exit_code == 0, result.output
+        assert np.array_equal(open_dataset(tmp_path / f"f{suffix}")[0].points.data,
+                              open_dataset(frame)[0].points.data)
+
+
+def test_convert_folder_of_pcd(kitti_log, tmp_path):
+    result = runner.invoke(app, ["convert", str(kitti_log), str(tmp_path / "pcds"), "--to", "pcd"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (tmp_path / "pcds").iterdir()) == ["000000.pcd", "000001.pcd", "000002.pcd"]
+
+
+@pytest.mark.parametrize(
+    ("make", "args", "message"),
+    [
+        (lambda d: (d / "bad.bin").write_bytes(b"\0" * 17), ["convert", "{d}/bad.bin", "{d}/x.pcd"],
+         "not a multiple of 16"),
+        (lambda d: None, ["info", "{d}/missing.bin"], "no such file or folder"),
+        (lambda d: (d / "x.txt").write_text("hi"), ["info", "{d}/x.txt"], "unsupported file type '.txt'"),
+        (lambda d: (d / "a.bin").write_bytes(b"\0" * 16), ["convert", "{d}/a.bin", "{d}/a.bin"],
+         "the destination is the source"),
+        (lambda d: (d / "a.bin").write_bytes(b"\0" * 16), ["convert", "{d}/a.bin", "{d}/out", "--to", "xyz"],
+         "'xyz' is not one of"),
+    ],
+)
+def test_user_errors_are_one_clear_line(tmp_path, make, args, message):
+    make(tmp_path)
+    result = lidarfuzz(*(a.format(d=tmp_path) for a in args))
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_info_reports_a_broken_frame_as_a_problem(tmp_path):
+    (tmp_path / "bad.bin").write_bytes(b"\0" * 17)
+    result = lidarfuzz("info", str(tmp_path / "bad.bin"))
+    assert result.returncode == 1
+    assert "bad.bin: size 17 bytes is not a multiple of 16" in result.stdout
+
+
+def test_convert_refuses_to_overwrite(tmp_path, kitti_log):
+    (tmp_path / "out.pcd").write_text("keep me")
+    result = lidarfuzz("convert", str(kitti_log / "velodyne" / "000000.bin"), str(tmp_path / "out.pcd"))
+    assert result.returncode == 2 and "already exists" in result.stderr
+    assert (tmp_path / "out.pcd").read_text() == "keep me"

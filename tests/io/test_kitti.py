@@ -1,0 +1,195 @@
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io import KittiDataset, KittiLog, KittiWriter, NonFiniteWarning, open_dataset, write_kitti
+from lidarfuzz.io.atomic import OutputExistsError
+from lidarfuzz.io.formats import bin as bin_format
+from lidarfuzz.io.kitti import format_labels, parse_labels
+from lidarfuzz.scene import Boxes3D, KittiCalibration, PointCloud, Scene, points_in_boxes
+from tests.conftest import KITTI_000000_CALIB
+from tests.strategies import boxes as box_strategy
+from tests.strategies import clouds
+
+CALIB = KittiCalibration.parse(KITTI_000000_CALIB)
+
+
+# ---------------------------------------------------------------- .bin
+def test_bin_round_trip_and_memory_map(tmp_path):
+    cloud = PointCloud(np.random.default_rng(0).normal(size=(1000, 4)).astype(np.float32))
+    bin_format.write_points(tmp_path / "a.bin", cloud)
+    scene = bin_format.read(tmp_path / "a.bin")
+    assert scene.points == cloud and scene.frame_id == "a"
+    assert isinstance(scene.points.data.base, np.memmap) or scene.points.data.base is not None
+
+
+@settings(max_examples=25, deadline=None)
+@given(clouds())
+def test_bin_round_trip_property(tmp_path_factory, cloud):
+    path = tmp_path_factory.mktemp("bin") / "f.bin"
+    bin_format.write_points(path, cloud)
+    back, dropped = bin_format.read_points(path)
+    assert dropped == 0
+    assert np.array_equal(back.data, cloud.data[:, :4])
+
+
+def test_bin_bad_size_names_file(tmp_path):
+    path = tmp_path / "000007.bin"
+    path.write_bytes(b"\0" * 20)
+    with pytest.raises(DataFormatError, match=r"000007\.bin: size 20 bytes is not a multiple of 16"):
+        bin_format.read(path)
+
+
+def test_bin_empty_file_is_an_empty_cloud(tmp_path):
+    (tmp_path / "e.bin").write_bytes(b"")
+    assert len(bin_format.read(tmp_path / "e.bin").points) == 0
+
+
+def test_bin_nonfinite_policy(tmp_path):
+    data = np.ones((5, 4), np.float32)
+    data[1, 0] = np.nan
+    data[3, 2] = np.inf
+    data.tofile(tmp_path / "n.bin")
+    with pytest.warns(NonFiniteWarning, match="dropped 2 point"):
+        scene = bin_format.read(tmp_path / "n.bin")
+    assert len(scene.points) == 3 and scene.metadata["dropped_nonfinite"] == 2
+    with pytest.raises(DataFormatError, match=r"n\.bin: 2 point\(s\) have NaN/Inf coordinates"):
+        bin_format.read(tmp_path / "n.bin", nonfinite="reject")
+    data[:, :] = 1
+    data[4, 3] = np.nan  # NaN intensity cannot be repaired
+    data.tofile(tmp_path / "i.bin")
+    with pytest.raises(DataFormatError, match="field 'intensity'"):
+        bin_format.read(tmp_path / "i.bin")
+
+
+def test_writers_never_replace_an_existing_file(tmp_path):
+    path = tmp_path / "orig.bin"
+    path.write_bytes(b"original")
+    with pytest.raises(OutputExistsError, match="already exists"):
+        bin_format.write_points(path, PointCloud(np.zeros((1, 4))))
+    assert path.read_bytes() == b"original"
+    assert [p.name for p in tmp_path.iterdir()] == ["orig.bin"]  # no temporary left behind
+
+
+# ---------------------------------------------------------------- labels
+def test_label_round_trip_with_dontcare_and_scores():
+    text = (
+        "Car 0.0 1 -1.5 100.0 150.0 300.0 250.0 1.5 1.6 3.9 2.0 1.6 20.0 -1.2\n"
+        "DontCare -1 -1 -10 500.5 170.0 530.0 190.0 -1 -1 -1 -1000 -1000 -1000 -10\n"
+    )
+    boxes = parse_labels(text, CALIB)
+    assert boxes.labels.tolist() == ["Car", "DontCare"]
+    assert not boxes.has_geometry[1] and np.isnan(boxes.alpha[1]) and boxes.bbox2d[1].tolist() == [500.5, 170, 530, 190]
+    again = parse_labels(format_labels(boxes, CALIB), CALIB)
+    assert again.allclose(boxes, atol=1e-9)
+    dets = boxes.select([0]).replace(scores=[0.875])
+    assert parse_labels(format_labels(dets, CALIB), CALIB).scores.tolist() == [0.875]
+
+
+@settings(max_examples=40, deadline=None)
+@given(box_strategy())
+def test_label_round_trip_property(boxes):
+    again = parse_labels(format_labels(boxes, CALIB), CALIB)
+    assert again.allclose(boxes, atol=1e-6)
+
+
+def test_complete_fills_alpha_and_2d_box():
+    boxes = Boxes3D.create([[15.0, 1.0, -0.9]], [[3.9, 1.6, 1.5]], [0.2], ["Car"])
+    back = parse_labels(format_labels(boxes, CALIB, complete=True), CALIB)
+    assert back.alpha[0] == pytest.approx(CALIB.alpha(boxes.as_array())[0])
+    np.testing.assert_allclose(back.bbox2d[0], CALIB.boxes_to_image(boxes.as_array())[0])
+
+
+@pytest.mark.parametrize(
+    ("line", "match"),
+    [
+        ("Car 0 0 0 1 2 3 4 1 1 1 0 0 10", r"labels\.txt:1: expected 15 fields \(16 with a score\), found 14"),
+        ("Bus 0 0 0 1 2 3 4 1 1 1 0 0 10 0", r"labels\.txt:1: field 'type': unknown class 'Bus'"),
+        ("Car 0 0 0 1 2 3 4 1 -1.5 1 0 0 10 0", r"labels\.txt:1: field 'width': negative size -1.5"),
+        ("Car 0 0 0 1 2 3 4 1 1 1 0 zero 10 0", r"labels\.txt:1: field 'y': 'zero' is not a number"),
+        ("Car 0 7 0 1 2 3 4 1 1 1 0 0 10 0", r"field 'occluded': occlusion must be"),
+    ],
+)
+def test_bad_label_lines(line, match):
+    with pytest.raises(DataFormatError, match=match):
+        parse_labels("\n" * 0 + line + "\n", CALIB, "labels.txt")
+
+
+def test_labels_need_calib():
+    with pytest.raises(DataFormatError, match="calib"):
+        parse_labels("Car 0 0 0 1 2 3 4 1 1 1 0 0 10 0\n", None, "l.txt")
+
+
+# ---------------------------------------------------------------- data sets
+def test_kitti_log_round_trip(kitti_log, sample_scenes):
+    dataset = open_dataset(kitti_log)
+    assert isinstance(dataset, KittiLog) and dataset.ordered
+    assert list(dataset.frame_ids()) == ["000000", "000001", "000002"]
+    np.testing.assert_allclose(dataset.timestamps(), [0.0, 0.1, 0.2])
+    for original, scene in zip(sample_scenes, dataset, strict=True):
+        assert scene.points == original.points  # all 8 channels via the side file, bit-exact
+        assert scene.boxes.allclose(original.boxes, atol=1e-9)
+        assert scene.calib == original.calib and scene.roi == original.roi
+        assert np.array_equal(scene.pose, original.pose)
+        mask = points_in_boxes(scene.points.xyz, scene.boxes.as_array())
+        assert np.all(mask.sum(axis=0) > 0)
+    assert len(KittiDataset(kitti_log, subset="val")) == 1
+
+
+def test_kitti_training_subfolder(tmp_path, sample_scenes):
+    write_kitti(tmp_path / "kitti" / "training", sample_scenes[:1])
+    assert len(open_dataset(tmp_path / "kitti")) == 1
+
+
+def _copy(src, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_label_without_frame_and_frame_without_label(kitti_log, tmp_path):
+    root = _copy(kitti_log, tmp_path)
+    (root / "label_2" / "000009.txt").write_text("")
+    with pytest.raises(DataFormatError, match=r"000009\.txt: label file without a point-cloud frame"):
+        KittiDataset(root)
+    (root / "label_2" / "000009.txt").unlink()
+    (root / "label_2" / "000001.txt").unlink()
+    with pytest.raises(DataFormatError, match=r"000001\.bin: frame without a label file"):
+        KittiDataset(root)
+    lenient = KittiDataset(root, strict=False)
+    assert any("frame without a label file" in p.message for p in lenient.problems())
+
+
+def test_duplicate_ids_in_image_sets(kitti_log, tmp_path):
+    root = _copy(kitti_log, tmp_path)
+    (root / "ImageSets" / "train.txt").write_text("000000\n000001\n000000\n")
+    with pytest.raises(DataFormatError, match=r"train\.txt:3: duplicate frame id '000000'"):
+        KittiDataset(root, subset="train")
+
+
+def test_bad_calib_in_dataset_names_file(kitti_log, tmp_path):
+    root = _copy(kitti_log, tmp_path)
+    text = (root / "calib" / "000001.txt").read_text().replace("R0_rect", "R9_rect")
+    (root / "calib" / "000001.txt").write_text(text)
+    dataset = KittiDataset(root)
+    dataset.load("000000")
+    with pytest.raises(DataFormatError, match=r"calib/000001\.txt: missing key R0_rect"):
+        dataset.load("000001")
+
+
+def test_writer_refuses_non_empty_folder(kitti_log):
+    with pytest.raises(DataFormatError, match="not empty"):
+        KittiWriter(kitti_log)
+
+
+def test_frames_without_any_labels_are_fine(tmp_path):
+    scene = Scene(PointCloud(np.zeros((3, 4))), frame_id="a")
+    write_kitti(tmp_path / "ds", [scene])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = open_dataset(tmp_path / "ds")["a"]
+    assert len(loaded.boxes) == 0 and loaded.calib is None
