@@ -87,7 +87,7 @@ def convert(
     if target in LOG_TARGETS:
         from lidarfuzz.io.logs.bags import write_log
 
-        write_log(dst_path, scenes(), kind=target, overwrite=overwrite)
+        write_log(dst_path, scenes(), kind=target, overwrite=overwrite)  # type: ignore[arg-type]
         return ConvertResult(dst_path, target, total)
     if target == "kitti":
         writer = KittiWriter(dst_path, overwrite=overwrite)

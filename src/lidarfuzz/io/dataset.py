@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
+from os import PathLike
 from pathlib import Path
 from typing import Generic, TypeVar
 
@@ -36,7 +37,7 @@ class Dataset(ABC, Generic[S]):
     #: True for logs, whose frame order is the order of time.
     ordered: bool = False
 
-    def __init__(self, path: str | Path, name: str | None = None) -> None:
+    def __init__(self, path: str | PathLike[str], name: str | None = None) -> None:
         self.path = Path(path)
         self.name = name or self.path.name
         self._problems: list[Problem] = []

@@ -526,7 +526,7 @@ class KittiWriter:
             import io
 
             buffer = io.BytesIO()
-            np.savez(buffer, **{c: np.asarray(scene.points.channel(c)) for c in extra})
+            np.savez(buffer, **{c: np.asarray(scene.points.channel(c)) for c in extra})  # type: ignore[arg-type]
             write_bytes(self.root / "velodyne_extra" / f"{frame_id}.npz", buffer.getvalue(), overwrite=ow)
         if scene.calib is not None:
             write_text(self.root / "calib" / f"{frame_id}.txt", scene.calib.to_text(), overwrite=ow)

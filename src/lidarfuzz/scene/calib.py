@@ -267,7 +267,8 @@ class KittiCalibration:
         """Observation angle as the devkit's tooling computes it: ``-arctan2(-y, x) + rotation_y``."""
         b = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
         rotation_y = -b[:, 6] - np.pi / 2.0
-        return wrap_angle(-np.arctan2(-b[:, 1], b[:, 0]) + rotation_y)
+        alpha: NDArray[np.float64] = wrap_angle(-np.arctan2(-b[:, 1], b[:, 0]) + rotation_y)
+        return alpha
 
 
 def _is_float(token: str) -> bool:

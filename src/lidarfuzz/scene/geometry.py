@@ -63,7 +63,8 @@ def points_in_boxes(points: ArrayLike, boxes: ArrayLike, margin: float = 0.0) ->
     Points are sorted by x once so that each box only tests the points in its x-extent;
     the cost is O(N log N + Σ points near each box) rather than O(N·M).
     """
-    xyz = np.asarray(points, dtype=np.float64)[:, :3] if len(points) else np.zeros((0, 3))
+    xyz = np.asarray(points, dtype=np.float64)
+    xyz = xyz.reshape(0, 3) if xyz.size == 0 else xyz[:, :3]
     b = _boxes(boxes)
     n, m = xyz.shape[0], b.shape[0]
     mask = np.zeros((n, m), dtype=bool)
@@ -112,7 +113,8 @@ def _candidates(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray
     dist = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
     with np.errstate(invalid="ignore"):
         close = dist < (ra[:, None] + rb[None, :])
-    return np.nonzero(close)
+    rows, cols = np.nonzero(close)
+    return rows, cols
 
 
 def bev_intersection_area(boxes_a: ArrayLike, boxes_b: ArrayLike) -> NDArray[np.float64]:

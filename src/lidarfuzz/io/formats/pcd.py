@@ -41,8 +41,8 @@ from numpy.typing import NDArray
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.atomic import atomic_path
-from lidarfuzz.io.common import NonFinitePolicy, cloud_from_columns, map_field_names
-from lidarfuzz.scene.points import PointCloud
+from lidarfuzz.io.common import NonFinitePolicy, cloud_from_columns, finish_cloud, map_field_names
+from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
 from lidarfuzz.scene.scene import Scene
 
 SUFFIXES = (".pcd",)
@@ -254,8 +254,22 @@ def _column_names(header: PcdHeader) -> list[tuple[int, int, str]]:
     return out
 
 
+def _record_dtype(header: PcdHeader) -> np.dtype[np.void]:
+    """Little-endian record layout of one point, fields named as pypcd4 names them by position."""
+    names, formats, offsets = [], [], []
+    offset = 0
+    for index, (kind, size, count) in enumerate(zip(header.types, header.sizes, header.counts, strict=True)):
+        code = "<" + {"F": "f", "I": "i", "U": "u"}[kind] + str(size)
+        for element in range(count):
+            names.append(f"f{index}" if count == 1 else f"f{index}__{element:04d}")
+            formats.append(code)
+            offsets.append(offset)
+            offset += size
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": header.point_size})
+
+
 def _decode_binary(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.void]:
-    """Check the data section's length against the header, then let pypcd4 decode it."""
+    """Check the data section's length against the header, then decode it (binary_compressed by pypcd4)."""
     body = memoryview(data)[header.data_offset :]
     need = header.points * header.point_size
     if header.encoding == "binary":
@@ -267,6 +281,8 @@ def _decode_binary(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.voi
                 f"({len(body) // header.point_size} points)",
                 hint="the file is truncated or its POINTS/WIDTH/HEIGHT are wrong",
             )
+        # Uncompressed binary is a packed array of records: view it in place (no decode, no copy).
+        return np.frombuffer(body, dtype=_record_dtype(header), count=header.points)
     else:
         if len(body) < 8:
             raise DataFormatError(
@@ -363,6 +379,38 @@ def _unpack_colour(values: NDArray[np.generic], with_alpha: bool) -> dict[str, N
     return parts
 
 
+def _read_packed_float32(
+    data: bytes, header: PcdHeader, path: Path, nonfinite: NonFinitePolicy
+) -> tuple[PointCloud, int] | None:
+    """Fast path for the common layout (binary, every field a named scalar F4): the data section
+    is then an N×C float32 matrix, taken as a view and reordered into channel order in one copy."""
+    if (
+        header.encoding != "binary"
+        or header.points == 0
+        or any(t != "F" for t in header.types)
+        or any(s != 4 for s in header.sizes)
+        or any(c != 1 for c in header.counts)
+        or any(f == PADDING_FIELD or f.lower() in PACKED_COLOUR for f in header.fields)
+        or len(set(header.fields)) != len(header.fields)
+    ):
+        return None
+    _decode_binary(data, header, path)  # validates the data length
+    width = len(header.fields)
+    matrix = np.frombuffer(data, dtype="<f4", count=header.points * width, offset=header.data_offset)
+    matrix = matrix.reshape(header.points, width)
+    mapping = map_field_names(list(header.fields))
+    channels = [mapping[f] for f in header.fields]
+    for axis in ("x", "y", "z"):
+        if axis not in channels:
+            raise DataFormatError(path, f"no '{axis}' field; found fields {list(header.fields)}")
+    if "intensity" not in channels:
+        return None  # the general path fills a zero intensity
+    names = [*STANDARD_CHANNELS, *(c for c in channels if c not in STANDARD_CHANNELS)]
+    order = [channels.index(c) for c in names]
+    columns = matrix if order == list(range(width)) else matrix[:, order]
+    return finish_cloud(np.ascontiguousarray(columns), names, path, nonfinite=nonfinite)
+
+
 def _read(path: Path, nonfinite: NonFinitePolicy) -> tuple[PointCloud, int, PcdHeader]:
     try:
         data = path.read_bytes()
@@ -371,6 +419,9 @@ def _read(path: Path, nonfinite: NonFinitePolicy) -> tuple[PointCloud, int, PcdH
     except OSError as exc:
         raise DataFormatError(path, f"cannot read: {exc.strerror}") from None
     header = parse_header(data, path)
+    fast = _read_packed_float32(data, header, path, nonfinite)
+    if fast is not None:
+        return (*fast, header)
     wanted = _column_names(header)
     names = [name for _, _, name in wanted]
     for name in names:
