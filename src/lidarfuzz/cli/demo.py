@@ -106,7 +106,8 @@ def register(app: typer.Typer) -> None:
             back_scenes = list(open_dataset(path))
             ms = (time.perf_counter() - start) * 1e3 / len(back_scenes)
             exact = len(back_scenes) == len(scenes) and all(
-                _same(a, b) and abs((a.timestamp or 0.0) - (b.timestamp or 0.0)) <= 1e-9 for a, b in zip(scenes, back_scenes, strict=True)
+                _same(a, b) and abs((a.timestamp or 0.0) - (b.timestamp or 0.0)) <= 1e-9
+                for a, b in zip(scenes, back_scenes, strict=True)
             )
             size = sum(p.stat().st_size for p in path.rglob("*")) if path.is_dir() else path.stat().st_size
             table.add_row(kind, f"{name} ({len(scenes)} frames)", f"{size / 1e6:.2f} MB", f"{ms:.2f}/frame",

@@ -108,9 +108,7 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
     report.problems.extend(dataset.problems())
     if isinstance(dataset, Log) and len(dataset):
         stamps = dataset.timestamps()
-        report.time_span = (float(stamps[0]), float(stamps[-1]))
-        if np.any(np.diff(stamps) < 0):
-            report.problems.append(Problem("error", str(path), "timestamps go backwards"))
+        report.time_span = (float(stamps.min()), float(stamps.max()))  # each Log reports its own order problems
         report.has_poses = dataset.poses() is not None
 
     points_min: int | None = None

@@ -595,7 +595,8 @@ class BagLog(Log[Scene]):
             ) from None
 
     def _check_times(self) -> None:
-        unset = sum(1 for e in self._entries if not e.stamp)
+        # An unset stamp only matters when the log time used instead is not zero as well.
+        unset = sum(1 for e in self._entries if not e.stamp and e.log_time)
         if unset:
             self._problems.append(
                 Problem(
