@@ -6,18 +6,22 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from lidarfuzz.scene import Boxes3D, PointCloud
+from lidarfuzz.io.common import FIELD_ALIASES
+from lidarfuzz.scene import OPTIONAL_CHANNELS, STANDARD_CHANNELS, Boxes3D, PointCloud
 
 finite32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
-EXTRA_CHANNELS = ("ring", "time", "label", "instance", "ambient")
+# Channel names no reader maps onto another channel (aliases such as "beam" would read back as "ring").
+ALIASES = set(FIELD_ALIASES) | {a for names in FIELD_ALIASES.values() for a in names}
+custom_names = st.from_regex(r"[a-z][a-z0-9_]{0,10}", fullmatch=True).filter(lambda n: n not in ALIASES)
 
 
 @st.composite
-def clouds(draw: st.DrawFn, max_points: int = 200) -> PointCloud:
-    extra = draw(st.lists(st.sampled_from(EXTRA_CHANNELS), unique=True, max_size=3))
+def clouds(draw: st.DrawFn, max_points: int = 150) -> PointCloud:
+    """Finite float32 clouds with 0–4 optional or custom channels."""
+    extra = draw(st.lists(st.sampled_from(OPTIONAL_CHANNELS) | custom_names, unique=True, max_size=4))
     n = draw(st.integers(0, max_points))
     data = draw(hnp.arrays(np.float32, (n, 4 + len(extra)), elements=finite32))
-    return PointCloud(data, ("x", "y", "z", "intensity", *extra))
+    return PointCloud(data, (*STANDARD_CHANNELS, *extra))
 
 
 @st.composite

@@ -11,10 +11,9 @@ from hypothesis.extra import numpy as hnp
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.atomic import OutputExistsError
-from lidarfuzz.io.common import FIELD_ALIASES, NonFiniteWarning
+from lidarfuzz.io.common import NonFiniteWarning
 from lidarfuzz.io.formats import npy
 from lidarfuzz.scene import (
-    OPTIONAL_CHANNELS,
     STANDARD_CHANNELS,
     Boxes3D,
     KittiCalibration,
@@ -24,19 +23,11 @@ from lidarfuzz.scene import (
 )
 from lidarfuzz.scene.points import frozen
 from tests.strategies import boxes as box_strategy
+from tests.strategies import clouds
 
-finite32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 finite64 = st.floats(allow_nan=False, allow_infinity=False)
-ALIASES = set(FIELD_ALIASES) | {a for names in FIELD_ALIASES.values() for a in names}
-custom_names = st.from_regex(r"[a-z][a-z0-9_]{0,10}", fullmatch=True).filter(lambda n: n not in ALIASES)
 
 
-@st.composite
-def clouds(draw: st.DrawFn, max_points: int = 150) -> PointCloud:
-    extra = draw(st.lists(st.sampled_from(OPTIONAL_CHANNELS) | custom_names, unique=True, max_size=4))
-    n = draw(st.integers(0, max_points))
-    data = draw(hnp.arrays(np.float32, (n, 4 + len(extra)), elements=finite32))
-    return PointCloud(data, (*STANDARD_CHANNELS, *extra))
 
 
 json_values = st.recursive(
