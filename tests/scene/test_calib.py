@@ -69,6 +69,12 @@ def test_lidar_camera_round_trip_keeps_all_seven_numbers(x, y, z, length, width,
     assert abs((back[0, 6] - yaw + np.pi) % (2 * np.pi) - np.pi) < 1e-5
 
 
+def test_image_round_trip(calib):
+    points = np.random.default_rng(1).uniform([2, -20, -3], [70, 20, 2], (200, 3))
+    uv, depth = calib.lidar_to_image(points)
+    np.testing.assert_allclose(calib.image_to_lidar(uv, depth), points, atol=1e-9)
+
+
 def test_2d_box_is_clipped_to_the_image():
     calib = KittiCalibration.default()
     box2d = calib.boxes_to_image([[5.0, 6.0, -1.0, 4.0, 1.8, 1.5, 0.0]])[0]  # partly left of the image

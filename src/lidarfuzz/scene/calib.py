@@ -208,6 +208,20 @@ class KittiCalibration:
             uv = h[:, :2] / h[:, 2:3]
         return uv, p[:, 2]
 
+    def image_to_rect(self, uv: ArrayLike, depth: ArrayLike) -> NDArray[np.float64]:
+        """Back-project pixels with their rectified-camera depth (z) to rectified 3D points."""
+        pix = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        p = self.P2
+        # u = (p00 x + p01 y + p02 z + p03) / (z + p23), v likewise; P2 is upper-triangular in KITTI.
+        w = z + p[2, 3]
+        y = (pix[:, 1] * w - p[1, 2] * z - p[1, 3]) / p[1, 1]
+        x = (pix[:, 0] * w - p[0, 1] * y - p[0, 2] * z - p[0, 3]) / p[0, 0]
+        return np.stack([x, y, z], axis=1)
+
+    def image_to_lidar(self, uv: ArrayLike, depth: ArrayLike) -> NDArray[np.float64]:
+        return self.rect_to_lidar(self.image_to_rect(uv, depth))
+
     def lidar_to_image(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return self.rect_to_image(self.lidar_to_rect(points))
 
