@@ -188,7 +188,8 @@ class KittiCalibration:
 
     @cached_property
     def rect_to_velo(self) -> NDArray[np.float64]:
-        return np.linalg.inv(self.velo_to_rect)
+        inverse = np.linalg.inv(self.velo_to_rect).astype(np.float64, copy=False)
+        return inverse
 
     def lidar_to_rect(self, points: ArrayLike) -> NDArray[np.float64]:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
