@@ -10,16 +10,12 @@ from lidarfuzz.io.atomic import OutputExistsError
 from lidarfuzz.io.common import NonFiniteWarning
 from lidarfuzz.io.formats import las
 from lidarfuzz.scene import STANDARD_CHANNELS, PointCloud, Scene
+from tests.io.helpers import expect_read_error
 from tests.strategies import clouds
 
 
 def expect_error(path, pattern):
-    """Reading ``path`` raises a DataFormatError that names the file and matches ``pattern``."""
-    with pytest.raises(DataFormatError, match=pattern) as info:
-        las.read(path)
-    assert info.value.path == path
-    assert str(info.value).startswith(str(path))
-    return info.value
+    return expect_read_error(las.read, path, pattern)
 
 
 def foreign_las(path, n=50, point_format=3, seed=0, extra=()):

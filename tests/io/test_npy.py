@@ -22,6 +22,7 @@ from lidarfuzz.scene import (
     Scene,
 )
 from lidarfuzz.scene.points import frozen
+from tests.io.helpers import expect_read_error
 from tests.strategies import boxes as box_strategy
 from tests.strategies import clouds
 
@@ -85,12 +86,7 @@ def scenes(draw: st.DrawFn) -> Scene:
 
 
 def expect_error(path, pattern):
-    """Reading ``path`` raises a DataFormatError that names the file and matches ``pattern``."""
-    with pytest.raises(DataFormatError, match=pattern) as info:
-        npy.read(path)
-    assert info.value.path == path
-    assert str(info.value).startswith(str(path))
-    return info.value
+    return expect_read_error(npy.read, path, pattern)
 
 
 def save(path, array):

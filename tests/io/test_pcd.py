@@ -11,6 +11,7 @@ from lidarfuzz.io.atomic import OutputExistsError
 from lidarfuzz.io.common import NonFiniteWarning
 from lidarfuzz.io.formats import pcd
 from lidarfuzz.scene import STANDARD_CHANNELS, PointCloud, Scene
+from tests.io.helpers import expect_read_error
 from tests.strategies import clouds
 
 
@@ -32,12 +33,7 @@ XYZI = (("x", "y", "z", "intensity"), (4, 4, 4, 4), ("F", "F", "F", "F"))
 
 
 def expect_error(path, pattern):
-    """Reading ``path`` raises a DataFormatError that names the file and matches ``pattern``."""
-    with pytest.raises(DataFormatError, match=pattern) as info:
-        pcd.read(path)
-    assert info.value.path == path
-    assert str(info.value).startswith(str(path))
-    return info.value
+    return expect_read_error(pcd.read, path, pattern)
 
 
 # ---------------------------------------------------------------- round trips

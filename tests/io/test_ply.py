@@ -10,16 +10,12 @@ from lidarfuzz.io.atomic import OutputExistsError
 from lidarfuzz.io.common import NonFiniteWarning
 from lidarfuzz.io.formats import ply
 from lidarfuzz.scene import STANDARD_CHANNELS, PointCloud, Scene
+from tests.io.helpers import expect_read_error
 from tests.strategies import clouds
 
 
 def expect_error(path, pattern):
-    """Reading ``path`` raises a DataFormatError that names the file and matches ``pattern``."""
-    with pytest.raises(DataFormatError, match=pattern) as info:
-        ply.read(path)
-    assert info.value.path == path
-    assert str(info.value).startswith(str(path))
-    return info.value
+    return expect_read_error(ply.read, path, pattern)
 
 
 def write_foreign(path, elements, text=False):
