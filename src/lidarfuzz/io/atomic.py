@@ -33,8 +33,13 @@ def check_destination(path: str | PathLike[str], overwrite: bool) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | PathLike[str], *, overwrite: bool = False) -> Iterator[Path]:
+def atomic_path(path: str | PathLike[str], *, overwrite: bool = False, durable: bool = True) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success it is renamed onto ``path``.
+
+    With ``durable`` the data is flushed to disk (fsync) before the rename, so even a
+    power cut leaves the old file or the whole new one. Bulk writers of regenerable
+    data (the simulator) pass ``durable=False``: the rename alone still guarantees
+    that no reader sees a half-written file after a crash of the process.
 
     Example:
         >>> import tempfile, pathlib
@@ -51,7 +56,7 @@ def atomic_path(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
     tmp = Path(tmp_name)
     try:
         yield tmp
-        if tmp.is_file():
+        if durable and tmp.is_file():
             with open(tmp, "rb+") as handle:
                 os.fsync(handle.fileno())
         os.replace(tmp, target)
@@ -61,13 +66,14 @@ def atomic_path(path: str | PathLike[str], *, overwrite: bool = False) -> Iterat
         raise
 
 
-def write_bytes(path: str | PathLike[str], data: bytes | memoryview, *, overwrite: bool = False) -> Path:
-    with atomic_path(path, overwrite=overwrite) as tmp:
+def write_bytes(path: str | PathLike[str], data: bytes | memoryview, *, overwrite: bool = False,
+                durable: bool = True) -> Path:
+    with atomic_path(path, overwrite=overwrite, durable=durable) as tmp:
         tmp.write_bytes(data)
     return Path(path)
 
 
-def write_text(path: str | PathLike[str], text: str, *, overwrite: bool = False) -> Path:
-    with atomic_path(path, overwrite=overwrite) as tmp:
+def write_text(path: str | PathLike[str], text: str, *, overwrite: bool = False, durable: bool = True) -> Path:
+    with atomic_path(path, overwrite=overwrite, durable=durable) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)

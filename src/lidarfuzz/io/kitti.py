@@ -12,7 +12,8 @@ lidarfuzz adds side files that plain KITTI tools ignore:
 
     root/velodyne_extra/000000.npz  point channels beyond x, y, z, intensity (ring, time, ...)
     root/roi/000000.json            drivable-area polygons (GeoJSON, LiDAR frame)
-    root/label_2_extra/000000.json  per-object fields KITTI labels lack ({"track_ids": [...]})
+    root/label_2_extra/000000.json  per-object fields KITTI labels lack ({"track_ids": [...], "objects":
+                                    {"num_points": [...], ...}}, one entry per label line)
     root/timestamps.txt             "<frame_id> <seconds>" per line: the data set is a log
     root/poses.txt                  "<frame_id> <12 numbers>" per line: 3×4 LiDAR → world
 
@@ -394,6 +395,16 @@ class KittiDataset(Dataset[Scene]):
                 raise DataFormatError(extra, f"expected {{\"track_ids\": [one per label line]}}: {exc}") from None
         return boxes
 
+    def _object_extras(self, frame_id: str) -> dict[str, object] | None:
+        extra = self.root / "label_2_extra" / f"{frame_id}.json"
+        if not extra.is_file():
+            return None
+        try:
+            objects = json.loads(extra.read_text(encoding="utf-8")).get("objects")
+        except (ValueError, AttributeError) as exc:
+            raise DataFormatError(extra, f"not a JSON object: {exc}") from None
+        return objects if isinstance(objects, dict) else None
+
     def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
         cloud, dropped = bin_format.read_points(self.points_path(frame_id), nonfinite=self.nonfinite)
         extra = self.root / "velodyne_extra" / f"{frame_id}.npz"
@@ -407,6 +418,7 @@ class KittiDataset(Dataset[Scene]):
         cloud, dropped = self.load_points(frame_id)
         calib = self.load_calib(frame_id)
         boxes = self.load_labels(frame_id, calib) if self._has_labels else Boxes3D.empty()
+        objects = self._object_extras(frame_id) if self._has_labels else None
         roi_path = self.root / "roi" / f"{frame_id}.json"
         roi = None
         if roi_path.is_file():
@@ -422,6 +434,8 @@ class KittiDataset(Dataset[Scene]):
         meta: dict[str, object] = {"source": str(self.points_path(frame_id)), "format": "kitti"}
         if dropped:
             meta["dropped_nonfinite"] = dropped
+        if objects:
+            meta["objects"] = objects
         return Scene(cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose, roi=roi, metadata=meta)
 
 
@@ -492,7 +506,8 @@ class KittiWriter:
         ['velodyne']
     """
 
-    def __init__(self, root: str | PathLike[str], *, overwrite: bool = False, complete_labels: bool = True) -> None:
+    def __init__(self, root: str | PathLike[str], *, overwrite: bool = False, complete_labels: bool = True,
+                 durable: bool = True) -> None:
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise DataFormatError(self.root, "exists and is not a folder")
@@ -500,6 +515,7 @@ class KittiWriter:
             raise DataFormatError(self.root, "folder exists and is not empty; choose a new folder or pass --overwrite")
         self.overwrite = overwrite
         self.complete_labels = complete_labels
+        self.durable = durable
         self._ids: list[str] = []
         self._timestamps: dict[str, float] = {}
         self._poses: dict[str, NDArray[np.float64]] = {}
@@ -517,34 +533,23 @@ class KittiWriter:
         frame_id = frame_id or scene.frame_id or f"{len(self._ids):06d}"
         if frame_id in self._ids:
             raise ValueError(f"duplicate frame id {frame_id!r}")
-        if any(sep in frame_id for sep in "/\\") or frame_id in (".", ".."):
-            raise ValueError(f"frame id {frame_id!r} is not a valid file name")
-        ow = self.overwrite
-        bin_format.write_points(self.root / "velodyne" / f"{frame_id}.bin", scene.points, overwrite=ow)
-        extra = [c for c in scene.points.channels if c not in STANDARD_CHANNELS]
-        if extra:
-            import io
-
-            buffer = io.BytesIO()
-            np.savez(buffer, **{c: np.asarray(scene.points.channel(c)) for c in extra})  # type: ignore[arg-type]
-            write_bytes(self.root / "velodyne_extra" / f"{frame_id}.npz", buffer.getvalue(), overwrite=ow)
-        if scene.calib is not None:
-            write_text(self.root / "calib" / f"{frame_id}.txt", scene.calib.to_text(), overwrite=ow)
-        if len(scene.boxes) or self._labelled:
-            self._labelled = True
-            text = format_labels(scene.boxes, scene.calib, complete=self.complete_labels)
-            write_text(self.root / "label_2" / f"{frame_id}.txt", text, overwrite=ow)
-            if np.any(scene.boxes.track_ids >= 0):
-                extra_text = json.dumps({"track_ids": scene.boxes.track_ids.tolist()})
-                write_text(self.root / "label_2_extra" / f"{frame_id}.json", extra_text, overwrite=ow)
-        if scene.roi is not None:
-            write_text(self.root / "roi" / f"{frame_id}.json", json.dumps(scene.roi.to_geojson()), overwrite=ow)
-        if scene.timestamp is not None:
-            self._timestamps[frame_id] = scene.timestamp
-        if scene.pose is not None:
-            self._poses[frame_id] = np.asarray(scene.pose)[:3, :].ravel()
-        self._ids.append(frame_id)
+        labelled = write_kitti_frame(self.root, scene, frame_id, overwrite=self.overwrite,
+                                     complete_labels=self.complete_labels, durable=self.durable,
+                                     labelled_set=self._labelled)
+        self.record(frame_id, scene.timestamp, scene.pose, labelled)
         return frame_id
+
+    def record(self, frame_id: str, timestamp: float | None, pose: NDArray[np.float64] | None,
+               labelled: bool) -> None:
+        """Register a frame whose files were written by :func:`write_kitti_frame` (e.g. in a worker process)."""
+        if frame_id in self._ids:
+            raise ValueError(f"duplicate frame id {frame_id!r}")
+        self._labelled = self._labelled or labelled
+        if timestamp is not None:
+            self._timestamps[frame_id] = timestamp
+        if pose is not None:
+            self._poses[frame_id] = np.asarray(pose)[:3, :].ravel()
+        self._ids.append(frame_id)
 
     def close(self, image_sets: dict[str, Sequence[str]] | None = None) -> None:
         """Write frames' labels consistently, the log side files and ImageSets lists."""
@@ -564,6 +569,61 @@ class KittiWriter:
             write_text(self.root / "poses.txt", "\n".join(lines) + "\n", overwrite=ow)
         for name, ids in (image_sets or {}).items():
             write_text(self.root / "ImageSets" / f"{name}.txt", "".join(f"{i}\n" for i in ids), overwrite=ow)
+
+
+def compact_channel(values: NDArray[np.floating]) -> NDArray[np.generic]:
+    """The channel in the smallest integer type that holds it exactly, or as it is.
+
+    Ring numbers, class ids and instance ids are integers stored as float32 in a
+    cloud; on disk they take 1–2 bytes instead of 4, and read back identical.
+    """
+    v = np.asarray(values)
+    if v.size == 0 or not np.all(np.isfinite(v)) or not np.array_equal(v, np.round(v)):
+        return v
+    lo, hi = float(v.min()), float(v.max())
+    for dtype in (np.uint8, np.int8, np.int16, np.int32):
+        info = np.iinfo(dtype)
+        if info.min <= lo and hi <= info.max and hi <= 2**24:  # float32 holds integers exactly up to 2**24
+            return v.astype(dtype)
+    return v
+
+
+def write_kitti_frame(root: str | PathLike[str], scene: Scene, frame_id: str, *, overwrite: bool = False,
+                      complete_labels: bool = True, durable: bool = True, labelled_set: bool = False) -> bool:
+    """Write one frame's files into a KITTI layout; returns whether a label file was written.
+
+    ``labelled_set`` says the data set has labels, so an empty label file is written for a
+    frame without objects. Log side files and ImageSets are written by :class:`KittiWriter`.
+    """
+    root = Path(root)
+    if any(sep in frame_id for sep in "/\\") or frame_id in (".", "..") or not frame_id:
+        raise ValueError(f"frame id {frame_id!r} is not a valid file name")
+    ow, du = overwrite, durable
+    bin_format.write_points(root / "velodyne" / f"{frame_id}.bin", scene.points, overwrite=ow, durable=du)
+    extra = [c for c in scene.points.channels if c not in STANDARD_CHANNELS]
+    if extra:
+        import io
+
+        buffer = io.BytesIO()
+        np.savez(buffer, **{c: compact_channel(scene.points.channel(c)) for c in extra})  # type: ignore[arg-type]
+        write_bytes(root / "velodyne_extra" / f"{frame_id}.npz", buffer.getvalue(), overwrite=ow, durable=du)
+    if scene.calib is not None:
+        write_text(root / "calib" / f"{frame_id}.txt", scene.calib.to_text(), overwrite=ow, durable=du)
+    labelled = bool(len(scene.boxes)) or labelled_set
+    if labelled:
+        text = format_labels(scene.boxes, scene.calib, complete=complete_labels)
+        write_text(root / "label_2" / f"{frame_id}.txt", text, overwrite=ow, durable=du)
+        side: dict[str, object] = {}
+        if np.any(scene.boxes.track_ids >= 0):
+            side["track_ids"] = scene.boxes.track_ids.tolist()
+        objects = scene.metadata.get("objects")
+        if isinstance(objects, dict) and objects:
+            side["objects"] = objects
+        if side:
+            write_text(root / "label_2_extra" / f"{frame_id}.json", json.dumps(side), overwrite=ow, durable=du)
+    if scene.roi is not None:
+        write_text(root / "roi" / f"{frame_id}.json", json.dumps(scene.roi.to_geojson()), overwrite=ow, durable=du)
+    return labelled
 
 
 def write_kitti(

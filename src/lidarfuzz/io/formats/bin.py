@@ -50,9 +50,10 @@ def read(path: str | PathLike[str], *, nonfinite: NonFinitePolicy = "drop") -> S
     return Scene(cloud, frame_id=Path(path).stem, metadata=meta)
 
 
-def write_points(path: str | PathLike[str], cloud: PointCloud, *, overwrite: bool = False) -> Path:
+def write_points(path: str | PathLike[str], cloud: PointCloud, *, overwrite: bool = False,
+                 durable: bool = True) -> Path:
     """Write ``x, y, z, intensity`` (other channels cannot be stored in a .bin)."""
-    with atomic_path(path, overwrite=overwrite) as tmp:
+    with atomic_path(path, overwrite=overwrite, durable=durable) as tmp:
         np.ascontiguousarray(cloud.data[:, :4], dtype="<f4").tofile(tmp)
     return Path(path)
 

@@ -1,0 +1,180 @@
+"""KITTI labels for a rendered frame: which road users get a label, and their truncation and occlusion.
+
+Following the KITTI object benchmark, objects are labelled when they appear in the
+front camera's image:
+
+* **no label** when the object has no LiDAR point (fully occluded or out of range) or
+  lies entirely outside the image;
+* **DontCare** (a 2D region only) when it is too far (beyond ``dontcare_range``), has
+  fewer than ``min_points`` points, or its 2D box is lower than ``min_height_px``;
+* otherwise a full label: class, **truncation** = the share of the object's volume
+  (a 5×5×5 grid of samples in its box) that projects outside the image or behind the
+  camera; **occlusion** from visibility, the share of the LiDAR rays that would hit
+  the object if it were alone that do hit it in the scene (≥ 0.8 → 0 fully visible,
+  ≥ 0.4 → 1 partly occluded, otherwise 2 largely occluded); alpha and the 2D box as
+  the devkit computes them from the 3D box; the 3D box.
+
+Each box is placed where the sensor saw the object: at the instant the head swept
+over it, in the sensor frame of that instant — the frame its points are expressed
+in — so labels and points agree even for a moving ego vehicle and moving objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.geometry import box_corners
+
+if TYPE_CHECKING:
+    from lidarfuzz.sim.meshes import Mesh
+    from lidarfuzz.sim.render import Renderer
+
+
+@dataclass(frozen=True)
+class LabelConfig:
+    dontcare_range: float = 80.0
+    min_points: int = 5
+    min_height_px: float = 12.0
+
+
+_GRID = np.stack(np.meshgrid(*[np.linspace(-0.45, 0.45, 5)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def occlusion_level(visibility: NDArray[np.float64]) -> NDArray[np.int64]:
+    """KITTI occlusion state from the visible share of an object."""
+    return np.where(visibility >= 0.8, 0, np.where(visibility >= 0.4, 1, 2)).astype(np.int64)
+
+
+def label_actors(
+    renderer: Renderer,
+    *,
+    t_ref: float,
+    times: NDArray[np.float64],
+    actor_poses: NDArray[np.float64],
+    actors: Mesh,
+    owner: NDArray[np.int32],
+    origins: NDArray[np.float32],
+    directions: NDArray[np.float32],
+    geometric_owner: NDArray[np.int64],
+    points_owner: NDArray[np.int64],
+    config: LabelConfig,
+) -> tuple[Boxes3D, dict[str, Any]]:
+    """Boxes (labelled objects, then DontCare regions) and per-box extras for the frame's metadata."""
+    world, sensor, calib = renderer.world, renderer.sensor, renderer.calib
+    n = len(world.actors)
+    if n == 0:
+        return Boxes3D.empty(), {"objects": {"num_points": [], "visibility": []}}
+
+    # Each actor's box in the sensor frame of the instant it was seen.
+    ex, ey, _, eyaw = renderer.ego_pose(times)
+    dx, dy = actor_poses[:, 0] - ex, actor_poses[:, 1] - ey
+    c, s = np.cos(eyaw), np.sin(eyaw)
+    sizes = np.array([a.size for a in world.actors], dtype=np.float64)
+    boxes = np.column_stack([
+        c * dx + s * dy, -s * dx + c * dy, sizes[:, 2] / 2 - sensor.mount_height,
+        sizes, actor_poses[:, 2] - eyaw,
+    ])
+    num_points = np.bincount(points_owner[points_owner >= 0], minlength=n)[:n]
+    geometric_hits = np.bincount(geometric_owner[geometric_owner >= 0], minlength=n)[:n]
+
+    inside, in_front_uv = _image_coverage(calib, boxes)
+    truncation = 1.0 - inside
+    distance = np.hypot(boxes[:, 0], boxes[:, 1])
+    box2d = np.full((n, 4), np.nan)
+    height_px = np.zeros(n)
+    for i in range(n):
+        box2d[i] = _box2d(calib, boxes[i], in_front_uv[i])
+        height_px[i] = box2d[i, 3] - box2d[i, 1] if np.isfinite(box2d[i]).all() else 0.0
+
+    seen = (num_points > 0) & (truncation < 0.99)
+    dontcare = seen & ((distance > config.dontcare_range) | (num_points < config.min_points)
+                       | (height_px < config.min_height_px))
+    labelled = seen & ~dontcare
+
+    visibility = np.full(n, np.nan)
+    for i in np.flatnonzero(labelled):
+        candidates = _rays_towards(renderer, boxes[i])
+        alone = renderer.visible_rays_alone(actors, owner, i, origins, directions, candidates)
+        visibility[i] = min(1.0, geometric_hits[i] / alone) if alone else 1.0
+
+    track_ids = np.array([a.track_id for a in world.actors], np.int64)
+    classes = np.array([a.cls for a in world.actors])
+    keep = np.flatnonzero(labelled)
+    order = keep[np.argsort(distance[keep], kind="stable")]
+    labelled_boxes = Boxes3D.from_array(
+        boxes[order], classes[order], track_ids=track_ids[order],
+        truncation=np.round(np.clip(truncation[order], 0.0, 1.0), 2),
+        occlusion=occlusion_level(visibility[order]),
+        alpha=calib.alpha(boxes[order]), bbox2d=box2d[order],
+    )
+    regions = np.flatnonzero(dontcare)
+    regions = regions[np.argsort(distance[regions], kind="stable")]
+    dontcare_boxes = Boxes3D.create(
+        np.full((len(regions), 3), np.nan), np.full((len(regions), 3), np.nan), np.full(len(regions), np.nan),
+        ["DontCare"] * len(regions), track_ids=track_ids[regions], truncation=np.full(len(regions), -1.0),
+        occlusion=np.full(len(regions), -1), alpha=np.full(len(regions), -10.0), bbox2d=box2d[regions],
+    )
+    result = Boxes3D.concat([labelled_boxes, dontcare_boxes])
+    extras = {
+        "objects": {
+            "num_points": [int(num_points[i]) for i in order] + [int(num_points[i]) for i in regions],
+            "visibility": [round(float(visibility[i]), 3) for i in order] + [None] * len(regions),
+        },
+    }
+    return result, extras
+
+
+def _image_coverage(calib: Any, boxes: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[NDArray[np.float64]]]:
+    """Share of each box's volume samples that project into the image; the in-front samples' pixels."""
+    n = len(boxes)
+    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
+    local = _GRID[None, :, :] * boxes[:, None, 3:6]  # n × 125 × 3
+    world = np.empty_like(local)
+    world[..., 0] = c[:, None] * local[..., 0] - s[:, None] * local[..., 1] + boxes[:, None, 0]
+    world[..., 1] = s[:, None] * local[..., 0] + c[:, None] * local[..., 1] + boxes[:, None, 1]
+    world[..., 2] = local[..., 2] + boxes[:, None, 2]
+    rect = calib.lidar_to_rect(world.reshape(-1, 3))
+    uv, depth = calib.rect_to_image(rect)
+    uv = uv.reshape(n, -1, 2)
+    depth = depth.reshape(n, -1)
+    height, width = calib.image_shape
+    front = depth > 0.1
+    inside = front & (uv[..., 0] >= 0) & (uv[..., 0] < width) & (uv[..., 1] >= 0) & (uv[..., 1] < height)
+    return inside.mean(axis=1), [uv[i][front[i]] for i in range(n)]
+
+
+def _box2d(calib: Any, box: NDArray[np.float64], front_uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The devkit's 2D box (projected corners, clipped) when the box is in front of the camera;
+    otherwise the clipped extent of its in-front volume samples."""
+    corners = box_corners(box[None])[0]
+    _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
+    if np.all(depth > 0.1):
+        return calib.boxes_to_image(box[None])[0]
+    if len(front_uv) == 0:
+        return np.full(4, np.nan)
+    height, width = calib.image_shape
+    lo, hi = front_uv.min(axis=0), front_uv.max(axis=0)
+    return np.array([np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
+                     np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)])
+
+
+def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Indices of the rays fired while the head points at the box (all beams of those columns)."""
+    sensor = renderer.sensor
+    corners = box_corners(box[None])[0]
+    centre_azimuth = np.arctan2(box[1], box[0])
+    spread = np.angle(np.exp(1j * (np.arctan2(corners[:, 1], corners[:, 0]) - centre_azimuth)))
+    margin = 2.0 * 2.0 * np.pi / sensor.columns
+    lo = float(spread.min()) - margin
+    hi = float(spread.max()) + margin
+    if np.hypot(box[0], box[1]) < np.hypot(box[3], box[4]) / 2 + 0.5:  # the sensor is (almost) inside the box
+        lo, hi = -np.pi, np.pi
+    count = int(np.ceil((hi - lo) / (2 * np.pi) * sensor.columns)) + 1
+    first = int(np.floor(sensor.column_of_azimuth(centre_azimuth + hi)))  # clockwise: larger azimuth fires first
+    columns = np.unique((first + np.arange(count)) % sensor.columns)
+    return (columns[:, None] * sensor.beams + np.arange(sensor.beams)[None, :]).ravel()

@@ -1,0 +1,70 @@
+"""Surface materials (near-infrared reflectivity) and the semantic classes of points.
+
+Reflectivities are diffuse reflectances at 905 nm, the wavelength of Velodyne and
+Ouster sensors, rounded from published material measurements: asphalt is dark,
+vegetation is bright in the near infrared, retro-reflective signs and plates are the
+brightest, glass returns little. Each generated point carries its semantic class in
+the ``label`` channel (index into :data:`SEMANTIC_CLASSES`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: Point-level classes written to the ``label`` channel (the index is the value).
+SEMANTIC_CLASSES: tuple[str, ...] = (
+    "unlabelled", "road", "lane-marking", "sidewalk", "terrain", "building", "wall", "vegetation",
+    "trunk", "pole", "traffic-sign", "car", "van", "truck", "pedestrian", "cyclist",
+)
+SEMANTIC_ID: dict[str, int] = {name: i for i, name in enumerate(SEMANTIC_CLASSES)}
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    reflectivity: float
+    semantic: str
+
+
+_MATERIALS = (
+    Material("asphalt", 0.12, "road"),
+    Material("road-paint", 0.55, "lane-marking"),
+    Material("paving", 0.30, "sidewalk"),
+    Material("kerb", 0.35, "sidewalk"),
+    Material("grass", 0.42, "terrain"),
+    Material("soil", 0.25, "terrain"),
+    Material("plaster", 0.50, "building"),
+    Material("brick", 0.32, "building"),
+    Material("window", 0.06, "building"),
+    Material("concrete", 0.38, "wall"),
+    Material("fence", 0.25, "wall"),
+    Material("foliage", 0.55, "vegetation"),
+    Material("hedge", 0.45, "vegetation"),
+    Material("bark", 0.22, "trunk"),
+    Material("metal", 0.40, "pole"),
+    Material("sign", 0.90, "traffic-sign"),
+    Material("tyre", 0.04, "car"),
+    Material("car-glass", 0.05, "car"),
+    Material("plate", 0.85, "car"),
+    Material("light", 0.75, "car"),
+    Material("cloth", 0.40, "pedestrian"),
+    Material("skin", 0.45, "pedestrian"),
+    Material("bike-frame", 0.35, "cyclist"),
+)
+#: Materials by name; ``paint`` (vehicle body colour) is per object, see :data:`PAINT_REFLECTIVITY`.
+MATERIALS: dict[str, Material] = {m.name: m for m in _MATERIALS}
+
+#: Vehicle paint from black (0.05) to white (0.75): sampled per vehicle.
+PAINT_REFLECTIVITY = (0.05, 0.75)
+
+#: KITTI object class → semantic class of its points.
+OBJECT_SEMANTIC: dict[str, str] = {
+    "Car": "car", "Van": "van", "Truck": "truck", "Pedestrian": "pedestrian", "Cyclist": "cyclist",
+}
+
+
+def material(name: str) -> Material:
+    try:
+        return MATERIALS[name]
+    except KeyError:
+        raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIALS)}") from None

@@ -1,0 +1,215 @@
+"""Triangle meshes with a reflectivity and a semantic class per face.
+
+Primitive shapes come from trimesh's generators (cached once as templates and then
+scaled and moved with numpy); flat ground pieces and extruded footprints are
+triangulated with shapely's constrained Delaunay triangulation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+import shapely
+import trimesh
+from numpy.typing import NDArray
+from shapely.geometry import MultiPolygon, Polygon
+
+from lidarfuzz.sim.materials import SEMANTIC_ID, material
+
+#: Reflectivity placeholder for "the object's own paint", replaced per instance.
+PAINT = -1.0
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """Triangles (vertices V×3, faces F×3) with per-face reflectivity and semantic class id."""
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int32]
+    reflectivity: NDArray[np.float32]
+    semantic: NDArray[np.uint8]
+
+    @staticmethod
+    def empty() -> Mesh:
+        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0, np.float32), np.zeros(0, np.uint8))
+
+    @staticmethod
+    def of(vertices: NDArray[np.float64], faces: NDArray[np.int32], material_name: str | None,
+           semantic: str | None = None) -> Mesh:
+        """A mesh whose faces all have one material (``None`` = the object's paint)."""
+        n = len(faces)
+        if material_name is None:
+            refl, sem = PAINT, SEMANTIC_ID[semantic or "unlabelled"]
+        else:
+            mat = material(material_name)
+            refl, sem = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic]
+        return Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32),
+                    np.full(n, refl, np.float32), np.full(n, sem, np.uint8))
+
+    def __len__(self) -> int:
+        return len(self.faces)
+
+    @staticmethod
+    def concat(parts: Sequence[Mesh]) -> Mesh:
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Mesh.empty()
+        offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
+        return Mesh(
+            np.concatenate([p.vertices for p in parts]),
+            np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)]).astype(np.int32),
+            np.concatenate([p.reflectivity for p in parts]),
+            np.concatenate([p.semantic for p in parts]),
+        )
+
+    def placed(self, x: float, y: float, yaw: float, z: float = 0.0) -> Mesh:
+        """The mesh rotated by ``yaw`` about z and moved to (x, y, z)."""
+        c, s = np.cos(yaw), np.sin(yaw)
+        v = self.vertices
+        out = np.empty_like(v)
+        out[:, 0] = c * v[:, 0] - s * v[:, 1] + x
+        out[:, 1] = s * v[:, 0] + c * v[:, 1] + y
+        out[:, 2] = v[:, 2] + z
+        return Mesh(out, self.faces, self.reflectivity, self.semantic)
+
+    def painted(self, reflectivity: float, semantic: str | None = None) -> Mesh:
+        """Paint placeholders replaced by ``reflectivity``; every face relabelled when ``semantic`` is given."""
+        refl = np.where(self.reflectivity == PAINT, np.float32(reflectivity), self.reflectivity).astype(np.float32)
+        sem = self.semantic if semantic is None else np.full(len(self.faces), SEMANTIC_ID[semantic], np.uint8)
+        return Mesh(self.vertices, self.faces, refl, sem)
+
+
+# --------------------------------------------------------------------------- templates
+@cache
+def _unit_box() -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    return np.asarray(box.vertices), np.asarray(box.faces, np.int32)
+
+
+@cache
+def _unit_cylinder(sections: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=sections)
+    return np.asarray(cyl.vertices), np.asarray(cyl.faces, np.int32)  # axis z, centred at the origin
+
+
+@cache
+def _unit_sphere(subdivisions: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    return np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int32)
+
+
+@cache
+def _unit_torus(major_sections: int, minor_sections: int, ratio: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    torus = trimesh.creation.torus(major_radius=1.0, minor_radius=ratio, major_sections=major_sections,
+                                   minor_sections=minor_sections)
+    return np.asarray(torus.vertices), np.asarray(torus.faces, np.int32)  # in the xy plane
+
+
+def box(size: Sequence[float], center: Sequence[float], material_name: str | None = None, *,
+        top_size: Sequence[float] | None = None, top_shift: float = 0.0, yaw: float = 0.0,
+        top_material: str | None | bool = False) -> Mesh:
+    """An axis-aligned box (or a frustum when ``top_size`` is given, its top moved by ``top_shift`` along x).
+
+    ``top_material`` (when not ``False``) gives the upward face its own material, e.g.
+    a painted roof over a glass cabin.
+    """
+    verts, faces = _unit_box()
+    v = verts * np.asarray(size, np.float64)
+    if top_size is not None:
+        top = verts[:, 2] > 0
+        v[top, 0] = verts[top, 0] * top_size[0] + top_shift
+        v[top, 1] = verts[top, 1] * top_size[1]
+    mesh = Mesh.of(v, faces, material_name)
+    if top_material is not False:
+        up = np.all(verts[faces][:, :, 2] > 0, axis=1)
+        roof = Mesh.of(v, faces[up], top_material if isinstance(top_material, str) else None)
+        mesh = Mesh.concat([Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up]), roof])
+    return mesh.placed(center[0], center[1], yaw, center[2])
+
+
+def cylinder(radius: float, p0: Sequence[float], p1: Sequence[float], material_name: str | None = None, *,
+             sections: int = 10) -> Mesh:
+    """A cylinder of ``radius`` from point ``p0`` to point ``p1`` (any direction)."""
+    verts, faces = _unit_cylinder(sections)
+    a, b = np.asarray(p0, np.float64), np.asarray(p1, np.float64)
+    axis = b - a
+    length = float(np.linalg.norm(axis))
+    v = verts * np.array([radius, radius, length])
+    rotation = _rotation_from_z(axis / length if length > 0 else np.array([0.0, 0.0, 1.0]))
+    v = v @ rotation.T + (a + b) / 2.0
+    return Mesh.of(v, faces, material_name)
+
+
+def ellipsoid(radii: Sequence[float], center: Sequence[float], material_name: str | None = None, *,
+              subdivisions: int = 1) -> Mesh:
+    verts, faces = _unit_sphere(subdivisions)
+    return Mesh.of(verts * np.asarray(radii, np.float64) + np.asarray(center, np.float64), faces, material_name)
+
+
+def ring(radius: float, tube: float, center: Sequence[float], material_name: str | None = None) -> Mesh:
+    """A torus standing upright in the xz plane (a bicycle wheel's tyre)."""
+    verts, faces = _unit_torus(16, 6, tube / radius)
+    v = verts * radius
+    v = np.stack([v[:, 0], v[:, 2], v[:, 1]], axis=1) + np.asarray(center, np.float64)
+    return Mesh.of(v, faces, material_name)
+
+
+def _rotation_from_z(direction: NDArray[np.float64]) -> NDArray[np.float64]:
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(z, direction)
+    c = float(np.dot(z, direction))
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+# --------------------------------------------------------------------------- polygons
+def polygons_of(geometry: object) -> MultiPolygon:
+    """The polygonal parts of any shapely geometry (set operations can leave lines and points behind)."""
+    return MultiPolygon([g for g in shapely.get_parts(geometry) if isinstance(g, Polygon) and not g.is_empty])
+
+
+def _triangles(polygon: Polygon | MultiPolygon) -> NDArray[np.float64]:
+    """Triangles covering a polygon (with holes), shape T×3×2."""
+    polygon = polygons_of(polygon)
+    if polygon.is_empty:
+        return np.zeros((0, 3, 2))
+    triangles = shapely.constrained_delaunay_triangles(polygon)
+    parts = shapely.get_parts(triangles)
+    if len(parts) == 0:
+        return np.zeros((0, 3, 2))
+    coords = shapely.get_coordinates(parts)
+    return coords.reshape(len(parts), 4, 2)[:, :3, :]
+
+
+def flat(polygon: Polygon | MultiPolygon, z: float, material_name: str) -> Mesh:
+    """A horizontal polygon (road, lawn, marking) at height ``z``."""
+    tri = _triangles(polygon)
+    verts = np.concatenate([tri.reshape(-1, 2), np.full((tri.size // 2, 1), z)], axis=1)
+    return Mesh.of(verts, np.arange(len(verts), dtype=np.int32).reshape(-1, 3), material_name)
+
+
+def extruded(polygon: Polygon | MultiPolygon, z0: float, z1: float, material_name: str, *,
+             side_material: str | None = None) -> Mesh:
+    """A footprint extruded from ``z0`` to ``z1``: its top and its side walls (no bottom)."""
+    top = flat(polygon, z1, material_name)
+    rings = []
+    for poly in polygons_of(polygon).geoms:
+        rings.append(np.asarray(poly.exterior.coords))
+        rings.extend(np.asarray(hole.coords) for hole in poly.interiors)
+    walls = []
+    for coords in rings:
+        a, b = coords[:-1], coords[1:]
+        n = len(a)
+        quad = np.stack([
+            np.column_stack([a, np.full(n, z0)]), np.column_stack([b, np.full(n, z0)]),
+            np.column_stack([b, np.full(n, z1)]), np.column_stack([a, np.full(n, z1)]),
+        ], axis=1).reshape(-1, 3)
+        base = np.arange(n, dtype=np.int32)[:, None] * 4
+        faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]]).astype(np.int32)
+        walls.append(Mesh.of(quad, faces, side_material or material_name))
+    return Mesh.concat([top, *walls])

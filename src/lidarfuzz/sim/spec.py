@@ -1,0 +1,229 @@
+"""The scene description: what a user writes by hand (YAML or JSON) and what the generator samples.
+
+Coordinates are metres in a world frame whose origin is the ego vehicle's start
+(x forward, y left, z up, z = 0 on the road surface); angles are degrees,
+counter-clockwise from +x. A minimal scene — a pedestrian 30 m ahead, half hidden
+behind a parked van::
+
+    roads:
+      - centerline: [[-100, 0], [200, 0]]
+        lanes: 2
+    actors:
+      - {class: Van, position: [26, -4.6], parked: true}
+      - {class: Pedestrian, position: [30, -5.6], yaw: 90, speed: 1.2}
+    ego: {speed: 8}
+
+Roads (their carriageway and parking strips) form the drivable area, which is saved
+with every frame as the HD-map ROI. Everything not listed is left empty: a scene with
+no roads is open ground.
+"""
+
+from __future__ import annotations
+
+import json
+from os import PathLike
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.sim.actors import ACTOR_CLASSES
+from lidarfuzz.sim.materials import MATERIALS
+from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor, validation_error
+
+Point2 = tuple[float, float]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+
+
+def _known_material(value: str | None) -> str | None:
+    if value is not None and value not in MATERIALS:
+        raise ValueError(f"unknown material {value!r}; known: {', '.join(MATERIALS)}")
+    return value
+
+
+class Road(_Model):
+    """A road along a polyline: its carriageway, lane markings, optional parking strips, kerbs and sidewalks."""
+
+    centerline: list[Point2] = Field(min_length=2)
+    lanes: int = Field(default=2, ge=1, le=8)
+    lane_width: float = Field(default=3.5, gt=1.5, le=6.0)
+    parking_width: float = Field(default=0.0, ge=0.0, le=4.0, description="parking strip on each side")
+    sidewalk_width: float = Field(default=3.0, ge=0.0, le=15.0)
+    kerb_height: float = Field(default=0.15, ge=0.0, le=0.4)
+    one_way: bool = False
+
+    @property
+    def carriageway_half_width(self) -> float:
+        return self.lanes * self.lane_width / 2
+
+    @property
+    def half_width(self) -> float:
+        """Half the drivable width: lanes plus parking strips."""
+        return self.carriageway_half_width + self.parking_width
+
+
+class Crosswalk(_Model):
+    """Zebra stripes across a road, centred at ``position``, stripes parallel to ``yaw``."""
+
+    kind: Literal["crosswalk"] = "crosswalk"
+    position: Point2
+    yaw: float = 0.0
+    length: float = Field(default=8.0, gt=0, description="extent across the road")
+    width: float = Field(default=4.0, gt=0, description="extent along the road")
+
+
+class Building(_Model):
+    kind: Literal["building"] = "building"
+    footprint: list[Point2] = Field(min_length=3)
+    height: float = Field(default=10.0, gt=0, le=300)
+    material: str = "plaster"
+    windows: bool = True
+
+    _material = field_validator("material")(_known_material)
+
+
+class Wall(_Model):
+    """A wall or fence from ``start`` to ``end``."""
+
+    kind: Literal["wall"] = "wall"
+    start: Point2
+    end: Point2
+    height: float = Field(default=2.0, gt=0, le=30)
+    thickness: float = Field(default=0.25, gt=0, le=5)
+    material: str = "concrete"
+
+    _material = field_validator("material")(_known_material)
+
+
+class Tree(_Model):
+    kind: Literal["tree"] = "tree"
+    position: Point2
+    height: float = Field(default=7.0, gt=1, le=40)
+    canopy_radius: float = Field(default=2.2, gt=0, le=10)
+    trunk_radius: float = Field(default=0.18, gt=0, le=2)
+
+
+class Bush(_Model):
+    kind: Literal["bush"] = "bush"
+    position: Point2
+    radius: float = Field(default=0.8, gt=0, le=5)
+    height: float = Field(default=1.2, gt=0, le=5)
+
+
+class Pole(_Model):
+    """A street light (``arm`` > 0 adds a lamp arm pointing along ``yaw``) or a plain post."""
+
+    kind: Literal["pole"] = "pole"
+    position: Point2
+    height: float = Field(default=7.0, gt=0, le=30)
+    radius: float = Field(default=0.1, gt=0, le=1)
+    arm: float = Field(default=1.5, ge=0, le=10)
+    yaw: float = 0.0
+
+
+class Sign(_Model):
+    """A traffic sign: a post and a retro-reflective plate facing ``yaw``."""
+
+    kind: Literal["sign"] = "sign"
+    position: Point2
+    yaw: float = 0.0
+    height: float = Field(default=2.3, gt=0.5, le=8)
+    plate: float = Field(default=0.7, gt=0.1, le=3)
+
+
+StaticObject = Annotated[Building | Wall | Tree | Bush | Pole | Sign | Crosswalk, Field(discriminator="kind")]
+
+
+class Actor(_Model):
+    """A road user. Without ``speed`` it stands still; with it, it moves along its heading or its ``route``."""
+
+    cls: Literal["Car", "Van", "Truck", "Pedestrian", "Cyclist"] = Field(alias="class")
+    position: Point2
+    yaw: float = 0.0
+    size: tuple[float, float, float] | None = Field(
+        default=None, description="length, width, height in metres; the class's mean size when omitted")
+    speed: float = Field(default=0.0, ge=0.0, le=60.0)
+    route: list[Point2] | None = Field(default=None, min_length=2,
+                                        description="waypoints followed at `speed`; overrides position and yaw")
+    parked: bool = False
+    reflectivity: float | None = Field(default=None, ge=0.0, le=1.0, description="paint or clothing")
+    id: int | None = Field(default=None, ge=0, description="track id; the actor's index when omitted")
+
+    @field_validator("size")
+    @classmethod
+    def _positive(cls, value: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if value is not None and min(value) <= 0:
+            raise ValueError("length, width and height must be positive")
+        return value
+
+    @model_validator(mode="after")
+    def _parked_is_still(self) -> Actor:
+        if self.parked and self.speed:
+            raise ValueError("a parked actor cannot have a speed")
+        return self
+
+
+class Ego(_Model):
+    """The vehicle carrying the sensor: from ``position``/``yaw`` along its heading, or along ``route``."""
+
+    position: Point2 = (0.0, 0.0)
+    yaw: float = 0.0
+    speed: float = Field(default=0.0, ge=0.0, le=60.0)
+    route: list[Point2] | None = Field(default=None, min_length=2)
+
+
+class SceneSpec(_Model):
+    """A whole scene: layout, actors, the ego vehicle and its sensor."""
+
+    name: str = "scene"
+    seed: int = Field(default=0, description="seeds the sensor noise; the layout is fixed by the description")
+    ground: Literal["grass", "soil", "paving"] = "grass"
+    extent: float = Field(default=140.0, gt=10, le=2000, description="half-size of the ground square around the route")
+    roads: list[Road] = Field(default_factory=list)
+    objects: list[StaticObject] = Field(default_factory=list)
+    actors: list[Actor] = Field(default_factory=list)
+    ego: Ego = Field(default_factory=Ego)
+    sensor: str | LidarSensor = DEFAULT_SENSOR
+
+    def to_json(self) -> str:
+        return self.model_dump_json(by_alias=True, exclude_defaults=False, indent=1)
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(json.loads(self.model_dump_json(by_alias=True)), sort_keys=False)
+
+
+def parse_scene(data: Any, source: str | PathLike[str] = "<scene>") -> SceneSpec:
+    """Validate a mapping as a :class:`SceneSpec`; errors name the offending key."""
+    if not isinstance(data, dict):
+        raise DataFormatError(source, "a scene description must be a mapping with keys such as roads, actors, ego")
+    try:
+        return SceneSpec.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error(Path(source), exc) from None
+
+
+def load_scene(path: str | PathLike[str]) -> SceneSpec:
+    """Read a scene description from a YAML or JSON file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(path, f"cannot read scene description: {exc}") from None
+    try:
+        data = yaml.safe_load(text)  # YAML is a superset of JSON
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(exc, 'problem', exc)}", line=line) from None
+    return parse_scene(data, path)
+
+
+__all__ = [
+    "ACTOR_CLASSES", "Actor", "Building", "Bush", "Crosswalk", "Ego", "Pole", "Road", "SceneSpec", "Sign",
+    "StaticObject", "Tree", "Wall", "load_scene", "parse_scene",
+]

@@ -1,0 +1,345 @@
+"""A scene description compiled into geometry and motion: the static mesh, the drivable area, trajectories.
+
+The static world (ground, roads with markings, kerbs and sidewalks, buildings with
+windows, walls, vegetation, poles, signs) is built once per scene; road users are
+placed per frame from their trajectories.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+from shapely.geometry import LineString, MultiPolygon, Point, Polygon, box
+from shapely.ops import unary_union
+
+from lidarfuzz.sim.actors import actor_mesh, mean_size
+from lidarfuzz.sim.materials import OBJECT_SEMANTIC, material
+from lidarfuzz.sim.meshes import Mesh, cylinder, ellipsoid, extruded, flat, polygons_of
+from lidarfuzz.sim.meshes import box as box_mesh
+from lidarfuzz.sim.sensor import LidarSensor, load_sensor
+from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Pole, Road, SceneSpec, Sign, Tree, Wall
+
+MARKING_Z = 0.006  # paint sits just above the asphalt so rays hit it first
+STRIDE = 1.5  # metres per walking cycle
+
+
+# --------------------------------------------------------------------------- motion
+@dataclass(frozen=True)
+class Trajectory:
+    """Constant-speed motion along a polyline; before the start it extrapolates the first segment backwards."""
+
+    waypoints: NDArray[np.float64]  # K×2
+    speed: float
+
+    @staticmethod
+    def of(position: tuple[float, float], yaw_deg: float, speed: float,
+           route: list[tuple[float, float]] | None) -> Trajectory:
+        if route is not None:
+            return Trajectory(np.asarray(route, dtype=np.float64), speed)
+        heading = np.deg2rad(yaw_deg)
+        start = np.asarray(position, dtype=np.float64)
+        end = start + 1.0e4 * np.array([np.cos(heading), np.sin(heading)])
+        return Trajectory(np.stack([start, end]), speed)
+
+    @cached_property
+    def _arc(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        seg = np.diff(self.waypoints, axis=0)
+        length = np.linalg.norm(seg, axis=1)
+        keep = length > 1e-9
+        seg, length = seg[keep], length[keep]
+        if len(seg) == 0:
+            return np.zeros(1), np.zeros((1, 2)), np.zeros(1)
+        cum = np.concatenate([[0.0], np.cumsum(length)])
+        heading = np.arctan2(seg[:, 1], seg[:, 0])
+        return cum, seg / length[:, None], heading
+
+    def distance(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        return np.asarray(t, dtype=np.float64) * self.speed
+
+    def at(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(x, y, yaw) at time(s) ``t`` (seconds from the scene's start)."""
+        s = np.atleast_1d(self.distance(t))
+        cum, unit, heading = self._arc
+        if len(cum) == 1:
+            n = len(s)
+            return np.full(n, self.waypoints[0, 0]), np.full(n, self.waypoints[0, 1]), np.zeros(n)
+        s = np.minimum(s, cum[-1])
+        seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(unit) - 1)
+        xy = _segment_starts(self.waypoints)[seg] + (s - cum[seg])[:, None] * unit[seg]
+        return xy[:, 0], xy[:, 1], heading[seg]
+
+
+def _segment_starts(waypoints: NDArray[np.float64]) -> NDArray[np.float64]:
+    seg = np.diff(waypoints, axis=0)
+    keep = np.linalg.norm(seg, axis=1) > 1e-9
+    return waypoints[:-1][keep] if keep.any() else waypoints[:1]
+
+
+@dataclass(frozen=True)
+class PlacedActor:
+    """A road user of a compiled world."""
+
+    index: int
+    track_id: int
+    cls: str
+    size: tuple[float, float, float]
+    reflectivity: float
+    trajectory: Trajectory
+    phase: float  # walking phase offset (radians)
+
+    def mesh_at(self, t: float) -> tuple[Mesh, tuple[float, float, float]]:
+        """World-frame mesh and (x, y, yaw) at time ``t``."""
+        x, y, yaw = (float(v[0]) for v in self.trajectory.at(t))
+        phase = self.phase + 2 * np.pi * float(self.trajectory.distance(t)) / STRIDE
+        local = actor_mesh(self.cls, self.size, phase)
+        return local.painted(self.reflectivity, OBJECT_SEMANTIC[self.cls]).placed(x, y, yaw), (x, y, yaw)
+
+
+@dataclass(frozen=True, eq=False)
+class World:
+    """A compiled scene: static geometry, drivable area, actors, ego trajectory and sensor."""
+
+    spec: SceneSpec
+    sensor: LidarSensor
+    static: Mesh
+    drivable: MultiPolygon
+    actors: tuple[PlacedActor, ...]
+    ego: Trajectory
+
+
+def compile_world(spec: SceneSpec) -> World:
+    """Build the geometry of ``spec``."""
+    sensor = load_sensor(spec.sensor)
+    ego = Trajectory.of(spec.ego.position, spec.ego.yaw, spec.ego.speed, spec.ego.route)
+    parts, drivable = _ground_and_roads(spec, ego)
+    for obj in spec.objects:
+        parts.append(_static_object(obj))
+    actors = []
+    for index, actor in enumerate(spec.actors):
+        actors.append(_place_actor(index, actor, spec.seed))
+    return World(spec, sensor, Mesh.concat(parts), drivable, tuple(actors), ego)
+
+
+def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
+    rng = np.random.default_rng([seed, index, 0xAC7])
+    size = actor.size or mean_size(actor.cls)
+    if actor.reflectivity is not None:
+        refl = actor.reflectivity
+    elif actor.cls in ("Pedestrian", "Cyclist"):
+        refl = float(rng.uniform(0.1, 0.6))
+    else:
+        refl = float(rng.uniform(0.05, 0.75))
+    speed = 0.0 if actor.parked else actor.speed
+    trajectory = Trajectory.of(actor.position, actor.yaw, speed, actor.route)
+    track_id = actor.id if actor.id is not None else index
+    return PlacedActor(index, track_id, actor.cls, tuple(size), refl, trajectory,  # type: ignore[arg-type]
+                       float(rng.uniform(0, 2 * np.pi)))
+
+
+# --------------------------------------------------------------------------- ground and roads
+def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], MultiPolygon]:
+    route_extent = ego.waypoints
+    if spec.ego.route is None and spec.ego.speed > 0:
+        x, y, _ = ego.at(np.array([0.0, 60.0]))  # a minute of driving is more than any generated log
+        route_extent = np.stack([x, y], axis=1)
+    lo = route_extent.min(axis=0) - spec.extent
+    hi = route_extent.max(axis=0) + spec.extent
+    square = box(lo[0], lo[1], hi[0], hi[1])
+
+    carriageways = [LineString(r.centerline).buffer(r.half_width, cap_style="flat", join_style="mitre")
+                    for r in spec.roads]
+    drivable = unary_union(carriageways).intersection(square) if carriageways else Polygon()
+    sidewalk_areas = [LineString(r.centerline).buffer(r.half_width + r.sidewalk_width, cap_style="flat",
+                                                      join_style="mitre") for r in spec.roads if r.sidewalk_width > 0]
+    sidewalks = unary_union(sidewalk_areas).difference(drivable).intersection(square) if sidewalk_areas else Polygon()
+    kerb = max((r.kerb_height for r in spec.roads), default=0.0)
+    parts: list[Mesh] = []
+    if not drivable.is_empty:
+        parts.append(flat(drivable, 0.0, "asphalt"))
+        parts.append(_markings(spec, drivable))
+    if not sidewalks.is_empty:
+        parts.append(extruded(sidewalks, 0.0, kerb, "paving", side_material="kerb"))
+    terrain = square.difference(drivable).difference(sidewalks)
+    if spec.roads:
+        parts.append(extruded(terrain, 0.0, kerb * 0.8, spec.ground))
+    else:
+        parts.append(flat(terrain, 0.0, spec.ground))
+    return parts, as_multipolygon(drivable)
+
+
+def as_multipolygon(geometry: object) -> MultiPolygon:
+    return polygons_of(geometry)
+
+
+def _markings(spec: SceneSpec, drivable: Polygon | MultiPolygon) -> Mesh:
+    """Edge lines, centre lines, dashed lane dividers (kept out of junctions) and crosswalks."""
+    lines = []
+    junctions = _junctions(spec.roads)
+    for road in spec.roads:
+        centre = LineString(road.centerline)
+        half = road.carriageway_half_width
+        for side in (-1.0, 1.0):
+            lines.append(centre.offset_curve(side * (half - 0.2)).buffer(0.075, cap_style="flat"))
+        for lane in range(1, road.lanes):
+            offset = -half + lane * road.lane_width
+            line = centre.offset_curve(offset) if abs(offset) > 1e-6 else centre
+            solid = abs(offset) < 1e-6 and not road.one_way
+            lines.append(line.buffer(0.075, cap_style="flat") if solid else _dashes(line, 3.0, 6.0, 0.075))
+    paint = unary_union(lines).difference(junctions) if lines else Polygon()
+    stripes = [_crosswalk(c) for c in spec.objects if isinstance(c, Crosswalk)]
+    if stripes:
+        paint = unary_union([paint, *stripes])
+    paint = paint.intersection(drivable)
+    return flat(paint, MARKING_Z, "road-paint") if not paint.is_empty else Mesh.empty()
+
+
+def _junctions(roads: list[Road]) -> Polygon | MultiPolygon:
+    areas = [LineString(r.centerline).buffer(r.half_width + 1.0, cap_style="flat") for r in roads]
+    overlaps = [a.intersection(b) for i, a in enumerate(areas) for b in areas[i + 1:]]
+    return unary_union(overlaps) if overlaps else Polygon()
+
+
+def _dashes(line: LineString, on: float, off: float, half_width: float) -> Polygon | MultiPolygon:
+    starts = np.arange(0.0, line.length, on + off)
+    pieces = [shapely.ops.substring(line, s, min(s + on, line.length)) for s in starts]
+    return unary_union([p.buffer(half_width, cap_style="flat") for p in pieces if p.length > 0])
+
+
+def _crosswalk(c: Crosswalk) -> Polygon | MultiPolygon:
+    yaw = np.deg2rad(c.yaw)
+    along = np.array([np.cos(yaw), np.sin(yaw)])  # stripes run along yaw, repeat across
+    across = np.array([-along[1], along[0]])
+    stripes = []
+    for offset in np.arange(-c.length / 2 + 0.25, c.length / 2, 1.0):
+        centre = np.asarray(c.position) + offset * across
+        a = centre - along * c.width / 2
+        b = centre + along * c.width / 2
+        stripes.append(LineString([a, b]).buffer(0.25, cap_style="flat"))
+    return unary_union(stripes)
+
+
+# --------------------------------------------------------------------------- static objects
+def _static_object(obj: object) -> Mesh:
+    if isinstance(obj, Building):
+        return _building(obj)
+    if isinstance(obj, Wall):
+        a, b = np.asarray(obj.start), np.asarray(obj.end)
+        length = float(np.linalg.norm(b - a))
+        yaw = float(np.arctan2(*(b - a)[::-1]))
+        mid = (a + b) / 2
+        return box_mesh((length, obj.thickness, obj.height), (mid[0], mid[1], obj.height / 2), obj.material, yaw=yaw)
+    if isinstance(obj, Tree):
+        return _tree(obj)
+    if isinstance(obj, Bush):
+        x, y = obj.position
+        return ellipsoid((obj.radius, obj.radius, obj.height / 2), (x, y, obj.height / 2), "hedge")
+    if isinstance(obj, Pole):
+        x, y = obj.position
+        parts = [cylinder(obj.radius, (x, y, 0.0), (x, y, obj.height), "metal", sections=8)]
+        if obj.arm > 0:
+            yaw = np.deg2rad(obj.yaw)
+            tip = (x + obj.arm * np.cos(yaw), y + obj.arm * np.sin(yaw), obj.height)
+            parts.append(cylinder(0.05, (x, y, obj.height - 0.1), tip, "metal", sections=6))
+            parts.append(box_mesh((0.6, 0.3, 0.15), (tip[0], tip[1], obj.height - 0.1), "metal", yaw=float(yaw)))
+        return Mesh.concat(parts)
+    if isinstance(obj, Sign):
+        x, y = obj.position
+        yaw = float(np.deg2rad(obj.yaw))
+        return Mesh.concat([
+            cylinder(0.04, (x, y, 0.0), (x, y, obj.height - obj.plate / 2), "metal", sections=6),
+            box_mesh((0.03, obj.plate, obj.plate), (x, y, obj.height), "sign", yaw=yaw),
+        ])
+    if isinstance(obj, Crosswalk):
+        return Mesh.empty()  # painted with the road markings
+    raise TypeError(f"unknown scene object {obj!r}")
+
+
+def _tree(tree: Tree) -> Mesh:
+    x, y = tree.position
+    canopy_bottom = max(tree.height - 2.2 * tree.canopy_radius, 1.5)
+    trunk = cylinder(tree.trunk_radius, (x, y, 0.0), (x, y, canopy_bottom + 0.5), "bark", sections=8)
+    crown = ellipsoid((tree.canopy_radius, tree.canopy_radius, (tree.height - canopy_bottom) / 2),
+                      (x, y, (tree.height + canopy_bottom) / 2), "foliage", subdivisions=2)
+    # An irregular crown: vertices pushed in and out, seeded by the position (deterministic).
+    rng = np.random.default_rng(zlib.crc32(np.asarray(tree.position, np.float64).tobytes()))
+    centre = np.array([x, y, (tree.height + canopy_bottom) / 2])
+    scale = rng.uniform(0.8, 1.12, size=(len(crown.vertices), 1))
+    crown = Mesh(centre + (crown.vertices - centre) * scale, crown.faces, crown.reflectivity, crown.semantic)
+    return Mesh.concat([trunk, crown])
+
+
+def _building(b: Building) -> Mesh:
+    footprint = Polygon(b.footprint)
+    if not footprint.is_valid:
+        footprint = footprint.buffer(0)
+    body = extruded(footprint, 0.0, b.height, b.material)
+    if not b.windows:
+        return body
+    return Mesh.concat([body, _windows(footprint, b.height)])
+
+
+def _windows(footprint: Polygon, height: float) -> Mesh:
+    """Glass panes 3 cm proud of every facade: one per 3 m of wall per 3 m storey, above the ground floor sill."""
+    ring = np.asarray(footprint.exterior.coords)
+    if not footprint.exterior.is_ccw:
+        ring = ring[::-1]
+    quads = []
+    floors = np.arange(1.0, height - 1.6, 3.0)
+    if len(floors) == 0:
+        return Mesh.empty()
+    for a, b in zip(ring[:-1], ring[1:], strict=True):
+        edge = b - a
+        length = float(np.linalg.norm(edge))
+        if length < 3.0:
+            continue
+        unit = edge / length
+        outward = np.array([unit[1], -unit[0]])  # right of a counter-clockwise ring
+        centres = np.arange(1.5, length - 1.0, 3.0)
+        u, z = np.meshgrid(centres, floors)
+        u, z = u.ravel(), z.ravel()
+        base = a + outward * 0.03
+        left = base + np.outer(u - 0.7, unit)
+        right = base + np.outer(u + 0.7, unit)
+        z0, z1 = z, z + 1.5
+        quad = np.stack([
+            np.column_stack([left, z0]), np.column_stack([right, z0]),
+            np.column_stack([right, z1]), np.column_stack([left, z1]),
+        ], axis=1)
+        quads.append(quad)
+    if not quads:
+        return Mesh.empty()
+    verts = np.concatenate(quads).reshape(-1, 3)
+    base_index = np.arange(len(verts) // 4, dtype=np.int32)[:, None] * 4
+    faces = np.concatenate([base_index + [0, 1, 2], base_index + [0, 2, 3]]).astype(np.int32)
+    return Mesh.of(verts, faces, "window")
+
+
+def footprint_of(obj: object) -> Polygon:
+    """The ground footprint of a static object or actor spec (used for placement and the docs' layout plot)."""
+    if isinstance(obj, Building):
+        return Polygon(obj.footprint)
+    if isinstance(obj, Wall):
+        return LineString([obj.start, obj.end]).buffer(obj.thickness / 2, cap_style="flat")
+    if isinstance(obj, Tree):
+        return Point(obj.position).buffer(obj.canopy_radius * 0.6)
+    if isinstance(obj, Bush):
+        return Point(obj.position).buffer(obj.radius)
+    if isinstance(obj, Pole | Sign):
+        return Point(obj.position).buffer(0.3)
+    if isinstance(obj, Crosswalk):
+        return _crosswalk(obj).envelope
+    if isinstance(obj, Actor):
+        l, w, _ = obj.size or mean_size(obj.cls)
+        yaw = np.deg2rad(obj.yaw)
+        c, s = np.cos(yaw), np.sin(yaw)
+        corners = np.array([[l, w], [l, -w], [-l, -w], [-l, w]]) / 2
+        return Polygon(corners @ np.array([[c, s], [-s, c]]) + np.asarray(obj.position))
+    raise TypeError(f"unknown scene object {obj!r}")
+
+
+__all__ = ["PlacedActor", "Trajectory", "World", "compile_world", "footprint_of", "material"]
