@@ -28,7 +28,7 @@ from lidarfuzz.io import open_dataset, read_frame, write_frame
 from lidarfuzz.io.formats import bin as bin_format
 from lidarfuzz.io.logs.bags import write_log
 from lidarfuzz.scene import PointCloud, Scene
-from lidarfuzz.sim.sample import sample_scene
+from lidarfuzz.sim import GenerationConfig, render_frames
 
 
 def median_ms(fn: Callable[[], object], repeat: int) -> float:
@@ -42,8 +42,8 @@ def median_ms(fn: Callable[[], object], repeat: int) -> float:
 
 
 def frame_of(points: int, seed: int = 0) -> Scene:
-    """A sample-world frame resampled to exactly ``points`` points, x, y, z, intensity, ring, time."""
-    scene = sample_scene(seed)
+    """A simulated frame resampled to exactly ``points`` points, x, y, z, intensity, ring, time."""
+    scene = next(render_frames(GenerationConfig(frames=1, seed=seed)))
     rng = np.random.default_rng(seed)
     index = rng.choice(len(scene.points), size=points, replace=points > len(scene.points))
     cloud = scene.points.select(np.sort(index))

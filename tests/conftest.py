@@ -1,5 +1,5 @@
 # ruff: noqa: E501
-"""Shared fixtures: a small labelled log from the sample world, KITTI calib text."""
+"""Shared fixtures: a small labelled log from the simulator, KITTI calib and label text."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from lidarfuzz.io import write_kitti
 from lidarfuzz.scene import Scene
-from lidarfuzz.sim.sample import sample_scene
+from lidarfuzz.sim import GenerationConfig, render_frames
 
 # Calibration of KITTI object training frame 000000 (as published with the data set).
 KITTI_000000_CALIB = """\
@@ -27,7 +27,8 @@ KITTI_000000_LABEL = "Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0
 
 @pytest.fixture(scope="session")
 def sample_scenes() -> list[Scene]:
-    return [sample_scene(seed=7, frame_index=i) for i in range(3)]
+    """Three frames of a simulated sequence (VLP-16, to keep tests fast): labelled, timed, posed, with a ROI."""
+    return list(render_frames(GenerationConfig(frames=3, seed=7, sequence=True, sensor="VLP-16")))
 
 
 @pytest.fixture(scope="session")

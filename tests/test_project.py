@@ -9,13 +9,21 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Runs the real CLI with every socket operation turned into an error.
+# Runs the real CLI with every network socket operation turned into an error (local
+# AF_UNIX sockets, which multiprocessing uses between worker processes, stay allowed).
 NO_NETWORK = """
 import socket, sys
+_connect, _connect_ex = socket.socket.connect, socket.socket.connect_ex
 def refuse(*args, **kwargs):
     raise OSError("network access attempted")
-socket.socket.connect = refuse
-socket.socket.connect_ex = refuse
+def local_only(original):
+    def guarded(self, address):
+        if self.family != socket.AF_UNIX:
+            refuse()
+        return original(self, address)
+    return guarded
+socket.socket.connect = local_only(_connect)
+socket.socket.connect_ex = local_only(_connect_ex)
 socket.create_connection = refuse
 socket.getaddrinfo = refuse
 from lidarfuzz.cli.app import main
@@ -39,7 +47,7 @@ def test_demo_runs_offline_and_everything_reads_back_exactly(tmp_path):
     rows = [line for line in result.stdout.splitlines() if line.startswith("│")]
     exact = [line.split("│")[-2].strip() for line in rows if line.count("│") == 6]
     assert exact == ["yes"] * 10  # 7 frame formats + 3 log types, each read back exactly
-    assert (tmp_path / "datasets" / "sample-world-s0-n2" / "velodyne" / "000001.bin").is_file()
+    assert (tmp_path / "datasets" / "sim-world-s0-n2" / "velodyne" / "000001.bin").is_file()
 
 
 @pytest.mark.parametrize("module", ["lidarfuzz.io.logs.bags", "lidarfuzz.io.formats.las", "lidarfuzz.io.formats.pcd"])

@@ -138,8 +138,10 @@ def test_kitti_log_round_trip(kitti_log, sample_scenes):
         assert scene.boxes.allclose(original.boxes, atol=1e-9)
         assert scene.calib == original.calib and scene.roi == original.roi
         assert np.array_equal(scene.pose, original.pose)
-        mask = points_in_boxes(scene.points.xyz, scene.boxes.as_array())
+        labelled = scene.boxes.select(scene.boxes.has_geometry)
+        mask = points_in_boxes(scene.points.xyz, labelled.as_array())
         assert np.all(mask.sum(axis=0) > 0)
+        assert scene.metadata["objects"] == original.metadata["objects"]  # points per object, visibility
     assert len(KittiDataset(kitti_log, subset="val")) == 1
 
 

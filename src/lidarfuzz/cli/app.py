@@ -39,9 +39,9 @@ def root(
 
 
 def _register() -> None:
-    from lidarfuzz.cli import convert, demo, info
+    from lidarfuzz.cli import convert, demo, gen, info
 
-    for module in (demo, info, convert):
+    for module in (demo, gen, info, convert):
         module.register(app)
 
 

@@ -1,9 +1,9 @@
 """``lidarfuzz demo``: the main job on the built-in default data.
 
-Until the simulator, operators and campaign engine land, the demo builds the
-sample world (a short labelled log in KITTI layout), inspects it, and carries its
-frames through every supported format and log type, reading each back and checking
-that nothing changed — the ground everything else stands on.
+Until the operators and campaign engine land, the demo generates the simulator's
+world (a labelled log in KITTI layout, cached in the workspace and reused), inspects
+it, and carries its frames through every supported format and log type, reading
+each back and checking that nothing changed — the ground everything else stands on.
 """
 
 from __future__ import annotations
@@ -19,26 +19,27 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from lidarfuzz.io import open_dataset, read_frame, write_frame, write_kitti
+from lidarfuzz.io import open_dataset, read_frame, write_frame
 from lidarfuzz.io.inspect import inspect_source
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.sim.sample import sample_scene
 
 DEFAULT_WORKSPACE = Path(os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace"))
 FRAME_SUFFIXES = (".bin", ".pcd", ".ply", ".las", ".laz", ".npy", ".npz")
 LOG_KINDS = (("ros1", "log.bag"), ("mcap", "log.mcap"), ("ros2", "log-ros2"))
 
 
-def build_sample_world(root: Path, frames: int, seed: int) -> Path:
-    """The sample world's log in KITTI layout under ``root`` (reused when already complete)."""
-    if (root / "timestamps.txt").is_file() and len(list((root / "velodyne").glob("*.bin"))) == frames:
-        return root
-    if root.exists():
-        shutil.rmtree(root)  # an incomplete earlier build of our own output
-    write_kitti(root, (sample_scene(seed, i) for i in range(frames)),
-                image_sets={"train": [f"{i:06d}" for i in range(frames // 2)],
-                            "val": [f"{i:06d}" for i in range(frames // 2, frames)]})
-    return root
+def build_world(root: Path, frames: int, seed: int) -> tuple[Path, bool]:
+    """The simulator's world — a sequence of ``frames`` frames — under ``root``, generated on
+    first use and reused while complete; returns the folder and whether it was generated now."""
+    from lidarfuzz.cli.app import console
+    from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset, is_complete
+
+    config = GenerationConfig(frames=frames, seed=seed, sequence=True)
+    if is_complete(root, config):
+        return root, False
+    with console.status(f"generating the simulator's world ({frames} frames, seed {seed}) ..."):
+        generate_dataset(root, config, overwrite=True)
+    return root, True
 
 
 def _median_ms(fn: object, repeat: int = 5) -> float:
@@ -61,10 +62,10 @@ def register(app: typer.Typer) -> None:
     def demo(
         workspace: Annotated[Path, typer.Option(help="Folder for the demo's data and outputs "
                                                 "(env LIDARFUZZ_WORKSPACE).")] = DEFAULT_WORKSPACE,
-        frames: Annotated[int, typer.Option(min=2, max=1000, help="Frames in the sample log.")] = 10,
-        seed: Annotated[int, typer.Option(help="Seed of the sample world.")] = 0,
+        frames: Annotated[int, typer.Option(min=2, max=1000, help="Frames in the simulated log.")] = 10,
+        seed: Annotated[int, typer.Option(help="Seed of the simulated world.")] = 0,
     ) -> None:
-        """Run the main job on the built-in data: build the sample world, inspect it, carry it through every format.
+        """Run the main job on the built-in data: simulate the world, inspect it, carry it through every format.
 
         Every frame format and log type is written, read back and compared with the original.
         """
@@ -72,8 +73,9 @@ def register(app: typer.Typer) -> None:
         from lidarfuzz.cli.info import render
 
         started = time.perf_counter()
-        dataset_dir = build_sample_world(workspace / "datasets" / f"sample-world-s{seed}-n{frames}", frames, seed)
-        console.rule("[bold]1. the sample world (KITTI layout, a log with timestamps and poses)")
+        dataset_dir, fresh = build_world(workspace / "datasets" / f"sim-world-s{seed}-n{frames}", frames, seed)
+        state = "generated now" if fresh else "cached from an earlier run"
+        console.rule(f"[bold]1. the simulator's world ({state}; KITTI layout, a log with timestamps and poses)")
         report = inspect_source(dataset_dir)
         render(report)
 
@@ -115,7 +117,7 @@ def register(app: typer.Typer) -> None:
             table.add_row(kind, f"{name} ({len(scenes)} frames)", f"{size / 1e6:.2f} MB", f"{ms:.2f}/frame",
                           "[green]yes[/]" if exact else "[red]NO[/]")
         console.print(table)
-        console.print(f"\nsample world: [bold]{dataset_dir}[/]\nconverted files: [bold]{out}[/]")
+        console.print(f"\nsimulated world: [bold]{dataset_dir}[/]\nconverted files: [bold]{out}[/]")
         console.print("try: [cyan]lidarfuzz info " + str(out / "log.bag") + "[/]   "
                       "[cyan]lidarfuzz convert " + str(dataset_dir) + " /tmp/sample.mcap[/]")
         console.print(f"done in {time.perf_counter() - started:.1f} s")

@@ -40,8 +40,8 @@ VEHICLE_CLASSES = ("Car", "Van", "Truck")
 
 
 def mean_size(cls: str) -> tuple[float, float, float]:
-    (l, _), (w, _), (h, _) = SIZE_STATS[cls]
-    return (l, w, h)
+    (length, _), (w, _), (h, _) = SIZE_STATS[cls]
+    return (length, w, h)
 
 
 def sample_size(rng: np.random.Generator, cls: str) -> tuple[float, float, float]:
@@ -52,7 +52,7 @@ def sample_size(rng: np.random.Generator, cls: str) -> tuple[float, float, float
     return (round(values[0], 3), round(values[1], 3), round(values[2], 3))
 
 
-def _wheels(l: float, w: float, radius: float, axles: list[float]) -> list[Mesh]:
+def _wheels(length: float, w: float, radius: float, axles: list[float]) -> list[Mesh]:
     out = []
     for x in axles:
         for side in (-1.0, 1.0):
@@ -62,67 +62,67 @@ def _wheels(l: float, w: float, radius: float, axles: list[float]) -> list[Mesh]
     return out
 
 
-def car(l: float, w: float, h: float) -> Mesh:
+def car(length: float, w: float, h: float) -> Mesh:
     radius = float(np.clip(0.21 * h, 0.28, 0.36))
-    axle = l / 2 - max(radius + 0.25, 0.19 * l)
+    axle = length / 2 - max(radius + 0.25, 0.19 * length)
     body_bottom, body_top = 0.55 * radius, 0.6 * h
     parts = [
-        box((l, w, body_top - body_bottom), (0.0, 0.0, (body_bottom + body_top) / 2)),
+        box((length, w, body_top - body_bottom), (0.0, 0.0, (body_bottom + body_top) / 2)),
         # The cabin: glass sides on a painted roof, windscreen sloping back.
-        box((0.52 * l, 0.9 * w, h - body_top), (-0.06 * l, 0.0, (body_top + h) / 2), "car-glass",
-            top_size=(0.36 * l, 0.82 * w), top_shift=-0.05 * l, top_material=None),
-        *_wheels(l, w, radius, [axle, -axle]),
+        box((0.52 * length, 0.9 * w, h - body_top), (-0.06 * length, 0.0, (body_top + h) / 2), "car-glass",
+            top_size=(0.36 * length, 0.82 * w), top_shift=-0.05 * length, top_material=None),
+        *_wheels(length, w, radius, [axle, -axle]),
     ]
-    parts += _lights_and_plates(l, w, body_bottom, body_top)
+    parts += _lights_and_plates(length, w, body_bottom, body_top)
     return Mesh.concat(parts)
 
 
-def _lights_and_plates(l: float, w: float, bottom: float, top: float) -> list[Mesh]:
+def _lights_and_plates(length: float, w: float, bottom: float, top: float) -> list[Mesh]:
     z = bottom + 0.7 * (top - bottom)
     out = []
-    for x in (l / 2 - 0.01, -l / 2 + 0.01):
+    for x in (length / 2 - 0.01, -length / 2 + 0.01):
         out.append(box((0.02, 0.5, 0.12), (x, 0.0, bottom + 0.35 * (top - bottom)), "plate"))
         for side in (-1.0, 1.0):
             out.append(box((0.02, 0.22, 0.1), (x, side * (w / 2 - 0.18), z), "light"))
     return out
 
 
-def van(l: float, w: float, h: float) -> Mesh:
+def van(length: float, w: float, h: float) -> Mesh:
     radius = float(np.clip(0.16 * h, 0.3, 0.4))
     bottom = 0.6 * radius
-    bonnet = min(0.9, 0.18 * l)
+    bonnet = min(0.9, 0.18 * length)
     parts = [
-        box((l - bonnet, w, h - bottom), (-bonnet / 2, 0.0, (bottom + h) / 2)),
-        box((bonnet, w, 0.45 * h - bottom), (l / 2 - bonnet / 2, 0.0, (bottom + 0.45 * h) / 2)),
+        box((length - bonnet, w, h - bottom), (-bonnet / 2, 0.0, (bottom + h) / 2)),
+        box((bonnet, w, 0.45 * h - bottom), (length / 2 - bonnet / 2, 0.0, (bottom + 0.45 * h) / 2)),
         # Windscreen: a glass wedge between the bonnet and the roof.
-        box((0.8 * bonnet, 0.92 * w, h * 0.4), (l / 2 - bonnet + 0.4 * bonnet, 0.0, 0.45 * h + 0.2 * h), "car-glass",
+        box((0.8 * bonnet, 0.92 * w, h * 0.4), (length / 2 - 0.6 * bonnet, 0.0, 0.65 * h), "car-glass",
             top_size=(0.05, 0.9 * w), top_shift=-0.38 * bonnet),
-        *_wheels(l, w, radius, [l / 2 - bonnet - 0.1, -l / 2 + 0.9]),
+        *_wheels(length, w, radius, [length / 2 - bonnet - 0.1, -length / 2 + 0.9]),
     ]
-    parts += _lights_and_plates(l, w, bottom, 0.45 * h)
+    parts += _lights_and_plates(length, w, bottom, 0.45 * h)
     return Mesh.concat(parts)
 
 
-def truck(l: float, w: float, h: float) -> Mesh:
+def truck(length: float, w: float, h: float) -> Mesh:
     radius = 0.5
-    cab = min(2.4, 0.3 * l)
+    cab = min(2.4, 0.3 * length)
     gap = 0.3
     parts = [
-        box((cab, w, h * 0.85 - 0.5), (l / 2 - cab / 2, 0.0, (0.5 + h * 0.85) / 2)),
-        box((cab * 0.1, 0.9 * w, 0.3 * h), (l / 2 - 0.05 * cab, 0.0, 0.62 * h), "car-glass"),
-        box((l - cab - gap, w, h - 0.9), (-(cab + gap) / 2, 0.0, (0.9 + h) / 2), "plaster"),  # the cargo box
-        box((l, 0.7 * w, 0.35), (0.0, 0.0, 0.75), "metal"),  # chassis
-        *_wheels(l, w, radius, [l / 2 - 0.9 * cab / 2, -l / 2 + 1.4, -l / 2 + 2.6]),
+        box((cab, w, h * 0.85 - 0.5), (length / 2 - cab / 2, 0.0, (0.5 + h * 0.85) / 2)),
+        box((cab * 0.1, 0.9 * w, 0.3 * h), (length / 2 - 0.05 * cab, 0.0, 0.62 * h), "car-glass"),
+        box((length - cab - gap, w, h - 0.9), (-(cab + gap) / 2, 0.0, (0.9 + h) / 2), "plaster"),  # the cargo box
+        box((length, 0.7 * w, 0.35), (0.0, 0.0, 0.75), "metal"),  # chassis
+        *_wheels(length, w, radius, [length / 2 - 0.9 * cab / 2, -length / 2 + 1.4, -length / 2 + 2.6]),
     ]
     return Mesh.concat(parts)
 
 
-def pedestrian(l: float, w: float, h: float, phase: float = 0.0) -> Mesh:
+def pedestrian(length: float, w: float, h: float, phase: float = 0.0) -> Mesh:
     """A walking person; ``phase`` (radians) sets the stride, 0 = legs together."""
     hip = 0.52 * h
     shoulder = 0.82 * h
     head_r = 0.065 * h
-    stride = np.sin(phase) * max(l / 2 - 0.16, 0.02)
+    stride = np.sin(phase) * max(length / 2 - 0.16, 0.02)
     hip_y = 0.09
     parts = []
     for side, sign in ((-1.0, 1.0), (1.0, -1.0)):
@@ -137,10 +137,10 @@ def pedestrian(l: float, w: float, h: float, phase: float = 0.0) -> Mesh:
     return Mesh.concat(parts)
 
 
-def cyclist(l: float, w: float, h: float) -> Mesh:
+def cyclist(length: float, w: float, h: float) -> Mesh:
     """A rider on a bicycle, the bicycle's wheels touching both ends of the box."""
     radius = 0.34
-    rear, front = -l / 2 + radius, l / 2 - radius
+    rear, front = -length / 2 + radius, length / 2 - radius
     seat = (rear + 0.35 * (front - rear), 0.0, 0.95)
     bar = (front - 0.12, 0.0, 1.05)
     crank = (rear + 0.5 * (front - rear), 0.0, radius)
@@ -185,7 +185,7 @@ def actor_mesh(cls: str, size: tuple[float, float, float], phase: float = 0.0) -
 
 @lru_cache(maxsize=4096)
 def _cached_mesh(cls: str, size: tuple[float, float, float], pose: int) -> Mesh:
-    l, w, h = size
+    length, w, h = size
     if cls == "Pedestrian":
-        return pedestrian(l, w, h, 2 * np.pi * pose / WALK_POSES)
-    return SHAPES[cls](l, w, h)
+        return pedestrian(length, w, h, 2 * np.pi * pose / WALK_POSES)
+    return SHAPES[cls](length, w, h)

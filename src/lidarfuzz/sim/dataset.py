@@ -37,6 +37,7 @@ import numpy as np
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.io.atomic import write_text
 from lidarfuzz.io.kitti import KittiWriter, write_kitti_frame
+from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.generate import SCENE_KINDS, generate_scene
 from lidarfuzz.sim.labels import LabelConfig
 from lidarfuzz.sim.render import Renderer
@@ -148,33 +149,50 @@ def _frame_complete(root: Path, frame_id: str) -> bool:
     ))
 
 
+def _frames(config: GenerationConfig, indices: list[int], skip: Callable[[str], bool] | None = None,
+            ) -> Iterator[tuple[int, Scene | None, SceneSpec | None, Renderer]]:
+    """(index, scene or None when skipped, the frame's own spec for independent frames, renderer)."""
+    renderer: Renderer | None = None
+    if config.is_sequence:
+        renderer = Renderer(compile_world(sequence_scene(config)), labels=config.labels)
+    for index in indices:
+        frame_id = frame_id_of(index)
+        if renderer is not None and config.is_sequence:
+            t_ref = index * renderer.sensor.period
+            if skip is not None and skip(frame_id):
+                yield index, None, None, renderer
+                continue
+            yield index, renderer.render(t_ref, frame_id=frame_id, timestamp=t_ref, frame_seed=config.seed), \
+                None, renderer
+        else:
+            spec = _frame_scene(config, index)
+            frame_renderer = Renderer(compile_world(spec), labels=config.labels)
+            if skip is not None and skip(frame_id):
+                yield index, None, spec, frame_renderer
+                continue
+            yield index, frame_renderer.render(0.0, frame_id=frame_id).replace(pose=None), spec, frame_renderer
+
+
+def render_frames(config: GenerationConfig) -> Iterator[Scene]:
+    """The frames ``generate_dataset`` would write, in memory (for tests, notebooks and other tools)."""
+    for _index, scene, _spec, _renderer in _frames(config, list(range(config.frames))):
+        assert scene is not None
+        yield scene
+
+
 def _render_chunk(root: str, config: GenerationConfig, indices: list[int], resume: bool) -> list[FrameResult]:
     """Worker: render and write frames ``indices``; returns what the parent records."""
     out = Path(root)
     results = []
-    renderer: Renderer | None = None
-    period = 0.0
-    if config.is_sequence:
-        spec = sequence_scene(config)
-        renderer = Renderer(compile_world(spec), labels=config.labels)
-        period = renderer.sensor.period
-    for index in indices:
+    skip = (lambda frame_id: _frame_complete(out, frame_id)) if resume else None
+    for index, scene, spec, renderer in _frames(config, indices, skip):
         frame_id = frame_id_of(index)
-        if config.is_sequence:
-            assert renderer is not None
-            t_ref = index * period
-            if resume and _frame_complete(out, frame_id):
-                pose = renderer.pose_matrix(t_ref)
-                results.append(FrameResult(frame_id, t_ref, pose.tolist(), 0, {}, skipped=True))
-                continue
-            scene = renderer.render(t_ref, frame_id=frame_id, timestamp=t_ref, frame_seed=config.seed)
-        else:
-            if resume and _frame_complete(out, frame_id):
-                results.append(FrameResult(frame_id, None, None, 0, {}, skipped=True))
-                continue
-            spec = _frame_scene(config, index)
-            frame_renderer = Renderer(compile_world(spec), labels=config.labels)
-            scene = frame_renderer.render(0.0, frame_id=frame_id).replace(pose=None)
+        if scene is None:
+            t_ref = index * renderer.sensor.period if config.is_sequence else None
+            pose = renderer.pose_matrix(t_ref).tolist() if t_ref is not None else None
+            results.append(FrameResult(frame_id, t_ref, pose, 0, {}, skipped=True))
+            continue
+        if spec is not None:
             write_text(out / "scenes" / f"{frame_id}.json", spec.to_json(), overwrite=True, durable=False)
         write_kitti_frame(out, scene, frame_id, overwrite=True, durable=False, labelled_set=True)
         counts = Counter(str(c) for c in scene.boxes.labels)
@@ -248,7 +266,7 @@ def generate_dataset(
     for index in range(config.frames):
         r = results[frame_id_of(index)]
         writer.record(r.frame_id, r.timestamp, None if r.pose is None else np.asarray(r.pose), True)
-    n_val = int(round(config.frames * config.val_fraction))
+    n_val = round(config.frames * config.val_fraction)
     ids = [frame_id_of(i) for i in range(config.frames)]
     writer.close({"train": ids[: config.frames - n_val], "val": ids[config.frames - n_val:], "trainval": ids})
 

@@ -297,7 +297,8 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
             x += rng.uniform(5.0, 8.0)
     # Traffic on the crossing street, stopped or moving.
     if junction_x is not None and len(roads) > 1:
-        for y_dir, lane_x in ((1.0, junction_x + roads[1].lane_width / 2), (-1.0, junction_x - roads[1].lane_width / 2)):
+        half_lane = roads[1].lane_width / 2
+        for y_dir, lane_x in ((1.0, junction_x + half_lane), (-1.0, junction_x - half_lane)):
             for _ in range(int(rng.poisson(1.2))):
                 y = y_dir * -rng.uniform(main.half_width + 4, 50)
                 layout.add_actor(str(rng.choice(["Car", "Car", "Van"])), lane_x, y, y_dir * np.pi / 2,

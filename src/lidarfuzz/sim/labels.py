@@ -116,8 +116,8 @@ def label_actors(
     regions = regions[np.argsort(distance[regions], kind="stable")]
     dontcare_boxes = Boxes3D.create(
         np.full((len(regions), 3), np.nan), np.full((len(regions), 3), np.nan), np.full(len(regions), np.nan),
-        ["DontCare"] * len(regions), track_ids=track_ids[regions], truncation=np.full(len(regions), -1.0),
-        occlusion=np.full(len(regions), -1), alpha=np.full(len(regions), -10.0), bbox2d=box2d[regions],
+        ["DontCare"] * len(regions), track_ids=track_ids[regions], truncation=np.full(len(regions), np.nan),
+        occlusion=np.full(len(regions), -1), alpha=np.full(len(regions), np.nan), bbox2d=box2d[regions],
     )
     result = Boxes3D.concat([labelled_boxes, dontcare_boxes])
     extras = {

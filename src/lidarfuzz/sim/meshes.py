@@ -102,7 +102,8 @@ def _unit_sphere(subdivisions: int) -> tuple[NDArray[np.float64], NDArray[np.int
 
 
 @cache
-def _unit_torus(major_sections: int, minor_sections: int, ratio: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+def _unit_torus(major_sections: int, minor_sections: int,
+                ratio: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
     torus = trimesh.creation.torus(major_radius=1.0, minor_radius=ratio, major_sections=major_sections,
                                    minor_sections=minor_sections)
     return np.asarray(torus.vertices), np.asarray(torus.faces, np.int32)  # in the xy plane
@@ -110,7 +111,7 @@ def _unit_torus(major_sections: int, minor_sections: int, ratio: float) -> tuple
 
 def box(size: Sequence[float], center: Sequence[float], material_name: str | None = None, *,
         top_size: Sequence[float] | None = None, top_shift: float = 0.0, yaw: float = 0.0,
-        top_material: str | None | bool = False) -> Mesh:
+        top_material: str | bool | None = False) -> Mesh:
     """An axis-aligned box (or a frustum when ``top_size`` is given, its top moved by ``top_shift`` along x).
 
     ``top_material`` (when not ``False``) gives the upward face its own material, e.g.
@@ -210,6 +211,6 @@ def extruded(polygon: Polygon | MultiPolygon, z0: float, z1: float, material_nam
             np.column_stack([b, np.full(n, z1)]), np.column_stack([a, np.full(n, z1)]),
         ], axis=1).reshape(-1, 3)
         base = np.arange(n, dtype=np.int32)[:, None] * 4
-        faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]]).astype(np.int32)
+        faces = np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])]).astype(np.int32)
         walls.append(Mesh.of(quad, faces, side_material or material_name))
     return Mesh.concat([top, *walls])

@@ -167,7 +167,7 @@ class Renderer:
         """The frame whose forward-facing instant is ``t_ref`` seconds after the scene's start."""
         sensor = self.sensor
         seed = self.world.spec.seed if frame_seed is None else frame_seed
-        rng = np.random.default_rng(np.random.SeedSequence([seed, int(round(t_ref * 1e6)) & 0xFFFFFFFF, 0x51D]))
+        rng = np.random.default_rng(np.random.SeedSequence([seed, round(t_ref * 1e6) & 0xFFFFFFFF, 0x51D]))
         times = self.actor_times(t_ref)
         actors, owner, actor_poses = self._actor_meshes(times)
         origins, directions = self.rays(t_ref)

@@ -7,6 +7,7 @@ placed per frame from their trajectories.
 
 from __future__ import annotations
 
+import itertools
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -61,7 +62,7 @@ class Trajectory:
     def distance(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
         return np.asarray(t, dtype=np.float64) * self.speed
 
-    def at(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    def at(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], ...]:
         """(x, y, yaw) at time(s) ``t`` (seconds from the scene's start)."""
         s = np.atleast_1d(self.distance(t))
         cum, unit, heading = self._arc
@@ -292,7 +293,7 @@ def _windows(footprint: Polygon, height: float) -> Mesh:
     floors = np.arange(1.0, height - 1.6, 3.0)
     if len(floors) == 0:
         return Mesh.empty()
-    for a, b in zip(ring[:-1], ring[1:], strict=True):
+    for a, b in itertools.pairwise(ring):
         edge = b - a
         length = float(np.linalg.norm(edge))
         if length < 3.0:
@@ -315,7 +316,7 @@ def _windows(footprint: Polygon, height: float) -> Mesh:
         return Mesh.empty()
     verts = np.concatenate(quads).reshape(-1, 3)
     base_index = np.arange(len(verts) // 4, dtype=np.int32)[:, None] * 4
-    faces = np.concatenate([base_index + [0, 1, 2], base_index + [0, 2, 3]]).astype(np.int32)
+    faces = np.concatenate([base_index + np.array([0, 1, 2]), base_index + np.array([0, 2, 3])]).astype(np.int32)
     return Mesh.of(verts, faces, "window")
 
 
@@ -334,10 +335,10 @@ def footprint_of(obj: object) -> Polygon:
     if isinstance(obj, Crosswalk):
         return _crosswalk(obj).envelope
     if isinstance(obj, Actor):
-        l, w, _ = obj.size or mean_size(obj.cls)
+        length, w, _ = obj.size or mean_size(obj.cls)
         yaw = np.deg2rad(obj.yaw)
         c, s = np.cos(yaw), np.sin(yaw)
-        corners = np.array([[l, w], [l, -w], [-l, -w], [-l, w]]) / 2
+        corners = np.array([[length, w], [length, -w], [-length, -w], [-length, w]]) / 2
         return Polygon(corners @ np.array([[c, s], [-s, c]]) + np.asarray(obj.position))
     raise TypeError(f"unknown scene object {obj!r}")
 
