@@ -76,8 +76,8 @@ def label_actors(
     c, s = np.cos(eyaw), np.sin(eyaw)
     sizes = np.array([a.size for a in world.actors], dtype=np.float64)
     boxes = np.column_stack([
-        c * dx + s * dy, -s * dx + c * dy, sizes[:, 2] / 2 - sensor.mount_height,
-        sizes, actor_poses[:, 2] - eyaw,
+        c * dx + s * dy, -s * dx + c * dy, actor_poses[:, 2] + sizes[:, 2] / 2 - sensor.mount_height,
+        sizes, actor_poses[:, 3] - eyaw,
     ])
     num_points = np.bincount(points_owner[points_owner >= 0], minlength=n)[:n]
     geometric_hits = np.bincount(geometric_owner[geometric_owner >= 0], minlength=n)[:n]

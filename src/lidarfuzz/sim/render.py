@@ -108,12 +108,12 @@ class Renderer:
     def _actor_meshes(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
         meshes, owner, poses = [], [], []
         for actor, t in zip(self.world.actors, times, strict=True):
-            mesh, pose = actor.mesh_at(float(t))
+            mesh, pose = actor.mesh_at(float(t), self.world.ground)
             meshes.append(mesh)
             owner.append(np.full(len(mesh), actor.index, np.int32))
             poses.append(pose)
         if not meshes:
-            return Mesh.empty(), np.zeros(0, np.int32), np.zeros((0, 3))
+            return Mesh.empty(), np.zeros(0, np.int32), np.zeros((0, 4))
         return Mesh.concat(meshes), np.concatenate(owner), np.asarray(poses)
 
     def rays(self, t_ref: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:

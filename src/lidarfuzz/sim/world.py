@@ -93,12 +93,34 @@ class PlacedActor:
     trajectory: Trajectory
     phase: float  # walking phase offset (radians)
 
-    def mesh_at(self, t: float) -> tuple[Mesh, tuple[float, float, float]]:
-        """World-frame mesh and (x, y, yaw) at time ``t``."""
+    def mesh_at(self, t: float, ground: Ground) -> tuple[Mesh, tuple[float, float, float, float]]:
+        """World-frame mesh and (x, y, z, yaw) at time ``t``, standing on the ``ground`` surface."""
         x, y, yaw = (float(v[0]) for v in self.trajectory.at(t))
+        z = ground.height(x, y)
         phase = self.phase + 2 * np.pi * float(self.trajectory.distance(t)) / STRIDE
         local = actor_mesh(self.cls, self.size, phase)
-        return local.painted(self.reflectivity, OBJECT_SEMANTIC[self.cls]).placed(x, y, yaw), (x, y, yaw)
+        return local.painted(self.reflectivity, OBJECT_SEMANTIC[self.cls]).placed(x, y, yaw, z), (x, y, z, yaw)
+
+
+@dataclass(frozen=True, eq=False)
+class Ground:
+    """Surface height: 0 on the road, the kerb's height on sidewalks, the verge's on terrain."""
+
+    sidewalks: MultiPolygon
+    sidewalk_height: float
+    drivable: MultiPolygon
+    terrain_height: float
+
+    def __post_init__(self) -> None:
+        shapely.prepare(self.sidewalks)
+        shapely.prepare(self.drivable)
+
+    def height(self, x: float, y: float) -> float:
+        if shapely.contains_xy(self.drivable, x, y):
+            return 0.0
+        if shapely.contains_xy(self.sidewalks, x, y):
+            return self.sidewalk_height
+        return self.terrain_height
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,19 +133,20 @@ class World:
     drivable: MultiPolygon
     actors: tuple[PlacedActor, ...]
     ego: Trajectory
+    ground: Ground
 
 
 def compile_world(spec: SceneSpec) -> World:
     """Build the geometry of ``spec``."""
     sensor = load_sensor(spec.sensor)
     ego = Trajectory.of(spec.ego.position, spec.ego.yaw, spec.ego.speed, spec.ego.route)
-    parts, drivable = _ground_and_roads(spec, ego)
+    parts, ground = _ground_and_roads(spec, ego)
     for obj in spec.objects:
         parts.append(_static_object(obj))
     actors = []
     for index, actor in enumerate(spec.actors):
         actors.append(_place_actor(index, actor, spec.seed))
-    return World(spec, sensor, Mesh.concat(parts), drivable, tuple(actors), ego)
+    return World(spec, sensor, Mesh.concat(parts), ground.drivable, tuple(actors), ego, ground)
 
 
 def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
@@ -143,7 +166,7 @@ def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
 
 
 # --------------------------------------------------------------------------- ground and roads
-def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], MultiPolygon]:
+def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Ground]:
     route_extent = ego.waypoints
     if spec.ego.route is None and spec.ego.speed > 0:
         x, y, _ = ego.at(np.array([0.0, 60.0]))  # a minute of driving is more than any generated log
@@ -166,11 +189,12 @@ def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Mul
     if not sidewalks.is_empty:
         parts.append(extruded(sidewalks, 0.0, kerb, "paving", side_material="kerb"))
     terrain = square.difference(drivable).difference(sidewalks)
+    terrain_height = kerb * 0.8 if spec.roads else 0.0
     if spec.roads:
-        parts.append(extruded(terrain, 0.0, kerb * 0.8, spec.ground))
+        parts.append(extruded(terrain, 0.0, terrain_height, spec.ground))
     else:
         parts.append(flat(terrain, 0.0, spec.ground))
-    return parts, as_multipolygon(drivable)
+    return parts, Ground(as_multipolygon(sidewalks), kerb, as_multipolygon(drivable), terrain_height)
 
 
 def as_multipolygon(geometry: object) -> MultiPolygon:
