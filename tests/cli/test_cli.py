@@ -22,7 +22,7 @@ def lidarfuzz(*args: str) -> subprocess.CompletedProcess[str]:
 def test_version_and_help():
     result = runner.invoke(app, ["--version"])
     assert result.exit_code == 0 and __version__ in result.output
-    for command in ([], ["info"], ["convert"], ["demo"]):
+    for command in ([], ["info"], ["convert"], ["demo"], ["gen"]):
         result = runner.invoke(app, [*command, "--help"])
         assert result.exit_code == 0, result.output
         assert "Usage" in result.output
@@ -106,3 +106,42 @@ def test_convert_refuses_to_overwrite(tmp_path, kitti_log):
     result = lidarfuzz("convert", str(kitti_log / "velodyne" / "000000.bin"), str(tmp_path / "out.pcd"))
     assert result.returncode == 2 and "already exists" in result.stderr
     assert (tmp_path / "out.pcd").read_text() == "keep me"
+
+
+# ---------------------------------------------------------------- gen
+def test_gen_writes_a_data_set_that_info_accepts(tmp_path):
+    out = tmp_path / "world"
+    result = lidarfuzz("gen", "--frames", "2", "--seed", "5", "--out", str(out), "--sensor", "VLP-16", "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    assert "wrote 2 frame(s)" in result.stdout and "frames/s" in result.stdout
+    info = lidarfuzz("info", str(out))
+    assert info.returncode == 0 and "no problems found" in info.stdout
+    again = lidarfuzz("gen", "--frames", "2", "--seed", "5", "--out", str(out), "--sensor", "VLP-16")
+    assert again.returncode == 2 and "--overwrite" in again.stderr and str(out) in again.stderr
+
+
+def test_gen_sequence_from_a_scene_file(tmp_path):
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("roads:\n  - centerline: [[-100, 0], [200, 0]]\n"
+                     "actors:\n  - {class: Pedestrian, position: [30, -5.6], yaw: 90, speed: 1.2}\n"
+                     "ego: {speed: 8, position: [0, -1.75]}\n")
+    out = tmp_path / "log"
+    result = runner.invoke(app, ["gen", "--frames", "3", "--out", str(out), "--scene", str(scene),
+                                 "--sensor", "VLP-16", "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    log = open_dataset(out)
+    assert log.ordered and len(log) == 3
+    assert (out / "scene.yaml").is_file()
+
+
+def test_gen_bad_inputs_give_one_clear_line(tmp_path):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("actors:\n  - {class: Tractor, position: [1, 2]}\n")
+    result = lidarfuzz("gen", "--frames", "1", "--out", str(tmp_path / "a"), "--scene", str(broken))
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and str(broken) in result.stderr and "actors.0" in result.stderr
+    result = lidarfuzz("gen", "--frames", "1", "--out", str(tmp_path / "b"), "--sensor", "HDL-128")
+    assert result.returncode == 2 and "HDL-128" in result.stderr and "preset" in result.stderr
+    result = lidarfuzz("gen", "--frames", "1", "--out", str(tmp_path / "c"), "--kind", "rural")
+    assert result.returncode == 2 and "--kind" in result.stderr
+    assert not (tmp_path / "a").exists() and not (tmp_path / "c").exists()

@@ -150,7 +150,7 @@ def generate_scene(
             offset = cross.half_width + sidewalk + 1.5
             for x in (junction_x - offset, junction_x + offset):
                 if rng.random() < 0.7:
-                    layout.objects.append({"kind": "crosswalk", "position": [_r(x), 0.0], "yaw": 90.0,
+                    layout.objects.append({"kind": "crosswalk", "position": [_r(x), 0.0], "yaw": 0.0,
                                            "length": _r(2 * main.half_width), "width": 3.0})
     layout.drivable = shapely.union_all([LineString(r.centerline).buffer(r.half_width, cap_style="flat")
                                          for r in roads])

@@ -68,7 +68,8 @@ class Road(_Model):
 
 
 class Crosswalk(_Model):
-    """Zebra stripes across a road, centred at ``position``, stripes parallel to ``yaw``."""
+    """A zebra crossing centred at ``position`` on a road heading ``yaw``: bars parallel to the
+    road, ``width`` long, repeated every metre across it over ``length``."""
 
     kind: Literal["crosswalk"] = "crosswalk"
     position: Point2
