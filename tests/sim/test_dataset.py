@@ -59,7 +59,7 @@ def test_generated_data_set_reads_back_and_info_reports_no_problem(independent):
     report = inspect_source(root)
     assert report.problems == [] and report.labelled_frames == report.calibrated_frames == report.roi_frames == 4
     assert set(report.channels) == {"x", "y", "z", "intensity", "ring", "time", "label", "instance"}
-    assert 0.0 <= report.channels["intensity"].minimum and report.channels["intensity"].maximum <= 1.0
+    assert report.channels["intensity"].minimum >= 0.0 and report.channels["intensity"].maximum <= 1.0
     assert sum(report.classes.values()) == sum(summary.label_counts.values()) > 0
     assert (root / "ImageSets" / "train.txt").read_text().split() == ["000000", "000001"]
     assert (root / "ImageSets" / "val.txt").read_text().split() == ["000002", "000003"]

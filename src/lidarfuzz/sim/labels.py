@@ -85,11 +85,8 @@ def label_actors(
     inside, in_front_uv = _image_coverage(calib, boxes)
     truncation = 1.0 - inside
     distance = np.hypot(boxes[:, 0], boxes[:, 1])
-    box2d = np.full((n, 4), np.nan)
-    height_px = np.zeros(n)
-    for i in range(n):
-        box2d[i] = _box2d(calib, boxes[i], in_front_uv[i])
-        height_px[i] = box2d[i, 3] - box2d[i, 1] if np.isfinite(box2d[i]).all() else 0.0
+    box2d = _boxes2d(calib, boxes, in_front_uv)
+    height_px = np.where(np.isfinite(box2d).all(axis=1), box2d[:, 3] - box2d[:, 1], 0.0)
 
     seen = (num_points > 0) & (truncation < 0.99)
     dontcare = seen & ((distance > config.dontcare_range) | (num_points < config.min_points)
@@ -99,7 +96,9 @@ def label_actors(
     visibility = np.full(n, np.nan)
     for i in np.flatnonzero(labelled):
         candidates = _rays_towards(renderer, boxes[i])
-        alone = renderer.visible_rays_alone(actors, owner, i, origins, directions, candidates)
+        # Rays that hit the object in the scene would hit it alone too: cast only the others.
+        hidden = candidates[geometric_owner[candidates] != i]
+        alone = geometric_hits[i] + renderer.visible_rays_alone(actors, owner, i, origins, directions, hidden)
         visibility[i] = min(1.0, geometric_hits[i] / alone) if alone else 1.0
 
     track_ids = np.array([a.track_id for a in world.actors], np.int64)
@@ -148,19 +147,23 @@ def _image_coverage(calib: Any, boxes: NDArray[np.float64]) -> tuple[NDArray[np.
     return inside.mean(axis=1), [uv[i][front[i]] for i in range(n)]
 
 
-def _box2d(calib: Any, box: NDArray[np.float64], front_uv: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The devkit's 2D box (projected corners, clipped) when the box is in front of the camera;
-    otherwise the clipped extent of its in-front volume samples."""
-    corners = box_corners(box[None])[0]
+def _boxes2d(calib: Any, boxes: NDArray[np.float64], front_uv: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """The devkit's 2D boxes (projected corners, clipped) for boxes wholly in front of the camera;
+    for the others, the clipped extent of their in-front volume samples (NaN when none)."""
+    n = len(boxes)
+    corners = box_corners(boxes).reshape(-1, 3)
     _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
-    if np.all(depth > 0.1):
-        return calib.boxes_to_image(box[None])[0]
-    if len(front_uv) == 0:
-        return np.full(4, np.nan)
+    in_front = np.all(depth.reshape(n, 8) > 0.1, axis=1)
+    out = np.full((n, 4), np.nan)
+    if in_front.any():
+        out[in_front] = calib.boxes_to_image(boxes[in_front])
     height, width = calib.image_shape
-    lo, hi = front_uv.min(axis=0), front_uv.max(axis=0)
-    return np.array([np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
-                     np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)])
+    for i in np.flatnonzero(~in_front):
+        if len(front_uv[i]):
+            lo, hi = front_uv[i].min(axis=0), front_uv[i].max(axis=0)
+            out[i] = [np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
+                      np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)]
+    return out
 
 
 def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.intp]:

@@ -35,7 +35,7 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.labels import LabelConfig, label_actors
 from lidarfuzz.sim.meshes import Mesh
-from lidarfuzz.sim.world import World, as_multipolygon
+from lidarfuzz.sim.world import World, as_multipolygon, positions_at
 
 CHANNELS = ("x", "y", "z", "intensity", "ring", "time", "label", "instance")
 ROI_RADIUS = 150.0  # the drivable area saved with a frame is clipped to this square around the sensor
@@ -71,8 +71,15 @@ class Renderer:
         self.calib = calib or KittiCalibration.default()
         self.labels = labels or LabelConfig()
         self._device = _shared_device()
-        self._static_vertices = world.static.vertices.astype(np.float32)
-        self._static_faces = world.static.faces
+        self._static_scene: rtcore_scene.EmbreeScene | None = None
+        # Road users that never move are static geometry: built into the static scene once.
+        self._still = [a for a in world.actors if a.trajectory.speed == 0]
+        self._moving = [a for a in world.actors if a.trajectory.speed != 0]
+        still = [a.mesh_at(0.0, world.ground) for a in self._still]
+        self._still_mesh = Mesh.concat([m for m, _ in still])
+        self._still_owner = np.concatenate([np.full(len(m), a.index, np.int32) for (m, _), a in
+                                            zip(still, self._still, strict=True)] or [np.zeros(0, np.int32)])
+        self._still_poses = {a.index: pose for (_, pose), a in zip(still, self._still, strict=True)}
         self._local_directions = self.sensor.local_directions.reshape(-1, 3).astype(np.float32)
         self._direction_components = [np.ascontiguousarray(self._local_directions[:, k]) for k in range(3)]
         self._ring_of_ray = np.tile(np.arange(self.sensor.beams, dtype=np.float32), self.sensor.columns)
@@ -95,26 +102,35 @@ class Renderer:
         return pose
 
     def actor_times(self, t_ref: float) -> NDArray[np.float64]:
-        """When the head sweeps over each actor (absolute times), found by two fixed-point steps."""
-        times = np.full(len(self.world.actors), t_ref)
-        for _ in range(2):
-            for i, actor in enumerate(self.world.actors):
-                ax, ay, _ = actor.trajectory.at(times[i])
-                ex, ey, _, eyaw = self.ego_pose(times[i])
-                azimuth = np.arctan2(ay[0] - ey[0], ax[0] - ex[0]) - eyaw[0]
-                times[i] = t_ref + float(self.sensor.time_of_azimuth(azimuth))
+        """When the head sweeps over each actor (absolute times), found by two fixed-point steps
+        (one when nothing moves)."""
+        actors = self.world.actors
+        times = np.full(len(actors), t_ref)
+        if not actors:
+            return times
+        moving = self.world.ego.speed > 0 or any(a.trajectory.speed > 0 for a in actors)
+        for _ in range(2 if moving else 1):
+            positions = positions_at(actors, times)
+            ex, ey, _, eyaw = self.ego_pose(times)
+            azimuth = np.arctan2(positions[:, 1] - ey, positions[:, 0] - ex) - eyaw
+            times = t_ref + self.sensor.time_of_azimuth(azimuth)
         return times
 
     def _actor_meshes(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
-        meshes, owner, poses = [], [], []
-        for actor, t in zip(self.world.actors, times, strict=True):
-            mesh, pose = actor.mesh_at(float(t), self.world.ground)
+        """All road users' mesh (the still ones' faces first), each face's owner, and every
+        actor's (x, y, z, yaw) at its time."""
+        meshes, owner = [self._still_mesh], [self._still_owner]
+        poses = np.zeros((len(self.world.actors), 4))
+        for index, pose in self._still_poses.items():
+            poses[index] = pose
+        moving_times = times[[a.index for a in self._moving]]
+        placed = positions_at(tuple(self._moving), moving_times)
+        for actor, t, xy_yaw in zip(self._moving, moving_times, placed, strict=True):
+            mesh, pose = actor.mesh_at(float(t), self.world.ground, (xy_yaw[0], xy_yaw[1], xy_yaw[2]))
             meshes.append(mesh)
             owner.append(np.full(len(mesh), actor.index, np.int32))
-            poses.append(pose)
-        if not meshes:
-            return Mesh.empty(), np.zeros(0, np.int32), np.zeros((0, 4))
-        return Mesh.concat(meshes), np.concatenate(owner), np.asarray(poses)
+            poses[actor.index] = pose
+        return Mesh.concat(meshes), np.concatenate(owner), poses
 
     def rays(self, t_ref: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """World-frame origins and unit directions of every ray, in firing order (column-major)."""
@@ -130,19 +146,119 @@ class Renderer:
         origins = np.repeat(np.stack([x, y, z], axis=1).astype(np.float32), sensor.beams, axis=0)
         return origins, directions.reshape(-1, 3)
 
-    def cast(self, origins: NDArray[np.float32], directions: NDArray[np.float32], actors: Mesh) -> Hits:
-        scene = rtcore_scene.EmbreeScene(self._device)
-        if len(self._static_faces):
-            TriangleMesh(scene, self._static_vertices, self._static_faces)
-        geometry_of_actors = 1 if len(self._static_faces) else 0
-        if len(actors):
+    def _static(self) -> rtcore_scene.EmbreeScene | None:
+        """The static world's Embree scene, built once (loading triangles dominates its cost)."""
+        static, still = self.world.static, self._still_mesh
+        if self._static_scene is None and (len(static) or len(still)):
+            scene = rtcore_scene.EmbreeScene(self._device)
+            # Geometry ids in the order added: the world (0) then the still road users (1).
+            for mesh in (static, still):
+                if len(mesh):
+                    TriangleMesh(scene, mesh.vertices.astype(np.float32), mesh.faces)
+                else:  # keep the ids stable with a degenerate placeholder triangle far away
+                    TriangleMesh(scene, np.full((3, 3), -1e6, np.float32), np.array([[0, 1, 2]], np.int32))
+            self._static_scene = scene
+        return self._static_scene
+
+    def cast(self, origins: NDArray[np.float32], directions: NDArray[np.float32], actors: Mesh,
+             owner: NDArray[np.int32] | None = None, viewpoints: NDArray[np.float64] | None = None) -> Hits:
+        """Nearest hit of every ray: the static scene (world and still road users) first, then the
+        moving road users up to that distance. ``actors`` is :meth:`_actor_meshes`' mesh: faces
+        of still road users first; ``geometry`` of a hit is 0 for the world, 1 for a road user,
+        and ``face`` indexes the world's mesh or ``actors`` respectively."""
+        n = len(origins)
+        static = self._static()
+        still_faces = len(self._still_mesh)
+        if static is not None:
+            result = static.run(origins, directions, dists=np.full(n, self.sensor.max_range, np.float32), output=1)
+            distance, face, normal = result["tfar"], result["primID"].astype(np.int32), result["Ng"]
+            geometry = result["geomID"].astype(np.int32)
+        else:
+            distance = np.full(n, self.sensor.max_range, np.float32)
+            face, geometry, normal = np.full(n, -1, np.int32), np.full(n, -1, np.int32), np.zeros((n, 3), np.float32)
+        still_vertices = len(self._still_mesh.vertices)
+        moving = Mesh(actors.vertices[still_vertices:], actors.faces[still_faces:] - still_vertices,
+                      actors.reflectivity[still_faces:], actors.semantic[still_faces:])
+        if len(moving):
+            owner = None if owner is None else owner[still_faces:]
+            actors = moving
+            scene = rtcore_scene.EmbreeScene(self._device)
             TriangleMesh(scene, actors.vertices.astype(np.float32), actors.faces)
-        limit = np.full(len(origins), self.sensor.max_range, np.float32)
-        result = scene.run(origins, directions, dists=limit, output=1)
-        geometry = result["geomID"].astype(np.int32)
-        if geometry_of_actors == 0:
-            geometry = np.where(geometry == 0, 1, geometry).astype(np.int32)
-        return Hits(result["tfar"], geometry, result["primID"].astype(np.int32), result["Ng"])
+            # Only rays fired towards a road user, and only up to the static hit: nearer road users.
+            rays = np.flatnonzero(self._rays_towards_mesh(origins, actors, owner, viewpoints))
+            if len(rays):
+                limit = np.nextafter(distance[rays], np.float32(np.inf))
+                found = scene.run(origins[rays], directions[rays], dists=limit, output=1)
+                nearer = found["geomID"] >= 0
+                hit = rays[nearer]
+                distance = distance.copy()
+                distance[hit] = found["tfar"][nearer]
+                face[hit] = found["primID"][nearer] + still_faces
+                geometry[hit] = 1
+                normal = normal.copy()
+                normal[hit] = found["Ng"][nearer]
+        return Hits(distance, geometry, face, normal)
+
+    def _rays_towards_mesh(self, origins: NDArray[np.float32], mesh: Mesh, owner: NDArray[np.int32] | None,
+                           viewpoints: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
+        """Rays (column × beam grid) fired into the angular extent of each object of ``mesh``
+        (faces grouped by ``owner``) seen from ``viewpoints`` (the sensor when the head sweeps
+        over each object; by default where it is mid-sweep), widened by the sensor's travel
+        while sweeping over the object, and two steps."""
+        sensor = self.sensor
+        groups = np.zeros(len(mesh.faces), np.int64) if owner is None else owner.astype(np.int64)
+        vertex_group = np.zeros(len(mesh.vertices), np.int64)
+        vertex_group[mesh.faces.ravel()] = np.repeat(groups, 3)
+        if viewpoints is None:
+            centre = origins[sensor.beams * (sensor.columns // 2)].astype(np.float64)
+            viewpoints = np.tile(centre, (int(groups.max()) + 1, 1))
+            sweep_travel = float(np.linalg.norm(origins[-1] - origins[0]))
+        else:
+            sweep_travel = float(np.linalg.norm(origins[-1] - origins[0]))
+        offset = mesh.vertices - viewpoints[vertex_group]
+        distance_xy = np.hypot(offset[:, 0], offset[:, 1])
+        azimuth = np.arctan2(offset[:, 1], offset[:, 0])
+        elevation = np.arctan2(offset[:, 2], distance_xy)
+        ids, first = np.unique(vertex_group, return_index=True)
+        n = int(ids.max()) + 1
+        reference = np.zeros(n)
+        reference[ids] = azimuth[first]
+        relative = np.angle(np.exp(1j * (azimuth - reference[vertex_group])))  # unwrapped around the object
+        lo_az, hi_az = np.full(n, np.inf), np.full(n, -np.inf)
+        lo_el, hi_el = np.full(n, np.inf), np.full(n, -np.inf)
+        nearest = np.full(n, np.inf)
+        np.minimum.at(lo_az, vertex_group, relative)
+        np.maximum.at(hi_az, vertex_group, relative)
+        np.minimum.at(lo_el, vertex_group, elevation)
+        np.maximum.at(hi_el, vertex_group, elevation)
+        np.minimum.at(nearest, vertex_group, distance_xy)
+        lo_az, hi_az, lo_el, hi_el, nearest, reference = (a[ids] for a in (lo_az, hi_az, lo_el, hi_el, nearest,
+                                                                          reference))
+        # While the head sweeps over an object the sensor moves by a share of a sweep's travel.
+        share = np.minimum((hi_az - lo_az) / (2 * np.pi) + 0.05, 1.0)
+        travel = sweep_travel * share + 0.05
+        widen = np.minimum(travel / np.maximum(nearest, 1e-3), np.pi) + 2.0 * 2.0 * np.pi / sensor.columns
+        close = nearest < travel + 0.3  # the sensor (nearly) inside: every direction
+        lo_az, hi_az = np.where(close, -np.pi, lo_az - widen), np.where(close, np.pi, hi_az + widen)
+        first_col = np.floor(sensor.column_of_azimuth(reference + hi_az)).astype(np.int64)
+        span = np.minimum(np.ceil((hi_az - lo_az) / (2 * np.pi) * sensor.columns).astype(np.int64) + 2,
+                          sensor.columns)
+        elevations = sensor.ring_elevations
+        lo_ring = np.searchsorted(elevations, np.where(close, -np.pi, lo_el - widen))
+        hi_ring = np.searchsorted(elevations, np.where(close, np.pi, hi_el + widen))
+        grid = np.zeros((sensor.columns + 1, sensor.beams + 1), np.int32)  # a 2D difference array
+        first_col %= sensor.columns
+        end = first_col + span
+        wrap = end > sensor.columns
+        for start, stop, r0, r1 in ((first_col, np.minimum(end, sensor.columns), lo_ring, hi_ring),
+                                    (np.zeros(int(wrap.sum()), np.int64), end[wrap] - sensor.columns,
+                                     lo_ring[wrap], hi_ring[wrap])):
+            np.add.at(grid, (start, r0), 1)
+            np.add.at(grid, (start, r1), -1)
+            np.add.at(grid, (stop, r0), -1)
+            np.add.at(grid, (stop, r1), 1)
+        covered = grid.cumsum(axis=0).cumsum(axis=1)[: sensor.columns, : sensor.beams] > 0
+        return covered.ravel()
 
     def visible_rays_alone(self, actors: Mesh, owner: NDArray[np.int32], index: int,
                            origins: NDArray[np.float32], directions: NDArray[np.float32],
@@ -171,7 +287,8 @@ class Renderer:
         times = self.actor_times(t_ref)
         actors, owner, actor_poses = self._actor_meshes(times)
         origins, directions = self.rays(t_ref)
-        hits = self.cast(origins, directions, actors)
+        ex, ey, ez, _ = self.ego_pose(times)
+        hits = self.cast(origins, directions, actors, owner, np.stack([ex, ey, ez], axis=1) if len(times) else None)
 
         n = len(origins)
         geometric = (hits.geometry >= 0) & (hits.distance >= sensor.min_range) & (hits.distance <= sensor.max_range)

@@ -93,13 +93,36 @@ class PlacedActor:
     trajectory: Trajectory
     phase: float  # walking phase offset (radians)
 
-    def mesh_at(self, t: float, ground: Ground) -> tuple[Mesh, tuple[float, float, float, float]]:
-        """World-frame mesh and (x, y, z, yaw) at time ``t``, standing on the ``ground`` surface."""
-        x, y, yaw = (float(v[0]) for v in self.trajectory.at(t))
+    def mesh_at(self, t: float, ground: Ground, xy_yaw: tuple[float, float, float] | None = None,
+                ) -> tuple[Mesh, tuple[float, float, float, float]]:
+        """World-frame mesh and (x, y, z, yaw) at time ``t``, standing on the ``ground`` surface
+        (``xy_yaw``: the position at ``t`` when the caller has it already)."""
+        x, y, yaw = xy_yaw if xy_yaw is not None else (float(v[0]) for v in self.trajectory.at(t))
         z = ground.height(x, y)
         phase = self.phase + 2 * np.pi * float(self.trajectory.distance(t)) / STRIDE
         local = actor_mesh(self.cls, self.size, phase)
         return local.painted(self.reflectivity, OBJECT_SEMANTIC[self.cls]).placed(x, y, yaw, z), (x, y, z, yaw)
+
+
+def positions_at(actors: tuple[PlacedActor, ...], times: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(x, y, yaw) of every actor at its own time, N×3; straight-line motion is vectorised."""
+    out = np.empty((len(actors), 3))
+    straight = [i for i, a in enumerate(actors) if len(a.trajectory.waypoints) == 2]
+    if straight:
+        index = np.asarray(straight)
+        start = np.array([actors[i].trajectory.waypoints[0] for i in straight])
+        end = np.array([actors[i].trajectory.waypoints[1] for i in straight])
+        speed = np.array([actors[i].trajectory.speed for i in straight])
+        seg = end - start
+        length = np.linalg.norm(seg, axis=1)
+        unit = seg / np.maximum(length, 1e-12)[:, None]
+        s = np.minimum(times[index] * speed, length)
+        out[index, :2] = start + s[:, None] * unit
+        out[index, 2] = np.where(length > 1e-9, np.arctan2(seg[:, 1], seg[:, 0]), 0.0)
+    for i, actor in enumerate(actors):
+        if len(actor.trajectory.waypoints) != 2:
+            out[i] = [float(v[0]) for v in actor.trajectory.at(times[i])]
+    return out
 
 
 @dataclass(frozen=True, eq=False)
