@@ -54,10 +54,15 @@ def register(app: typer.Typer) -> None:
                                   val_fraction=val_fraction)
         columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
                    TimeElapsedColumn(), TimeRemainingColumn())
-        with Progress(*columns, console=console, transient=True) as progress:
-            task = progress.add_task("rendering", total=frames)
-            summary = generate_dataset(out, config, workers=workers, overwrite=overwrite, resume=resume,
-                                       on_frame=lambda _result: progress.advance(task))
+        try:
+            with Progress(*columns, console=console, transient=True) as progress:
+                task = progress.add_task("rendering", total=frames)
+                summary = generate_dataset(out, config, workers=workers, overwrite=overwrite, resume=resume,
+                                           on_frame=lambda _result: progress.advance(task))
+        except KeyboardInterrupt:
+            console.print(f"interrupted: the frames written so far are kept; finish with the same command "
+                          f"and [bold]--resume[/] (out: {out})")
+            raise typer.Exit(130) from None
         table = Table("class", "objects", title=f"labels in {summary.frames} frame(s)")
         for name, count in sorted(summary.label_counts.items(), key=lambda kv: -kv[1]):
             table.add_row(name, str(count))

@@ -242,6 +242,8 @@ def generate_dataset(
         if previous.get("config") != record["config"]:
             raise LidarfuzzError(f"{root}: was generated with a different configuration; "
                                  f"resume with the same options, or choose a new folder")
+        for stray in root.glob("*/.*.tmp"):  # half-written files of a killed run (never renamed into place)
+            stray.unlink()
     elif root.is_dir() and any(root.iterdir()):
         if not overwrite:
             raise DataFormatError(root, "folder exists and is not empty; choose a new folder, or pass --overwrite "

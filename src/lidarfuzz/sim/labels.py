@@ -98,7 +98,7 @@ def label_actors(
         candidates = _rays_towards(renderer, boxes[i])
         # Rays that hit the object in the scene would hit it alone too: cast only the others.
         hidden = candidates[geometric_owner[candidates] != i]
-        alone = geometric_hits[i] + renderer.visible_rays_alone(actors, owner, i, origins, directions, hidden)
+        alone = geometric_hits[i] + renderer.visible_rays_alone(actors, owner, int(i), origins, directions, hidden)
         visibility[i] = min(1.0, geometric_hits[i] / alone) if alone else 1.0
 
     track_ids = np.array([a.track_id for a in world.actors], np.int64)

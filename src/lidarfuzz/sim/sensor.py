@@ -178,7 +178,8 @@ def load_sensor(spec: str | PathLike[str] | LidarSensor | dict[str, Any]) -> Lid
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise DataFormatError(path, f"cannot read sensor description: {exc}") from None
     if not isinstance(raw, dict):
-        raise DataFormatError(path, "a sensor description must be a mapping of fields (see lidarfuzz gen --help)")
+        raise DataFormatError(path, "a sensor description must be a mapping of fields such as preset, "
+                              "elevations_deg, columns, max_range, mount_height (see docs/simulator.md)")
     return _sensor_from_mapping(raw, source=path)
 
 
