@@ -164,3 +164,23 @@ def test_actors_move_between_frames():
     a = first.boxes.select(first.boxes.track_ids == 3).centers[0]
     b = later.boxes.select(later.boxes.track_ids == 3).centers[0]
     assert b[0] - a[0] == pytest.approx(5.0, abs=0.05)
+
+
+def test_a_car_following_across_the_sweep_seam_stays_in_one_piece():
+    # Straight behind, the head passes the car's two halves a whole sweep apart; a car that
+    # keeps its distance must still come out in one piece, not split by the ego's travel.
+    follow = {"ego": {"speed": 15},
+              "actors": [{"class": "Car", "position": [-12, 0], "speed": 15, "id": 1, "reflectivity": 0.5}]}
+
+    def split(description):
+        scene = render(description)
+        car = scene.points.xyz[scene.points.channel("instance") == 1]
+        front = car[car[:, 0] > -11.0]  # the face towards the sensor (and the bonnet above it)
+        left, right = front[front[:, 1] > 0.1], front[front[:, 1] < -0.1]
+        assert len(left) > 20 and len(right) > 20
+        return abs(float(np.max(left[:, 0]) - np.max(right[:, 0])))
+
+    assert split(follow) < 0.1
+    # A parked car at the seam IS split by the ego's travel during the sweep: 15 m/s × 0.1 s.
+    parked = {**follow, "actors": [{**follow["actors"][0], "speed": 0}]}
+    assert split(parked) == pytest.approx(1.5, abs=0.15)

@@ -11,6 +11,7 @@ and point patterns, not boxes.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from functools import lru_cache
 
@@ -185,7 +186,7 @@ def actor_mesh(cls: str, size: tuple[float, float, float], phase: float = 0.0) -
         pose = int(np.floor(np.mod(phase, 2 * np.pi) / (2 * np.pi) * WALK_POSES)) % WALK_POSES
     template = _cached_mesh(cls, mean_size(cls), pose)
     scale = np.asarray(size, np.float64) / np.asarray(mean_size(cls))
-    return Mesh(template.vertices * scale, template.faces, template.reflectivity, template.semantic)
+    return dataclasses.replace(template, vertices=template.vertices * scale)
 
 
 @lru_cache(maxsize=4096)

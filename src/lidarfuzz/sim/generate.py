@@ -29,7 +29,8 @@ from shapely.geometry import box as shapely_box
 
 from lidarfuzz.sim.actors import sample_size
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor
-from lidarfuzz.sim.spec import Road, SceneSpec
+from lidarfuzz.sim.spec import Crosswalk, Road, SceneSpec
+from lidarfuzz.sim.world import footprint_of
 
 SceneKind = Literal["urban", "suburban"]
 SCENE_KINDS: tuple[str, ...] = ("urban", "suburban")
@@ -47,8 +48,7 @@ class _Layout:
     def free(self, footprint: Polygon, margin: float = 0.3) -> bool:
         if not self.occupied:
             return True
-        grown = footprint.buffer(margin)
-        return not bool(np.any(shapely.intersects(np.asarray(self.occupied, dtype=object), grown)))
+        return not bool(np.any(shapely.dwithin(np.asarray(self.occupied, dtype=object), footprint, margin)))
 
     def take(self, footprint: Polygon) -> None:
         self.occupied.append(footprint)
@@ -63,9 +63,11 @@ class _Layout:
         return True
 
     def add_actor(self, cls: str, x: float, y: float, yaw: float, *, speed: float = 0.0,
-                  parked: bool = False, margin: float = 0.4) -> bool:
+                  parked: bool = False, margin: float = 0.4, off_road: bool = False) -> bool:
         size = sample_size(self.rng, cls)
         footprint = _oriented(x, y, size[0], size[1], yaw)
+        if off_road and self.drivable is not None and footprint.intersects(self.drivable):
+            return False
         if not self.free(footprint, margin):
             return False
         self.take(footprint)
@@ -77,6 +79,10 @@ class _Layout:
             actor["parked"] = True
         self.actors.append(actor)
         return True
+
+
+def parse_object(obj: dict[str, Any]) -> Crosswalk:
+    return Crosswalk.model_validate(obj)
 
 
 def _r(value: float) -> float:
@@ -114,8 +120,12 @@ def generate_scene(
         >>> spec == generate_scene(3)
         True
     """
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5CE7E]))
-    kind = kind or ("urban" if rng.random() < 0.7 else "suburban")
+    # Separate streams: fixing the kind or the ego's speed leaves the rest of the scene as the seed made it.
+    kind_rng, speed_rng, rng = (np.random.default_rng(np.random.SeedSequence([seed, 0x5CE7E, stream]))
+                                for stream in range(3))
+    drawn_kind: SceneKind = "urban" if kind_rng.random() < 0.7 else "suburban"
+    drawn_speed = 0.0 if speed_rng.random() < 0.15 else float(speed_rng.uniform(4.0, 14.0))
+    kind = kind or drawn_kind
     if kind not in SCENE_KINDS:
         raise ValueError(f"unknown scene kind {kind!r}; choose one of {', '.join(SCENE_KINDS)}")
     urban = kind == "urban"
@@ -128,7 +138,7 @@ def generate_scene(
     half = lanes * lane_width / 2
     ego_y = -half + lane_width / 2
     if ego_speed is None:
-        ego_speed = 0.0 if rng.random() < 0.15 else float(rng.uniform(4.0, 14.0))
+        ego_speed = drawn_speed
     travel = ego_speed * max(duration, 0.0)
     x_lo, x_hi = -HALF_SPAN, HALF_SPAN + travel
     main = Road(centerline=[(x_lo - 40, 0.0), (x_hi + 40, 0.0)], lanes=lanes, lane_width=lane_width,
@@ -282,19 +292,24 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
             cls = str(rng.choice(["Car", "Car", "Car", "Car", "Van", "Truck"]))
             x = rng.uniform(span_lo, span_hi)
             layout.add_actor(cls, x, y + rng.normal(0, 0.15), 0.0 if forward else np.pi, speed=speed, margin=2.0)
-    # Parked vehicles along both kerbs (in the parking strips when there are any).
-    parked_y = half + (main.parking_width / 2 if main.parking_width else 0.0)
-    for side in (-1.0, 1.0):
-        if main.parking_width == 0 and rng.random() < 0.5:
-            continue
-        y = side * (parked_y if main.parking_width else half - 1.0)
-        x = span_lo + rng.uniform(0, 6)
-        while x < span_hi:
-            if rng.random() < (0.65 if urban else 0.3):
-                cls = str(rng.choice(["Car", "Car", "Car", "Van"]))
-                layout.add_actor(cls, x, y + rng.normal(0, 0.1), (0.0 if side < 0 else np.pi) + rng.normal(0, 0.03),
-                                 parked=True, margin=0.3)
-            x += rng.uniform(5.0, 8.0)
+    # Parked vehicles in the parking strips (a road without strips has none: they would stand in
+    # the outer lane), never in a junction's mouth or on a zebra crossing.
+    if main.parking_width:
+        no_parking = [footprint_of(parse_object(o)).buffer(1.0) for o in layout.objects if o["kind"] == "crosswalk"]
+        if junction_x is not None and len(roads) > 1:
+            mouth = roads[1].half_width + roads[1].sidewalk_width + 4.0
+            no_parking.append(shapely_box(junction_x - mouth, -HALF_SPAN, junction_x + mouth, HALF_SPAN))
+        y_strip = half + main.parking_width / 2
+        for side in (-1.0, 1.0):
+            x = span_lo + rng.uniform(0, 6)
+            while x < span_hi:
+                if rng.random() < (0.65 if urban else 0.3):
+                    cls = str(rng.choice(["Car", "Car", "Car", "Van"]))
+                    y = side * y_strip + rng.normal(0, 0.1)
+                    if not any(zone.contains(Point(x, y)) or zone.distance(Point(x, y)) < 2.5 for zone in no_parking):
+                        layout.add_actor(cls, x, y, (0.0 if side < 0 else np.pi) + rng.normal(0, 0.03),
+                                         parked=True, margin=0.3)
+                x += rng.uniform(5.0, 8.0)
     # Traffic on the crossing street, stopped or moving.
     if junction_x is not None and len(roads) > 1:
         half_lane = roads[1].lane_width / 2
@@ -310,10 +325,10 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
         x = rng.uniform(span_lo, span_hi)
         y = side * (walk_y + rng.uniform(-0.4, 0.4) * main.sidewalk_width)
         if rng.random() < 0.3:
-            layout.add_actor("Pedestrian", x, y, rng.uniform(-np.pi, np.pi))
+            layout.add_actor("Pedestrian", x, y, rng.uniform(-np.pi, np.pi), off_road=True)
         else:
             heading = 0.0 if rng.random() < 0.5 else np.pi
-            layout.add_actor("Pedestrian", x, y, heading, speed=float(rng.uniform(0.8, 1.7)))
+            layout.add_actor("Pedestrian", x, y, heading, speed=float(rng.uniform(0.8, 1.7)), off_road=True)
     for obj in [o for o in layout.objects if o["kind"] == "crosswalk"]:
         for _ in range(int(rng.poisson(1.5))):
             x = obj["position"][0] + rng.uniform(-1.2, 1.2)

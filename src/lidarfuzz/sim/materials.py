@@ -14,16 +14,21 @@ from dataclasses import dataclass
 #: Point-level classes written to the ``label`` channel (the index is the value).
 SEMANTIC_CLASSES: tuple[str, ...] = (
     "unlabelled", "road", "lane-marking", "sidewalk", "terrain", "building", "wall", "vegetation",
-    "trunk", "pole", "traffic-sign", "car", "van", "truck", "pedestrian", "cyclist",
+    "trunk", "pole", "traffic-sign", "car", "van", "truck", "pedestrian", "cyclist", "other-ground",
 )
 SEMANTIC_ID: dict[str, int] = {name: i for i, name in enumerate(SEMANTIC_CLASSES)}
 
 
 @dataclass(frozen=True)
 class Material:
+    """A surface: diffuse reflectance at 905 nm, the semantic class of its points, and the
+    probability that a beam hitting it returns at all (glass mostly transmits or mirrors the
+    beam away: windows show as holes in real scans)."""
+
     name: str
     reflectivity: float
     semantic: str
+    returns: float = 1.0
 
 
 _MATERIALS = (
@@ -32,10 +37,11 @@ _MATERIALS = (
     Material("paving", 0.30, "sidewalk"),
     Material("kerb", 0.35, "sidewalk"),
     Material("grass", 0.42, "terrain"),
+    Material("pavement", 0.28, "other-ground"),
     Material("soil", 0.25, "terrain"),
     Material("plaster", 0.50, "building"),
     Material("brick", 0.32, "building"),
-    Material("window", 0.06, "building"),
+    Material("window", 0.06, "building", returns=0.3),
     Material("concrete", 0.38, "wall"),
     Material("fence", 0.25, "wall"),
     Material("foliage", 0.55, "vegetation"),
@@ -44,7 +50,7 @@ _MATERIALS = (
     Material("metal", 0.40, "pole"),
     Material("sign", 0.90, "traffic-sign"),
     Material("tyre", 0.04, "car"),
-    Material("car-glass", 0.05, "car"),
+    Material("car-glass", 0.05, "car", returns=0.3),
     Material("plate", 0.85, "car"),
     Material("light", 0.75, "car"),
     Material("cloth", 0.40, "pedestrian"),

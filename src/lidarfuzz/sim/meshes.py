@@ -7,6 +7,7 @@ triangulated with shapely's constrained Delaunay triangulation.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -31,6 +32,11 @@ class Mesh:
     faces: NDArray[np.int32]
     reflectivity: NDArray[np.float32]
     semantic: NDArray[np.uint8]
+    returns: NDArray[np.float32] = None  # type: ignore[assignment]  # probability of a return; all 1 if None
+
+    def __post_init__(self) -> None:
+        if self.returns is None:
+            object.__setattr__(self, "returns", np.ones(len(self.faces), np.float32))
 
     @staticmethod
     def empty() -> Mesh:
@@ -41,13 +47,14 @@ class Mesh:
            semantic: str | None = None) -> Mesh:
         """A mesh whose faces all have one material (``None`` = the object's paint)."""
         n = len(faces)
+        returns = 1.0
         if material_name is None:
             refl, sem = PAINT, SEMANTIC_ID[semantic or "unlabelled"]
         else:
             mat = material(material_name)
-            refl, sem = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic]
+            refl, sem, returns = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic], mat.returns
         return Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32),
-                    np.full(n, refl, np.float32), np.full(n, sem, np.uint8))
+                    np.full(n, refl, np.float32), np.full(n, sem, np.uint8), np.full(n, returns, np.float32))
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -63,6 +70,7 @@ class Mesh:
             np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)]).astype(np.int32),
             np.concatenate([p.reflectivity for p in parts]),
             np.concatenate([p.semantic for p in parts]),
+            np.concatenate([p.returns for p in parts]),
         )
 
     def placed(self, x: float, y: float, yaw: float, z: float = 0.0) -> Mesh:
@@ -73,13 +81,13 @@ class Mesh:
         out[:, 0] = c * v[:, 0] - s * v[:, 1] + x
         out[:, 1] = s * v[:, 0] + c * v[:, 1] + y
         out[:, 2] = v[:, 2] + z
-        return Mesh(out, self.faces, self.reflectivity, self.semantic)
+        return dataclasses.replace(self, vertices=out)
 
     def painted(self, reflectivity: float, semantic: str | None = None) -> Mesh:
         """Paint placeholders replaced by ``reflectivity``; every face relabelled when ``semantic`` is given."""
         refl = np.where(self.reflectivity == PAINT, np.float32(reflectivity), self.reflectivity).astype(np.float32)
         sem = self.semantic if semantic is None else np.full(len(self.faces), SEMANTIC_ID[semantic], np.uint8)
-        return Mesh(self.vertices, self.faces, refl, sem)
+        return dataclasses.replace(self, reflectivity=refl, semantic=sem)
 
 
 # --------------------------------------------------------------------------- templates
@@ -127,7 +135,8 @@ def box(size: Sequence[float], center: Sequence[float], material_name: str | Non
     if top_material is not False:
         up = np.all(verts[faces][:, :, 2] > 0, axis=1)
         roof = Mesh.of(v, faces[up], top_material if isinstance(top_material, str) else None)
-        mesh = Mesh.concat([Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up]), roof])
+        sides = Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up], mesh.returns[~up])
+        mesh = Mesh.concat([sides, roof])
     return mesh.placed(center[0], center[1], yaw, center[2])
 
 

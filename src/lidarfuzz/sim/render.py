@@ -57,9 +57,23 @@ class Hits:
     """Raw ray-casting result for all rays of a frame, in firing order."""
 
     distance: NDArray[np.float32]
-    geometry: NDArray[np.int32]  # 0 static, 1 actors, -1 none
-    face: NDArray[np.int32]
+    geometry: NDArray[np.int32]  # 0 the world, 1 a road user, -1 nothing
     normal: NDArray[np.float32]
+    reflectivity: NDArray[np.float32]
+    semantic: NDArray[np.uint8]
+    owner: NDArray[np.int64]  # index of the road user hit, -1 otherwise
+    returns: NDArray[np.float32]  # probability that the surface hit returns the beam
+
+
+@dataclass(frozen=True)
+class MovingPart:
+    """Moving road users posed for some of the rays: a mesh, each face's owner, where the sensor was
+    when it swept over each owner, and the rays (a mask in firing order) that may see this pose."""
+
+    mesh: Mesh
+    owner: NDArray[np.int32]
+    viewpoints: NDArray[np.float64]  # indexed by actor index
+    rays: NDArray[np.bool_]
 
 
 class Renderer:
@@ -116,21 +130,51 @@ class Renderer:
             times = t_ref + self.sensor.time_of_azimuth(azimuth)
         return times
 
-    def _actor_meshes(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
-        """All road users' mesh (the still ones' faces first), each face's owner, and every
-        actor's (x, y, z, yaw) at its time."""
-        meshes, owner = [self._still_mesh], [self._still_owner]
-        poses = np.zeros((len(self.world.actors), 4))
-        for index, pose in self._still_poses.items():
-            poses[index] = pose
+    def _moving_mesh(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
+        """The moving road users posed at ``times`` (indexed by actor index): mesh, owners, poses."""
         moving_times = times[[a.index for a in self._moving]]
         placed = positions_at(tuple(self._moving), moving_times)
+        meshes, owner, poses = [], [], np.zeros((len(self.world.actors), 4))
         for actor, t, xy_yaw in zip(self._moving, moving_times, placed, strict=True):
             mesh, pose = actor.mesh_at(float(t), self.world.ground, (xy_yaw[0], xy_yaw[1], xy_yaw[2]))
             meshes.append(mesh)
             owner.append(np.full(len(mesh), actor.index, np.int32))
             poses[actor.index] = pose
-        return Mesh.concat(meshes), np.concatenate(owner), poses
+        return Mesh.concat(meshes), np.concatenate(owner or [np.zeros(0, np.int32)]), poses
+
+    def moving_parts(self, t_ref: float, times: NDArray[np.float64]) -> list[MovingPart]:
+        """The moving road users as the rays see them.
+
+        Each is posed when the head sweeps over it. One behind the car can straddle the
+        seam where a sweep starts and ends: the head passes its two halves a whole period
+        apart, so it is posed twice — at the start of the sweep for the first half of the
+        columns and at the end for the second half — as a real spinning sensor sees it.
+        """
+        if not self._moving:
+            return []
+        period, columns, beams = self.sensor.period, self.sensor.columns, self.sensor.beams
+        early = np.where(times - t_ref > period / 4, times - period, times)
+        late = np.where(times - t_ref < -period / 4, times + period, times)
+        first_half = np.repeat(np.arange(columns) < columns // 2, beams)
+        index = [a.index for a in self._moving]
+        if np.array_equal(early[index], late[index]):
+            poses = [(early, np.ones(columns * beams, bool))]
+        else:
+            poses = [(early, first_half), (late, ~first_half)]
+        parts = []
+        for pose_times, rays in poses:
+            mesh, owner, _ = self._moving_mesh(pose_times)
+            x, y, z, _ = self.ego_pose(pose_times)
+            parts.append(MovingPart(mesh, owner, np.stack([x, y, z], axis=1), rays))
+        return parts
+
+    def _actor_meshes(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
+        """All road users' mesh (the still ones' faces first), each face's owner, and every
+        actor's (x, y, z, yaw) at its time."""
+        moving, moving_owner, poses = self._moving_mesh(times)
+        for index, pose in self._still_poses.items():
+            poses[index] = pose
+        return Mesh.concat([self._still_mesh, moving]), np.concatenate([self._still_owner, moving_owner]), poses
 
     def rays(self, t_ref: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """World-frame origins and unit directions of every ray, in firing order (column-major)."""
@@ -160,44 +204,57 @@ class Renderer:
             self._static_scene = scene
         return self._static_scene
 
-    def cast(self, origins: NDArray[np.float32], directions: NDArray[np.float32], actors: Mesh,
-             owner: NDArray[np.int32] | None = None, viewpoints: NDArray[np.float64] | None = None) -> Hits:
-        """Nearest hit of every ray: the static scene (world and still road users) first, then the
-        moving road users up to that distance. ``actors`` is :meth:`_actor_meshes`' mesh: faces
-        of still road users first; ``geometry`` of a hit is 0 for the world, 1 for a road user,
-        and ``face`` indexes the world's mesh or ``actors`` respectively."""
+    def cast(self, origins: NDArray[np.float32], directions: NDArray[np.float32],
+             moving: list[MovingPart] | None = None) -> Hits:
+        """Nearest hit of every ray: the static scene (the world and the road users that never
+        move) first, then each pose of the moving road users, only along rays aimed at them
+        and only up to the distance found so far."""
         n = len(origins)
         static = self._static()
-        still_faces = len(self._still_mesh)
+        reflectivity = np.zeros(n, np.float32)
+        semantic = np.zeros(n, np.uint8)
+        owner = np.full(n, -1, np.int64)
+        returns = np.ones(n, np.float32)
         if static is not None:
             result = static.run(origins, directions, dists=np.full(n, self.sensor.max_range, np.float32), output=1)
-            distance, face, normal = result["tfar"], result["primID"].astype(np.int32), result["Ng"]
+            distance, normal = result["tfar"], result["Ng"]
             geometry = result["geomID"].astype(np.int32)
+            face = result["primID"]
+            world_hit, still_hit = geometry == 0, geometry == 1
+            reflectivity[world_hit] = self.world.static.reflectivity[face[world_hit]]
+            semantic[world_hit] = self.world.static.semantic[face[world_hit]]
+            returns[world_hit] = self.world.static.returns[face[world_hit]]
+            if still_hit.any():
+                reflectivity[still_hit] = self._still_mesh.reflectivity[face[still_hit]]
+                semantic[still_hit] = self._still_mesh.semantic[face[still_hit]]
+                returns[still_hit] = self._still_mesh.returns[face[still_hit]]
+                owner[still_hit] = self._still_owner[face[still_hit]]
         else:
             distance = np.full(n, self.sensor.max_range, np.float32)
-            face, geometry, normal = np.full(n, -1, np.int32), np.full(n, -1, np.int32), np.zeros((n, 3), np.float32)
-        still_vertices = len(self._still_mesh.vertices)
-        moving = Mesh(actors.vertices[still_vertices:], actors.faces[still_faces:] - still_vertices,
-                      actors.reflectivity[still_faces:], actors.semantic[still_faces:])
-        if len(moving):
-            owner = None if owner is None else owner[still_faces:]
-            actors = moving
+            geometry, normal = np.full(n, -1, np.int32), np.zeros((n, 3), np.float32)
+        for part in moving or []:
+            if not len(part.mesh):
+                continue
+            rays = np.flatnonzero(part.rays & self._rays_towards_mesh(origins, part.mesh, part.owner,
+                                                                      part.viewpoints))
+            if not len(rays):
+                continue
             scene = rtcore_scene.EmbreeScene(self._device)
-            TriangleMesh(scene, actors.vertices.astype(np.float32), actors.faces)
-            # Only rays fired towards a road user, and only up to the static hit: nearer road users.
-            rays = np.flatnonzero(self._rays_towards_mesh(origins, actors, owner, viewpoints))
-            if len(rays):
-                limit = np.nextafter(distance[rays], np.float32(np.inf))
-                found = scene.run(origins[rays], directions[rays], dists=limit, output=1)
-                nearer = found["geomID"] >= 0
-                hit = rays[nearer]
-                distance = distance.copy()
-                distance[hit] = found["tfar"][nearer]
-                face[hit] = found["primID"][nearer] + still_faces
-                geometry[hit] = 1
-                normal = normal.copy()
-                normal[hit] = found["Ng"][nearer]
-        return Hits(distance, geometry, face, normal)
+            TriangleMesh(scene, part.mesh.vertices.astype(np.float32), part.mesh.faces)
+            limit = np.nextafter(distance[rays], np.float32(np.inf))
+            found = scene.run(origins[rays], directions[rays], dists=limit, output=1)
+            nearer = found["geomID"] >= 0
+            hit, face = rays[nearer], found["primID"][nearer]
+            distance = distance.copy()
+            distance[hit] = found["tfar"][nearer]
+            normal = normal.copy()
+            normal[hit] = found["Ng"][nearer]
+            geometry[hit] = 1
+            reflectivity[hit] = part.mesh.reflectivity[face]
+            semantic[hit] = part.mesh.semantic[face]
+            returns[hit] = part.mesh.returns[face]
+            owner[hit] = part.owner[face]
+        return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns)
 
     def _rays_towards_mesh(self, origins: NDArray[np.float32], mesh: Mesh, owner: NDArray[np.int32] | None,
                            viewpoints: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
@@ -287,23 +344,12 @@ class Renderer:
         times = self.actor_times(t_ref)
         actors, owner, actor_poses = self._actor_meshes(times)
         origins, directions = self.rays(t_ref)
-        ex, ey, ez, _ = self.ego_pose(times)
-        hits = self.cast(origins, directions, actors, owner, np.stack([ex, ey, ez], axis=1) if len(times) else None)
+        hits = self.cast(origins, directions, self.moving_parts(t_ref, times))
 
         n = len(origins)
         geometric = (hits.geometry >= 0) & (hits.distance >= sensor.min_range) & (hits.distance <= sensor.max_range)
-        reflectivity = np.zeros(n, np.float32)
-        semantic = np.zeros(n, np.uint8)
-        instance = np.full(n, -1, np.int64)
-        static_hit = geometric & (hits.geometry == 0)
-        actor_hit = geometric & (hits.geometry == 1)
-        faces = hits.face
-        reflectivity[static_hit] = self.world.static.reflectivity[faces[static_hit]]
-        semantic[static_hit] = self.world.static.semantic[faces[static_hit]]
-        if len(actors):
-            reflectivity[actor_hit] = actors.reflectivity[faces[actor_hit]]
-            semantic[actor_hit] = actors.semantic[faces[actor_hit]]
-            instance[actor_hit] = owner[faces[actor_hit]]
+        reflectivity, semantic = hits.reflectivity, hits.semantic
+        instance = np.where(geometric, hits.owner, -1)
 
         normal = hits.normal
         dot = np.einsum("ij,ij->i", normal, directions)
@@ -314,12 +360,14 @@ class Renderer:
         # shift the noise of unrelated rays.
         range_error = rng.standard_normal(n, dtype=np.float32) * np.float32(sensor.range_noise)
         drop_draw = rng.random(n, dtype=np.float32)
+        return_draw = rng.random(n, dtype=np.float32)
         intensity_error = rng.standard_normal(n, dtype=np.float32) * np.float32(sensor.intensity_noise)
 
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             signal = reflectivity * np.sqrt(np.maximum(cos_incidence, np.float32(0.05)))
             signal *= (np.float32(100.0) / distance) ** 2
         kept = geometric & (signal >= sensor.detection_threshold) & (drop_draw >= sensor.drop_rate)
+        kept &= return_draw < hits.returns
         index = np.flatnonzero(kept)
         d = distance[index]
         cos_kept = cos_incidence[index]

@@ -7,7 +7,7 @@ placed per frame from their trajectories.
 
 from __future__ import annotations
 
-import itertools
+import dataclasses
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -27,6 +27,7 @@ from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Pole, Road, Sce
 
 MARKING_Z = 0.006  # paint sits just above the asphalt so rays hit it first
 STRIDE = 1.5  # metres per walking cycle
+GROUND_MATERIALS = {"grass": "grass", "soil": "soil", "paving": "pavement"}  # open ground beside the roads
 
 
 # --------------------------------------------------------------------------- motion
@@ -213,10 +214,11 @@ def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Gro
         parts.append(extruded(sidewalks, 0.0, kerb, "paving", side_material="kerb"))
     terrain = square.difference(drivable).difference(sidewalks)
     terrain_height = kerb * 0.8 if spec.roads else 0.0
+    ground_material = GROUND_MATERIALS[spec.ground]
     if spec.roads:
-        parts.append(extruded(terrain, 0.0, terrain_height, spec.ground))
+        parts.append(extruded(terrain, 0.0, terrain_height, ground_material))
     else:
-        parts.append(flat(terrain, 0.0, spec.ground))
+        parts.append(flat(terrain, 0.0, ground_material))
     return parts, Ground(as_multipolygon(sidewalks), kerb, as_multipolygon(drivable), terrain_height)
 
 
@@ -312,12 +314,12 @@ def _tree(tree: Tree) -> Mesh:
     canopy_bottom = max(tree.height - 2.2 * tree.canopy_radius, 1.5)
     trunk = cylinder(tree.trunk_radius, (x, y, 0.0), (x, y, canopy_bottom + 0.5), "bark", sections=8)
     crown = ellipsoid((tree.canopy_radius, tree.canopy_radius, (tree.height - canopy_bottom) / 2),
-                      (x, y, (tree.height + canopy_bottom) / 2), "foliage", subdivisions=2)
+                      (x, y, (tree.height + canopy_bottom) / 2), "foliage", subdivisions=1)
     # An irregular crown: vertices pushed in and out, seeded by the position (deterministic).
     rng = np.random.default_rng(zlib.crc32(np.asarray(tree.position, np.float64).tobytes()))
     centre = np.array([x, y, (tree.height + canopy_bottom) / 2])
     scale = rng.uniform(0.8, 1.12, size=(len(crown.vertices), 1))
-    crown = Mesh(centre + (crown.vertices - centre) * scale, crown.faces, crown.reflectivity, crown.semantic)
+    crown = dataclasses.replace(crown, vertices=centre + (crown.vertices - centre) * scale)
     return Mesh.concat([trunk, crown])
 
 
@@ -336,35 +338,31 @@ def _windows(footprint: Polygon, height: float) -> Mesh:
     ring = np.asarray(footprint.exterior.coords)
     if not footprint.exterior.is_ccw:
         ring = ring[::-1]
-    quads = []
     floors = np.arange(1.0, height - 1.6, 3.0)
-    if len(floors) == 0:
+    a, b = ring[:-1], ring[1:]
+    edge = b - a
+    length = np.linalg.norm(edge, axis=1)
+    long_enough = length >= 3.0
+    if len(floors) == 0 or not long_enough.any():
         return Mesh.empty()
-    for a, b in itertools.pairwise(ring):
-        edge = b - a
-        length = float(np.linalg.norm(edge))
-        if length < 3.0:
-            continue
-        unit = edge / length
-        outward = np.array([unit[1], -unit[0]])  # right of a counter-clockwise ring
-        centres = np.arange(1.5, length - 1.0, 3.0)
-        u, z = np.meshgrid(centres, floors)
-        u, z = u.ravel(), z.ravel()
-        base = a + outward * 0.03
-        left = base + np.outer(u - 0.7, unit)
-        right = base + np.outer(u + 0.7, unit)
-        z0, z1 = z, z + 1.5
-        quad = np.stack([
-            np.column_stack([left, z0]), np.column_stack([right, z0]),
-            np.column_stack([right, z1]), np.column_stack([left, z1]),
-        ], axis=1)
-        quads.append(quad)
-    if not quads:
-        return Mesh.empty()
-    verts = np.concatenate(quads).reshape(-1, 3)
-    base_index = np.arange(len(verts) // 4, dtype=np.int32)[:, None] * 4
+    a, edge, length = a[long_enough], edge[long_enough], length[long_enough]
+    unit = edge / length[:, None]
+    outward = np.stack([unit[:, 1], -unit[:, 0]], axis=1)  # right of a counter-clockwise ring
+    slots = np.arange(1.5, float(length.max()) - 1.0, 3.0)
+    edge_index, slot_index, floor_index = np.nonzero(
+        (slots[None, :] < (length[:, None] - 1.0))[:, :, None] & np.ones(len(floors), bool)[None, None, :])
+    u = slots[slot_index]
+    z = floors[floor_index]
+    base = a[edge_index] + outward[edge_index] * 0.03
+    left = base + (u - 0.7)[:, None] * unit[edge_index]
+    right = base + (u + 0.7)[:, None] * unit[edge_index]
+    quad = np.empty((len(u), 4, 3))
+    quad[:, 0, :2], quad[:, 1, :2], quad[:, 2, :2], quad[:, 3, :2] = left, right, right, left
+    quad[:, 0, 2] = quad[:, 1, 2] = z
+    quad[:, 2, 2] = quad[:, 3, 2] = z + 1.5
+    base_index = np.arange(len(u), dtype=np.int32)[:, None] * 4
     faces = np.concatenate([base_index + np.array([0, 1, 2]), base_index + np.array([0, 2, 3])]).astype(np.int32)
-    return Mesh.of(verts, faces, "window")
+    return Mesh.of(quad.reshape(-1, 3), faces, "window")
 
 
 def footprint_of(obj: object) -> Polygon:
