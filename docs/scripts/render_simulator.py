@@ -51,12 +51,20 @@ IMAGES = DOCS / "images"
 SCENES = DOCS / "scenes"
 DPI = 100
 
-#: The generated scenes shown on the page: (seed, kind, caption).
-SCENE_SEEDS = [
-    (12, "urban", "urban street with parking strips and a junction 21 m ahead"),
-    (14, "urban", "four-lane urban street with parking strips"),
-    (21, "suburban", "suburban road: detached houses behind fences and hedges"),
-]
+#: The generated scenes shown on the page: (seed, kind); titles are derived from each scene.
+SCENE_SEEDS = [(12, "urban"), (7, "urban"), (21, "suburban")]
+
+
+def describe(spec: SceneSpec) -> str:
+    """A one-line description of a generated scene, read off its description."""
+    main = spec.roads[0]
+    kind = spec.name.split("-")[0]
+    parts = [f"{kind}, {main.lanes}-lane road"]
+    parts.append("with parking strips" if main.parking_width else "without parking strips")
+    if len(spec.roads) > 1:
+        x = spec.roads[1].centerline[0][0]
+        parts.append(f"a junction {abs(x):.0f} m {'ahead' if x > 0 else 'behind'}")
+    return ", ".join(parts)
 SENSOR_SEED = 12  # the scene the sensor presets are compared on
 
 CROP_X = (-40.0, 70.0)
@@ -70,7 +78,7 @@ SEMANTIC_COLOURS = {
     "unlabelled": "#777777", "road": "#4d4d4d", "lane-marking": "#f2f2f2", "sidewalk": "#9c7fb0",
     "terrain": "#7d8f3a", "building": "#d8b48a", "wall": "#c0504d", "vegetation": "#2fae4e", "trunk": "#8b5a2b",
     "pole": "#ffe119", "traffic-sign": "#ff3b3b", "car": "#5b8cff", "van": "#42d4f4", "truck": "#c77dff",
-    "pedestrian": "#ff4fd8", "cyclist": "#ff8c1a",
+    "pedestrian": "#ff4fd8", "cyclist": "#ff8c1a", "other-ground": "#a89f91",
 }
 SEMANTIC_CMAP = ListedColormap([SEMANTIC_COLOURS[name] for name in SEMANTIC_CLASSES])
 #: Bright on a dark background at both ends (turbo without its darkest tails).
@@ -570,10 +578,10 @@ def save(fig, path: Path) -> None:
 def main() -> int:
     started = time.perf_counter()
     IMAGES.mkdir(parents=True, exist_ok=True)
-    for seed, kind, caption in SCENE_SEEDS:
+    for seed, kind in SCENE_SEEDS:
         spec = generate_scene(seed)
         assert spec.name == f"{kind}-{seed}", spec.name
-        result = scene_figure(spec, IMAGES / f"sim_scene_{kind}_{seed}.png", f"seed {seed}: {caption}")
+        result = scene_figure(spec, IMAGES / f"sim_scene_{kind}_{seed}.png", f"seed {seed}: {describe(spec)}")
         print(f"    {result}")
     example = load_scene(SCENES / "pedestrian_behind_van.yaml")
     print(f"    {scene_figure(example, IMAGES / 'sim_scene_pedestrian_behind_van.png', 'pedestrian_behind_van.yaml')}")

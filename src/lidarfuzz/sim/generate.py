@@ -63,12 +63,15 @@ class _Layout:
         return True
 
     def add_actor(self, cls: str, x: float, y: float, yaw: float, *, speed: float = 0.0,
-                  parked: bool = False, margin: float = 0.4, off_road: bool = False) -> bool:
+                  parked: bool = False, margin: float = 0.4, off_road: bool = False, gap: float = 0.0) -> bool:
+        """Place a road user if its footprint is free by ``margin`` all round and by ``gap`` more
+        ahead and behind (the headway between vehicles in a lane)."""
         size = sample_size(self.rng, cls)
         footprint = _oriented(x, y, size[0], size[1], yaw)
         if off_road and self.drivable is not None and footprint.intersects(self.drivable):
             return False
-        if not self.free(footprint, margin):
+        clearance = _oriented(x, y, size[0] + 2 * gap, size[1], yaw) if gap else footprint
+        if not self.free(clearance, margin):
             return False
         self.take(footprint)
         actor: dict[str, Any] = {"class": cls, "position": [_r(x), _r(y)], "yaw": _r(np.rad2deg(yaw)),
@@ -291,7 +294,8 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
         for _ in range(count):
             cls = str(rng.choice(["Car", "Car", "Car", "Car", "Van", "Truck"]))
             x = rng.uniform(span_lo, span_hi)
-            layout.add_actor(cls, x, y + rng.normal(0, 0.15), 0.0 if forward else np.pi, speed=speed, margin=2.0)
+            layout.add_actor(cls, x, y + rng.normal(0, 0.15), 0.0 if forward else np.pi, speed=speed, margin=0.3,
+                             gap=2.0)
     # Parked vehicles in the parking strips (a road without strips has none: they would stand in
     # the outer lane), never in a junction's mouth or on a zebra crossing.
     if main.parking_width:
@@ -310,14 +314,25 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
                         layout.add_actor(cls, x, y, (0.0 if side < 0 else np.pi) + rng.normal(0, 0.03),
                                          parked=True, margin=0.3)
                 x += rng.uniform(5.0, 8.0)
-    # Traffic on the crossing street, stopped or moving.
+    # Traffic on the crossing street: queueing at the junction (the main road has green), or
+    # driving away from it on the far side — nobody crosses the main road's traffic.
     if junction_x is not None and len(roads) > 1:
         half_lane = roads[1].lane_width / 2
+        reach = HALF_SPAN if len(roads[1].centerline) and roads[1].centerline[0][1] < 0 else 0.0
         for y_dir, lane_x in ((1.0, junction_x + half_lane), (-1.0, junction_x - half_lane)):
             for _ in range(int(rng.poisson(1.2))):
                 y = y_dir * -rng.uniform(main.half_width + 4, 50)
+                if y < -reach:
+                    continue  # a T junction has no southern arm
+                layout.add_actor(str(rng.choice(["Car", "Car", "Van"])), lane_x, y, y_dir * np.pi / 2, margin=0.3,
+                                 gap=1.5)
+            lane_speed = float(rng.uniform(4, 10))  # one speed per lane: nobody catches up
+            for _ in range(int(rng.poisson(0.6))):
+                y = y_dir * rng.uniform(main.half_width + 6, 50)
+                if y < -reach:
+                    continue
                 layout.add_actor(str(rng.choice(["Car", "Car", "Van"])), lane_x, y, y_dir * np.pi / 2,
-                                 speed=0.0 if rng.random() < 0.5 else float(rng.uniform(3, 8)), margin=1.5)
+                                 speed=lane_speed, margin=0.3, gap=1.5)
     # Pedestrians: on sidewalks (walking along or standing), and on the crossings.
     walk_y = main.half_width + main.sidewalk_width / 2
     for _ in range(int(rng.poisson(6.0 if urban else 2.0))):
@@ -335,10 +350,12 @@ def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, eg
             y = rng.uniform(-main.half_width, main.half_width)
             layout.add_actor("Pedestrian", x, y, np.pi / 2 if rng.random() < 0.5 else -np.pi / 2,
                              speed=float(rng.uniform(0.9, 1.5)))
-    # Cyclists: at the right edge of the outer lanes, or standing at the kerb.
+    # Cyclists: at the right edge of the outer lanes (one speed per direction: nobody catches up),
+    # or standing at the kerb.
+    cycling_speed = {True: float(rng.uniform(3.0, 7.0)), False: float(rng.uniform(3.0, 7.0))}
     for _ in range(int(rng.poisson(1.5 if urban else 0.8))):
-        forward = rng.random() < 0.6
-        y = -(half - 0.5) if forward else half - 0.5
+        forward = bool(rng.random() < 0.6)
+        y = -(half - 0.35) if forward else half - 0.35
         x = rng.uniform(span_lo, span_hi)
-        speed = 0.0 if rng.random() < 0.2 else float(rng.uniform(3.0, 7.0))
+        speed = 0.0 if rng.random() < 0.2 else cycling_speed[forward]
         layout.add_actor("Cyclist", x, y, 0.0 if forward else np.pi, speed=speed, margin=0.6)
