@@ -152,14 +152,12 @@ def bench_rendering(seeds: list[int], repeat: int) -> dict[str, float]:
         world = compile_world(generate_scene(seed, sensor="HDL-64E"))
         renderer = Renderer(world)
         times = renderer.actor_times(0.0)
-        actors, owner, _poses = renderer._actor_meshes(times)
+        actors, _owner, _poses = renderer._actor_meshes(times)
+        parts = renderer.moving_parts(0.0, times)
         origins, directions = renderer.rays(0.0)
-        ex, ey, ez, _ = renderer.ego_pose(times)
-        viewpoints = np.stack([ex, ey, ez], axis=1)
         add("render_new", samples(lambda w=world: Renderer(w).render(0.0, frame_id="000000"), repeat))
         add("render", samples(lambda r=renderer: r.render(0.0, frame_id="000000"), repeat))
-        add("cast", samples(lambda r=renderer, o=origins, d=directions, a=actors, w=owner, v=viewpoints:
-                            r.cast(o, d, a, w, v), repeat))
+        add("cast", samples(lambda r=renderer, o=origins, d=directions, p=parts: r.cast(o, d, p), repeat))
         scene = embree_scene(renderer, actors)
         limit = np.full(len(origins), renderer.sensor.max_range, np.float32)
 
@@ -191,7 +189,7 @@ def bench_rendering(seeds: list[int], repeat: int) -> dict[str, float]:
         add("tm_location", samples(lambda i=cached, o=origins, d=directions:
                                    i.intersects_location(o, d, multiple_hits=False), repeat))
         add("tm_first", samples(lambda i=cached, o=origins, d=directions: i.intersects_first(o, d), repeat))
-        hits_ours.append(int((renderer.cast(origins, directions, actors, owner, viewpoints).geometry >= 0).sum()))
+        hits_ours.append(int((renderer.cast(origins, directions, parts).geometry >= 0).sum()))
         hits_trimesh.append(int((cached.intersects_first(origins, directions) >= 0).sum()))
         progress(f"rendering: scene {seed} done")
 
