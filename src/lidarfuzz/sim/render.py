@@ -35,7 +35,7 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.labels import LabelConfig, label_actors
 from lidarfuzz.sim.meshes import Mesh
-from lidarfuzz.sim.world import World, as_multipolygon, positions_at
+from lidarfuzz.sim.world import PlacedActor, World, as_multipolygon, positions_at
 
 CHANNELS = ("x", "y", "z", "intensity", "ring", "time", "label", "instance")
 ROI_RADIUS = 150.0  # the drivable area saved with a frame is clipped to this square around the sensor
@@ -130,17 +130,32 @@ class Renderer:
             times = t_ref + self.sensor.time_of_azimuth(azimuth)
         return times
 
-    def _moving_mesh(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
-        """The moving road users posed at ``times`` (indexed by actor index): mesh, owners, poses."""
-        moving_times = times[[a.index for a in self._moving]]
-        placed = positions_at(tuple(self._moving), moving_times)
+    def _moving_mesh(self, times: NDArray[np.float64], which: list[PlacedActor] | None = None,
+                     ) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
+        """Moving road users (``which``, default all) posed at ``times`` (indexed by actor index):
+        mesh, each face's owner, and every actor's (x, y, z, yaw) (zeros for the others)."""
+        actors = self._moving if which is None else which
+        own_times = times[[a.index for a in actors]]
+        placed = positions_at(tuple(actors), own_times)
         meshes, owner, poses = [], [], np.zeros((len(self.world.actors), 4))
-        for actor, t, xy_yaw in zip(self._moving, moving_times, placed, strict=True):
+        for actor, t, xy_yaw in zip(actors, own_times, placed, strict=True):
             mesh, pose = actor.mesh_at(float(t), self.world.ground, (xy_yaw[0], xy_yaw[1], xy_yaw[2]))
             meshes.append(mesh)
             owner.append(np.full(len(mesh), actor.index, np.int32))
             poses[actor.index] = pose
         return Mesh.concat(meshes), np.concatenate(owner or [np.zeros(0, np.int32)]), poses
+
+    def _straddles_seam(self, t_ref: float, times: NDArray[np.float64], actor: PlacedActor) -> bool:
+        """Whether the actor, seen from the sensor mid-sweep, spans the azimuth ±π behind the car."""
+        if abs(times[actor.index] - t_ref) < self.sensor.period / 4:
+            return False  # ahead or beside: the head sweeps over it in one go
+        x, y, _ = (float(v[0]) for v in actor.trajectory.at(times[actor.index]))
+        ex, ey, _, eyaw = (float(v[0]) for v in self.ego_pose(t_ref))
+        length, width, _ = actor.size
+        reach = np.hypot(length, width) / 2 + actor.trajectory.speed * self.sensor.period + 1.0
+        behind = np.angle(np.exp(1j * (np.arctan2(y - ey, x - ex) - eyaw - np.pi)))  # 0 = straight behind
+        distance = max(np.hypot(x - ex, y - ey), 1e-3)
+        return bool(abs(behind) < np.arcsin(min(1.0, reach / distance)) + 2 * 2 * np.pi / self.sensor.columns)
 
     def moving_parts(self, t_ref: float, times: NDArray[np.float64]) -> list[MovingPart]:
         """The moving road users as the rays see them.
@@ -153,17 +168,19 @@ class Renderer:
         if not self._moving:
             return []
         period, columns, beams = self.sensor.period, self.sensor.columns, self.sensor.beams
-        early = np.where(times - t_ref > period / 4, times - period, times)
-        late = np.where(times - t_ref < -period / 4, times + period, times)
+        seam = [a for a in self._moving if self._straddles_seam(t_ref, times, a)]
+        rest = [a for a in self._moving if a not in seam]
         first_half = np.repeat(np.arange(columns) < columns // 2, beams)
-        index = [a.index for a in self._moving]
-        if np.array_equal(early[index], late[index]):
-            poses = [(early, np.ones(columns * beams, bool))]
-        else:
-            poses = [(early, first_half), (late, ~first_half)]
+        poses: list[tuple[NDArray[np.float64], NDArray[np.bool_], list[PlacedActor]]] = []
+        if rest:
+            poses.append((times, np.ones(columns * beams, bool), rest))
+        if seam:
+            early = np.where(times - t_ref > 0, times - period, times)
+            late = np.where(times - t_ref < 0, times + period, times)
+            poses += [(early, first_half, seam), (late, ~first_half, seam)]
         parts = []
-        for pose_times, rays in poses:
-            mesh, owner, _ = self._moving_mesh(pose_times)
+        for pose_times, rays, which in poses:
+            mesh, owner, _ = self._moving_mesh(pose_times, which)
             x, y, z, _ = self.ego_pose(pose_times)
             parts.append(MovingPart(mesh, owner, np.stack([x, y, z], axis=1), rays))
         return parts
