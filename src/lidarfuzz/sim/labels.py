@@ -167,7 +167,8 @@ def _boxes2d(calib: Any, boxes: NDArray[np.float64], front_uv: list[NDArray[np.f
 
 
 def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.intp]:
-    """Indices of the rays fired while the head points at the box (all beams of those columns)."""
+    """Indices of the rays fired into the box's angular extent (its columns, and the beams whose
+    elevation reaches it, each widened by a margin)."""
     sensor = renderer.sensor
     corners = box_corners(box[None])[0]
     centre_azimuth = np.arctan2(box[1], box[0])
@@ -180,4 +181,15 @@ def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.in
     count = int(np.ceil((hi - lo) / (2 * np.pi) * sensor.columns)) + 1
     first = int(np.floor(sensor.column_of_azimuth(centre_azimuth + hi)))  # clockwise: larger azimuth fires first
     columns = np.unique((first + np.arange(count)) % sensor.columns)
-    return (columns[:, None] * sensor.beams + np.arange(sensor.beams)[None, :]).ravel()
+    beams = np.arange(sensor.beams)
+    if lo > -np.pi:
+        # Nearest and farthest ground distance of the box, and its bottom and top heights.
+        near = max(float(np.hypot(corners[:, 0], corners[:, 1]).min()) - 0.3, 0.1)
+        far = float(np.hypot(corners[:, 0], corners[:, 1]).max()) + 0.3
+        bottom, top = float(corners[:, 2].min()) - 0.2, float(corners[:, 2].max()) + 0.2
+        elevations = np.array([np.arctan2(bottom, far), np.arctan2(bottom, near), np.arctan2(top, far),
+                               np.arctan2(top, near)])
+        low, high = float(elevations.min()), float(elevations.max())
+        keep = (sensor.ring_elevations >= low - np.deg2rad(1.0)) & (sensor.ring_elevations <= high + np.deg2rad(1.0))
+        beams = beams[keep]
+    return (columns[:, None] * sensor.beams + beams[None, :]).ravel()
