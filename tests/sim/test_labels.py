@@ -135,3 +135,10 @@ def test_casting_only_towards_road_users_finds_every_hit(seed):
     for field in ("geometry", "owner", "distance", "reflectivity", "semantic"):
         assert np.array_equal(getattr(windowed, field), getattr(full, field)), field
     assert np.count_nonzero(windowed.owner >= 0) > 1000
+
+
+def test_tracing_threads_do_not_change_the_frame():
+    world = compile_world(generate_scene(6, ego_speed=9.0))
+    one = Renderer(world, threads=1).render(0.3)
+    three = Renderer(world, threads=3).render(0.3)
+    assert one.points == three.points and one.boxes == three.boxes

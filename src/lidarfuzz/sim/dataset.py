@@ -150,11 +150,11 @@ def _frame_complete(root: Path, frame_id: str) -> bool:
 
 
 def _frames(config: GenerationConfig, indices: list[int], skip: Callable[[str], bool] | None = None,
-            ) -> Iterator[tuple[int, Scene | None, SceneSpec | None, Renderer]]:
+            threads: int | None = None) -> Iterator[tuple[int, Scene | None, SceneSpec | None, Renderer]]:
     """(index, scene or None when skipped, the frame's own spec for independent frames, renderer)."""
     renderer: Renderer | None = None
     if config.is_sequence:
-        renderer = Renderer(compile_world(sequence_scene(config)), labels=config.labels)
+        renderer = Renderer(compile_world(sequence_scene(config)), labels=config.labels, threads=threads)
     for index in indices:
         frame_id = frame_id_of(index)
         if renderer is not None and config.is_sequence:
@@ -166,7 +166,7 @@ def _frames(config: GenerationConfig, indices: list[int], skip: Callable[[str], 
                 None, renderer
         else:
             spec = _frame_scene(config, index)
-            frame_renderer = Renderer(compile_world(spec), labels=config.labels)
+            frame_renderer = Renderer(compile_world(spec), labels=config.labels, threads=threads)
             if skip is not None and skip(frame_id):
                 yield index, None, spec, frame_renderer
                 continue
@@ -180,12 +180,13 @@ def render_frames(config: GenerationConfig) -> Iterator[Scene]:
         yield scene
 
 
-def _render_chunk(root: str, config: GenerationConfig, indices: list[int], resume: bool) -> list[FrameResult]:
+def _render_chunk(root: str, config: GenerationConfig, indices: list[int], resume: bool,
+                  threads: int | None = None) -> list[FrameResult]:
     """Worker: render and write frames ``indices``; returns what the parent records."""
     out = Path(root)
     results = []
     skip = (lambda frame_id: _frame_complete(out, frame_id)) if resume else None
-    for index, scene, spec, renderer in _frames(config, indices, skip):
+    for index, scene, spec, renderer in _frames(config, indices, skip, threads):
         frame_id = frame_id_of(index)
         if scene is None:
             t_ref = index * renderer.sensor.period if config.is_sequence else None
@@ -291,8 +292,9 @@ def _run(root: Path, config: GenerationConfig, workers: int, resume: bool) -> It
         for chunk in chunks:
             yield from _render_chunk(str(root), config, chunk, resume)
         return
+    threads = max(1, (os.cpu_count() or 1) // workers)  # the cores are shared out between the workers
     with _pool(workers) as pool:
-        futures = [pool.submit(_render_chunk, str(root), config, chunk, resume) for chunk in chunks]
+        futures = [pool.submit(_render_chunk, str(root), config, chunk, resume, threads) for chunk in chunks]
         for future in futures:
             yield from future.result()
 

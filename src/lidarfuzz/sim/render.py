@@ -20,7 +20,11 @@ the road user hit, −1 for the background.
 
 from __future__ import annotations
 
+import itertools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import shapely
@@ -42,6 +46,15 @@ ROI_RADIUS = 150.0  # the drivable area saved with a frame is clipped to this sq
 
 
 _DEVICE: rtc.EmbreeDevice | None = None
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _thread_pool(threads: int) -> ThreadPoolExecutor:
+    """One tracing thread pool per process, grown on demand."""
+    global _POOL
+    if _POOL is None or _POOL._max_workers < threads:
+        _POOL = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="lidarfuzz-trace")
+    return _POOL
 
 
 def _shared_device() -> rtc.EmbreeDevice:
@@ -79,8 +92,12 @@ class MovingPart:
 class Renderer:
     """Renders frames of one compiled world; reuses the Embree device and the static geometry."""
 
-    def __init__(self, world: World, calib: KittiCalibration | None = None, labels: LabelConfig | None = None) -> None:
+    def __init__(self, world: World, calib: KittiCalibration | None = None, labels: LabelConfig | None = None,
+                 *, threads: int | None = None) -> None:
+        """``threads``: how many threads trace a frame's rays (Embree releases the GIL); default:
+        the CPU cores, at most 4. Data set workers, one per core already, use 1."""
         self.world = world
+        self.threads = max(1, threads if threads is not None else min(4, os.cpu_count() or 1))
         self.sensor = world.sensor
         self.calib = calib or KittiCalibration.default()
         self.labels = labels or LabelConfig()
@@ -233,7 +250,7 @@ class Renderer:
         owner = np.full(n, -1, np.int64)
         returns = np.ones(n, np.float32)
         if static is not None:
-            result = static.run(origins, directions, dists=np.full(n, self.sensor.max_range, np.float32), output=1)
+            result = self._trace(static, origins, directions, np.full(n, self.sensor.max_range, np.float32))
             distance, normal = result["tfar"], result["Ng"]
             geometry = result["geomID"].astype(np.int32)
             face = result["primID"]
@@ -259,7 +276,7 @@ class Renderer:
             scene = rtcore_scene.EmbreeScene(self._device)
             TriangleMesh(scene, part.mesh.vertices.astype(np.float32), part.mesh.faces)
             limit = np.nextafter(distance[rays], np.float32(np.inf))
-            found = scene.run(origins[rays], directions[rays], dists=limit, output=1)
+            found = self._trace(scene, origins[rays], directions[rays], limit)
             nearer = found["geomID"] >= 0
             hit, face = rays[nearer], found["primID"][nearer]
             distance = distance.copy()
@@ -272,6 +289,19 @@ class Renderer:
             returns[hit] = part.mesh.returns[face]
             owner[hit] = part.owner[face]
         return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns)
+
+    def _trace(self, scene: rtcore_scene.EmbreeScene, origins: NDArray[np.float32],
+               directions: NDArray[np.float32], limit: NDArray[np.float32]) -> dict[str, NDArray[Any]]:
+        """``scene.run`` on all rays, split over the renderer's threads when there are many (the
+        results do not depend on the split: each ray is traced on its own)."""
+        n = len(origins)
+        if self.threads == 1 or n < 20_000:
+            return scene.run(origins, directions, dists=limit, output=1)  # type: ignore[no-any-return]
+        bounds = np.linspace(0, n, self.threads + 1).astype(int)
+        chunks = [slice(a, b) for a, b in itertools.pairwise(bounds)]
+        results = list(_thread_pool(self.threads).map(
+            lambda part: scene.run(origins[part], directions[part], dists=limit[part], output=1), chunks))
+        return {key: np.concatenate([r[key] for r in results]) for key in results[0]}
 
     def _rays_towards_mesh(self, origins: NDArray[np.float32], mesh: Mesh, owner: NDArray[np.int32] | None,
                            viewpoints: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
