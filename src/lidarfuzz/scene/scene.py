@@ -47,7 +47,8 @@ class Scene:
         boxes: Ground-truth boxes in the LiDAR frame (empty when unlabelled).
         calib: KITTI calibration, when the frame has a camera.
         frame_id: Stable id within its data set (e.g. ``"000042"``).
-        timestamp: Seconds (sweep start); ``None`` when unknown.
+        timestamp: Seconds: the frame's reference instant (the simulator, like KITTI, uses the
+            instant the spinning head faces forward); ``None`` when unknown.
         pose: 4×4 LiDAR → world transform for frames of a log; ``None`` when unknown.
         roi: Drivable-area polygons in the LiDAR frame (the HD-map ROI), if known.
         metadata: JSON-able provenance (source file, sensor, notes from readers).
