@@ -43,7 +43,6 @@ def test_same_seed_gives_identical_bytes(independent, tmp_path):
     assert digest(other)["velodyne/000000.bin"] != digest(root)["velodyne/000000.bin"]
 
 
-@pytest.mark.slow
 def test_worker_processes_do_not_change_the_bytes(independent, tmp_path):
     root, _ = independent
     parallel = tmp_path / "parallel"
@@ -128,3 +127,16 @@ def test_overwrite_refuses_folders_it_did_not_generate(tmp_path):
     with pytest.raises(DataFormatError, match="refusing"):
         generate_dataset(precious, GenerationConfig(frames=1, **SMALL), overwrite=True)
     assert (precious / "notes.txt").read_text() == "mine"
+
+
+def test_ego_follows_its_route_through_a_turn(tmp_path):
+    spec = parse_scene({
+        "roads": [{"centerline": [[-50, 0], [20, 0], [20, 80]]}],
+        "ego": {"route": [[0, -1.75], [21.75, -1.75], [21.75, 60]], "speed": 10},
+    })
+    root = tmp_path / "turn"
+    generate_dataset(root, GenerationConfig(frames=40, seed=0, scene=spec, **SMALL), workers=1)
+    poses = open_dataset(root).poses()
+    yaw = np.arctan2(poses[:, 1, 0], poses[:, 0, 0])
+    assert yaw[0] == pytest.approx(0.0) and yaw[-1] == pytest.approx(np.pi / 2)
+    np.testing.assert_allclose(poses[-1, :2, 3], [21.75, -1.75 + (3.9 * 10 - 21.75)], atol=1e-6)
