@@ -33,7 +33,7 @@ CHANNEL_DEFAULTS: dict[str, float] = {
     "ring": -1.0,
     "time": 0.0,
     "label": 0.0,
-    "instance": 0.0,
+    "instance": -1.0,
 }
 
 

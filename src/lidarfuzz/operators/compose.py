@@ -1,0 +1,155 @@
+"""Composition: a sequence of operators, one of several, or one applied with a probability.
+
+A composite is an operator: it samples concrete params for its children (recording
+which ones ran), serialises with :meth:`spec` and replays exactly from its params.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target
+
+
+class _NoConfig(Config):
+    pass
+
+
+class Step(Params):
+    """One child's concrete params (``None`` when the child did not run)."""
+
+    operator: str
+    params: dict[str, Any] | None
+
+
+class CompositeParams(Params):
+    steps: list[Step] = Field(default_factory=list)
+
+    def is_identity(self) -> bool:
+        return all(step.params is None for step in self.steps)
+
+
+def _weakest(relations: Sequence[Relation]) -> Relation:
+    order = [Relation.INVARIANT, Relation.EQUIVARIANT, Relation.DEGRADING]
+    return max(relations, key=order.index) if relations else Relation.INVARIANT
+
+
+class _Composite(Operator[Any, _NoConfig, CompositeParams]):
+    family: ClassVar[str] = "composite"
+    ConfigModel: ClassVar[type[Config]] = _NoConfig
+    ParamsModel: ClassVar[type[Params]] = CompositeParams
+    SEVERITIES: ClassVar[dict[int, dict[str, Any]]] = {}
+    IDENTITY: ClassVar[dict[str, Any]] = {}
+    relation: ClassVar[Relation] = Relation.DEGRADING
+    targets: ClassVar[frozenset[Target]] = frozenset(Target)
+
+    def __init__(self, operators: Sequence[Operator[Any, Any, Any]]) -> None:
+        super().__init__(_NoConfig())
+        if not operators:
+            raise ValueError(f"{self.name} needs at least one operator")
+        self.operators = list(operators)
+
+    @property
+    def composite_relation(self) -> Relation:
+        return _weakest([op.relation for op in self.operators])
+
+    def _children_spec(self) -> list[dict[str, Any]]:
+        return [op.spec() for op in self.operators]
+
+    def apply(self, sample: Any, params: CompositeParams) -> Any:
+        if len(params.steps) != len(self.operators):
+            raise ValueError(f"{self.name}: params have {len(params.steps)} steps for {len(self.operators)} operators")
+        for op, step in zip(self.operators, params.steps, strict=True):
+            if step.operator != op.name:
+                raise ValueError(f"{self.name}: params for {step.operator!r} given to {op.name!r}")
+            if step.params is not None:
+                sample = op.apply(sample, op.parse_params(step.params))
+        return sample
+
+    @classmethod
+    def _children(cls, spec: dict[str, Any]) -> list[Operator[Any, Any, Any]]:
+        from lidarfuzz.operators.registry import from_spec
+
+        return [from_spec(child) for child in spec.get("operators", [])]
+
+
+class Compose(_Composite):
+    """Every child in order; each sees the previous one's output."""
+
+    name: ClassVar[str] = "sequence"
+
+    def sample(self, rng: np.random.Generator, sample: Any) -> CompositeParams:
+        steps = []
+        for op in self.operators:
+            params = op.sample(rng, sample)
+            steps.append(Step(operator=op.name, params=params.model_dump(mode="json")))
+            sample = op.apply(sample, params)  # later children sample on the mutated sample
+        return CompositeParams(steps=steps)
+
+    def spec(self) -> dict[str, Any]:
+        return {"name": self.name, "operators": self._children_spec()}
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> Compose:
+        return cls(cls._children(spec))
+
+
+class OneOf(_Composite):
+    """One child, picked with the given weights (uniform by default)."""
+
+    name: ClassVar[str] = "one_of"
+
+    def __init__(self, operators: Sequence[Operator[Any, Any, Any]], weights: Sequence[float] | None = None) -> None:
+        super().__init__(operators)
+        w = np.ones(len(self.operators)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(self.operators),) or np.any(w < 0) or w.sum() <= 0:
+            raise ValueError("one_of: one non-negative weight per operator, not all zero")
+        self.weights = (w / w.sum()).tolist()
+
+    def sample(self, rng: np.random.Generator, sample: Any) -> CompositeParams:
+        chosen = int(rng.choice(len(self.operators), p=self.weights))
+        steps = [Step(operator=op.name, params=op.sample(rng, sample).model_dump(mode="json") if i == chosen else None)
+                 for i, op in enumerate(self.operators)]
+        return CompositeParams(steps=steps)
+
+    def spec(self) -> dict[str, Any]:
+        return {"name": self.name, "operators": self._children_spec(), "weights": self.weights}
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> OneOf:
+        return cls(cls._children(spec), spec.get("weights"))
+
+
+class Maybe(_Composite):
+    """The child with probability ``p``, otherwise nothing."""
+
+    name: ClassVar[str] = "maybe"
+
+    def __init__(self, operator: Operator[Any, Any, Any], p: float = 0.5) -> None:
+        super().__init__([operator])
+        if not 0.0 <= p <= 1.0:
+            raise ValueError("maybe: p must lie in [0, 1]")
+        self.p = float(p)
+
+    def sample(self, rng: np.random.Generator, sample: Any) -> CompositeParams:
+        op = self.operators[0]
+        runs = bool(rng.random() < self.p)
+        return CompositeParams(steps=[Step(operator=op.name,
+                                           params=op.sample(rng, sample).model_dump(mode="json") if runs else None)])
+
+    def spec(self) -> dict[str, Any]:
+        return {"name": self.name, "operators": self._children_spec(), "p": self.p}
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> Maybe:
+        children = cls._children(spec)
+        if len(children) != 1:
+            raise ValueError("maybe wraps exactly one operator")
+        return cls(children[0], spec.get("p", 0.5))
+
+
+COMPOSITES: dict[str, Any] = {"sequence": Compose, "one_of": OneOf, "maybe": Maybe}

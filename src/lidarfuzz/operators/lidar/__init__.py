@@ -1,0 +1,1 @@
+"""Built-in LiDAR operators (registered through the ``lidarfuzz.operators`` entry points)."""

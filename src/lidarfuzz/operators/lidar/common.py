@@ -1,0 +1,75 @@
+"""Helpers shared by the LiDAR operators."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.geometry import box_corners
+from lidarfuzz.scene.points import PointCloud
+from lidarfuzz.scene.scene import Scene
+
+
+def with_added_points(cloud: PointCloud, xyz: NDArray[np.floating], intensity: NDArray[np.floating]) -> PointCloud:
+    """``cloud`` plus new points; their other channels get the channel defaults (``label`` 0 =
+    unlabelled, ``instance`` −1 = no object, ``ring`` −1 = unknown, ``time`` 0)."""
+    if len(xyz) == 0:
+        return cloud
+    added = PointCloud(np.column_stack([xyz, intensity]).astype(np.float32)).conform(cloud.channels)
+    return PointCloud.concat([cloud, added])
+
+
+def cloud_extent(cloud: PointCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(min, max) of x, y, z; a unit box at the origin for an empty cloud."""
+    if len(cloud) == 0:
+        return np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    xyz = cloud.xyz
+    return xyz.min(axis=0).astype(np.float64), xyz.max(axis=0).astype(np.float64)
+
+
+def in_axis_box(xyz: NDArray[np.floating], center: tuple[float, float, float],
+                size: tuple[float, float, float]) -> NDArray[np.bool_]:
+    half = np.asarray(size, np.float64) / 2
+    offset = np.abs(xyz.astype(np.float64) - np.asarray(center, np.float64))
+    return np.all(offset <= half, axis=1)
+
+
+def relabel_in_image(boxes: Boxes3D, calib: KittiCalibration | None) -> Boxes3D:
+    """After a geometric change: alpha and the 2D box recomputed by projection (as the devkit does
+    for LiDAR-only boxes); a box not wholly in front of the camera gets no 2D box and truncation 1.
+    Occlusion is kept: it describes the source frame."""
+    if calib is None or len(boxes) == 0:
+        return boxes
+    geometric = boxes.has_geometry
+    arr = boxes.as_array()
+    alpha, bbox2d, truncation = boxes.alpha.copy(), boxes.bbox2d.copy(), boxes.truncation.copy()
+    if geometric.any():
+        corners = box_corners(arr[geometric]).reshape(-1, 3)
+        _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
+        in_front = np.all(depth.reshape(-1, 8) > 0.1, axis=1)
+        index = np.flatnonzero(geometric)
+        alpha[index] = calib.alpha(arr[index])
+        bbox2d[index[in_front]] = calib.boxes_to_image(arr[index[in_front]])
+        bbox2d[index[~in_front]] = np.nan
+        truncation[index[~in_front]] = 1.0
+    return boxes.replace(alpha=alpha, bbox2d=bbox2d, truncation=truncation)
+
+
+def rigid_transform(scene: Scene, matrix: NDArray[np.float64]) -> Scene:
+    """Points, boxes (heading included) and the ROI moved by a 4×4 rigid transform about z."""
+    m = np.asarray(matrix, np.float64)
+    points = scene.points
+    if len(points):
+        xyz = points.xyz.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+        points = points.with_xyz(xyz.astype(np.float32))
+    boxes = scene.boxes
+    if len(boxes):
+        geometric = boxes.has_geometry
+        centers = boxes.centers.copy()
+        centers[geometric] = centers[geometric] @ m[:3, :3].T + m[:3, 3]
+        yaw = boxes.yaw + np.arctan2(m[1, 0], m[0, 0])
+        boxes = relabel_in_image(boxes.with_geometry(centers=centers, yaw=yaw), scene.calib)
+    roi = scene.roi.transformed(m) if scene.roi is not None else None
+    return scene.replace(points=points, boxes=boxes, roi=roi)

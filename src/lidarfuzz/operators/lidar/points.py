@@ -1,0 +1,462 @@
+"""Point-level operators of the thesis (chapter 3.2) and of Zhou & Sun: noise, deletion, intensity.
+
+Names follow the thesis's abbreviations as aliases (UNA, UPD, NNA, RRNA, RRPD, UIM, RIM).
+None of them moves a labelled object, so labels are kept as they are.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
+from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, with_added_points
+from lidarfuzz.scene.geometry import points_in_boxes
+from lidarfuzz.scene.scene import Scene
+
+Range = tuple[float, float]
+POINTS = frozenset({Target.POINTS})
+
+
+# --------------------------------------------------------------------------- UNA
+class UniformNoiseConfig(Config):
+    ratio_range: Range = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
+    jitter_range: Range = Field((0.1, 0.1), description="std of the offset from the copied point, metres")
+
+
+class UniformNoiseParams(Params):
+    ratio: float = Field(ge=0)
+    jitter: float = Field(ge=0)
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.ratio == 0
+
+
+class UniformNoiseAddition(Operator[Scene, UniformNoiseConfig, UniformNoiseParams]):
+    """Spurious returns spread over the scene: copies of uniformly chosen points, each moved by
+    Gaussian jitter (the thesis's UNA). Adds points (intensity copied); leaves existing
+    points, boxes and calibration alone."""
+
+    name = "uniform_noise_addition"
+    aliases = ("UNA",)
+    family = "noise"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = UniformNoiseConfig
+    ParamsModel = UniformNoiseParams
+    IDENTITY: ClassVar = {"ratio_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"ratio_range": (r, r), "jitter_range": (j, j)} for s, r, j in
+                            [(1, 0.005, 0.05), (2, 0.01, 0.1), (3, 0.02, 0.2), (4, 0.04, 0.3), (5, 0.08, 0.5)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> UniformNoiseParams:
+        return UniformNoiseParams(ratio=uniform(rng, self.config.ratio_range),
+                                  jitter=uniform(rng, self.config.jitter_range), seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: UniformNoiseParams) -> Scene:
+        cloud = sample.points
+        count = round(params.ratio * len(cloud))
+        if count == 0 or len(cloud) == 0:
+            return sample
+        rng = np.random.default_rng(params.seed)
+        base = rng.integers(0, len(cloud), count)
+        xyz = cloud.xyz[base].astype(np.float64) + rng.normal(0.0, params.jitter, (count, 3))
+        return sample.with_points(with_added_points(cloud, xyz, cloud.intensity[base]))
+
+
+# --------------------------------------------------------------------------- UPD
+class PointDeletionConfig(Config):
+    ratio_range: Range = Field((0.1, 0.1), description="share of points deleted")
+
+
+class PointDeletionParams(Params):
+    ratio: float = Field(ge=0, le=1)
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.ratio == 0
+
+
+class UniformPointDeletion(Operator[Scene, PointDeletionConfig, PointDeletionParams]):
+    """Lost returns, uniformly at random over the cloud (the thesis's UPD): exactly
+    round(ratio · N) points, drawn without replacement. Keeps boxes and calibration."""
+
+    name = "uniform_point_deletion"
+    aliases = ("UPD",)
+    family = "deletion"
+    relation = Relation.DEGRADING
+    targets = POINTS
+    ConfigModel = PointDeletionConfig
+    ParamsModel = PointDeletionParams
+    IDENTITY: ClassVar = {"ratio_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"ratio_range": (r, r)} for s, r in
+                            [(1, 0.05), (2, 0.1), (3, 0.2), (4, 0.35), (5, 0.5)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> PointDeletionParams:
+        return PointDeletionParams(ratio=uniform(rng, self.config.ratio_range), seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: PointDeletionParams) -> Scene:
+        n = len(sample.points)
+        count = round(params.ratio * n)
+        if count == 0:
+            return sample
+        drop = np.random.default_rng(params.seed).choice(n, size=count, replace=False)
+        keep = np.ones(n, bool)
+        keep[drop] = False
+        return sample.with_points(sample.points.select(keep))
+
+
+# --------------------------------------------------------------------------- NNA
+class NearNoiseConfig(Config):
+    ratio_range: Range = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
+    spread_range: Range = Field((8.0, 8.0), description="std of the half-normal distance from the sensor, metres")
+    intensity_range: Range = Field((0.0, 0.1), description="intensity of the noise points (drawn per point)")
+
+
+class NearNoiseParams(Params):
+    ratio: float = Field(ge=0)
+    spread: float = Field(gt=0)
+    intensity_low: float
+    intensity_high: float
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.ratio == 0
+
+
+class GaussianNoiseAddition(Operator[Scene, NearNoiseConfig, NearNoiseParams]):
+    """Airborne clutter (snowflakes, haze, dust) whose density falls off with distance from the
+    sensor: points at a half-normal distance in uniformly random directions, with low
+    intensity (the thesis's NNA). Adds points only."""
+
+    name = "gaussian_noise_addition"
+    aliases = ("NNA",)
+    family = "noise"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = NearNoiseConfig
+    ParamsModel = NearNoiseParams
+    IDENTITY: ClassVar = {"ratio_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"ratio_range": (r, r), "spread_range": (d, d)} for s, r, d in
+                            [(1, 0.005, 5.0), (2, 0.01, 6.0), (3, 0.02, 8.0), (4, 0.04, 10.0), (5, 0.08, 12.0)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> NearNoiseParams:
+        lo, hi = self.config.intensity_range
+        return NearNoiseParams(ratio=uniform(rng, self.config.ratio_range),
+                               spread=uniform(rng, self.config.spread_range), intensity_low=lo, intensity_high=hi,
+                               seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: NearNoiseParams) -> Scene:
+        cloud = sample.points
+        count = round(params.ratio * len(cloud))
+        if count == 0:
+            return sample
+        rng = np.random.default_rng(params.seed)
+        distance = np.abs(rng.normal(0.0, params.spread, count)) + 0.5
+        direction = rng.normal(size=(count, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        xyz = direction * distance[:, None]
+        xyz[:, 2] = np.maximum(xyz[:, 2], cloud_extent(cloud)[0][2])  # nothing below the ground
+        intensity = rng.uniform(params.intensity_low, params.intensity_high, count)
+        return sample.with_points(with_added_points(cloud, xyz, intensity))
+
+
+# --------------------------------------------------------------------------- regions
+class RegionConfig(Config):
+    size_range: Range = Field((4.0, 4.0), description="edge of the (cubic in x, y) region, metres")
+
+
+def _draw_region(rng: np.random.Generator, sample: Scene, size: float) -> tuple[list[float], list[float]]:
+    lo, hi = cloud_extent(sample.points)
+    centre = [float(rng.uniform(lo[i], hi[i])) for i in range(3)]
+    return centre, [size, size, float(hi[2] - lo[2]) + 1.0]  # full height: a column of the scene
+
+
+class RegionNoiseConfig(RegionConfig):
+    count_range: Range = Field((100, 100), description="number of noise points")
+
+
+class RegionNoiseParams(Params):
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    count: int = Field(ge=0)
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.count == 0
+
+
+class RandomRegionNoiseAddition(Operator[Scene, RegionNoiseConfig, RegionNoiseParams]):
+    """A local burst of clutter (spray, a dust cloud, a reflection artefact): points uniformly
+    inside one region drawn within the cloud's extent, intensity copied from random points
+    (the thesis's RRNA). Adds points only."""
+
+    name = "random_region_noise_addition"
+    aliases = ("RRNA",)
+    family = "noise"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = RegionNoiseConfig
+    ParamsModel = RegionNoiseParams
+    IDENTITY: ClassVar = {"count_range": (0, 0)}
+    SEVERITIES: ClassVar = {s: {"count_range": (c, c), "size_range": (e, e)} for s, c, e in
+                            [(1, 50, 2.0), (2, 100, 3.0), (3, 250, 4.0), (4, 500, 5.0), (5, 1000, 6.0)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> RegionNoiseParams:
+        center, size = _draw_region(rng, sample, uniform(rng, self.config.size_range))
+        lo, hi = self.config.count_range
+        count = int(lo) if lo == hi else int(rng.integers(int(lo), int(hi) + 1))
+        return RegionNoiseParams(center=tuple(center), size=tuple(size), count=count,  # type: ignore[arg-type]
+                                 seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: RegionNoiseParams) -> Scene:
+        if params.count == 0:
+            return sample
+        rng = np.random.default_rng(params.seed)
+        center, size = np.asarray(params.center), np.asarray(params.size)
+        lo, hi = cloud_extent(sample.points)
+        low = np.maximum(center - size / 2, lo)  # the region, clipped to the cloud's extent
+        high = np.minimum(center + size / 2, hi)
+        xyz = rng.uniform(low, high, (params.count, 3))
+        source = sample.points.intensity
+        intensity = source[rng.integers(0, len(source), params.count)] if len(source) else np.zeros(params.count)
+        return sample.with_points(with_added_points(sample.points, xyz, intensity))
+
+
+class RegionDeletionParams(Params):
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+
+    def is_identity(self) -> bool:
+        return min(self.size) == 0
+
+
+class RandomRegionPointDeletion(Operator[Scene, RegionConfig, RegionDeletionParams]):
+    """A blind patch (dirt on the window, a blocked sector): every point inside one region
+    drawn within the cloud's extent is deleted (the thesis's RRPD). Keeps boxes."""
+
+    name = "random_region_point_deletion"
+    aliases = ("RRPD",)
+    family = "deletion"
+    relation = Relation.DEGRADING
+    targets = POINTS
+    ConfigModel = RegionConfig
+    ParamsModel = RegionDeletionParams
+    IDENTITY: ClassVar = {"size_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"size_range": (e, e)} for s, e in [(1, 2.0), (2, 4.0), (3, 6.0), (4, 8.0), (5, 10.0)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> RegionDeletionParams:
+        center, size = _draw_region(rng, sample, uniform(rng, self.config.size_range))
+        if size[0] == 0:
+            size = [0.0, 0.0, 0.0]
+        return RegionDeletionParams(center=tuple(center), size=tuple(size))  # type: ignore[arg-type]
+
+    def apply(self, sample: Scene, params: RegionDeletionParams) -> Scene:
+        if params.is_identity() or len(sample.points) == 0:
+            return sample
+        inside = in_axis_box(sample.points.xyz, params.center, params.size)
+        return sample.with_points(sample.points.select(~inside)) if inside.any() else sample
+
+
+# --------------------------------------------------------------------------- intensity
+class IntensityScaleConfig(Config):
+    ratio_range: Range = Field((0.2, 0.2), description="share of points rescaled")
+    factor_range: Range = Field((0.5, 1.5), description="per-point factor, drawn uniformly")
+
+
+class IntensityScaleParams(Params):
+    ratio: float = Field(ge=0, le=1)
+    factor_low: float = Field(ge=0)
+    factor_high: float = Field(ge=0)
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.ratio == 0 or self.factor_low == self.factor_high == 1.0
+
+
+def _intensity_limit(values: np.ndarray) -> float:
+    # The data's own scale: [0, 1] clouds stay in [0, 1]; 0–255 clouds stay in 0–255.
+    return 1.0 if len(values) == 0 or float(values.max()) <= 1.0 else 255.0
+
+
+class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParams]):
+    """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
+    a random share of the points get their intensity multiplied by a random factor each
+    (the thesis's UIM), clipped to the data's own scale ([0, 1], or 0–255 when the cloud
+    uses it). Positions are untouched."""
+
+    name = "intensity_scaling"
+    aliases = ("UIM",)
+    family = "intensity"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = IntensityScaleConfig
+    ParamsModel = IntensityScaleParams
+    IDENTITY: ClassVar = {"ratio_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"ratio_range": (r, r), "factor_range": (1 - f, 1 + f)} for s, r, f in
+                            [(1, 0.1, 0.2), (2, 0.2, 0.35), (3, 0.3, 0.5), (4, 0.5, 0.7), (5, 0.8, 0.9)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> IntensityScaleParams:
+        lo, hi = self.config.factor_range
+        return IntensityScaleParams(ratio=uniform(rng, self.config.ratio_range), factor_low=lo, factor_high=hi,
+                                    seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: IntensityScaleParams) -> Scene:
+        cloud = sample.points
+        count = round(params.ratio * len(cloud))
+        if count == 0 or params.is_identity():
+            return sample
+        rng = np.random.default_rng(params.seed)
+        chosen = rng.choice(len(cloud), size=count, replace=False)
+        intensity = cloud.intensity.astype(np.float64)
+        limit = _intensity_limit(intensity)
+        intensity[chosen] = np.clip(intensity[chosen] * rng.uniform(params.factor_low, params.factor_high, count),
+                                    0.0, limit)
+        return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
+
+
+class RegionIntensityConfig(RegionConfig):
+    factor_range: Range = Field((0.5, 0.5), description="one factor for every point in the region")
+
+
+class RegionIntensityParams(Params):
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    factor: float = Field(ge=0)
+
+    def is_identity(self) -> bool:
+        return self.factor == 1.0 or min(self.size) == 0
+
+
+class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntensityParams]):
+    """A region whose reflectivity changes as one (a puddle, a dirty patch of the window):
+    every point inside one region has its intensity multiplied by a common factor (the
+    thesis's RIM), clipped to the data's scale. Positions are untouched."""
+
+    name = "region_intensity_scaling"
+    aliases = ("RIM",)
+    family = "intensity"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = RegionIntensityConfig
+    ParamsModel = RegionIntensityParams
+    IDENTITY: ClassVar = {"factor_range": (1.0, 1.0)}
+    SEVERITIES: ClassVar = {s: {"factor_range": (f, f), "size_range": (e, e)} for s, f, e in
+                            [(1, 0.8, 4.0), (2, 0.6, 6.0), (3, 0.4, 8.0), (4, 0.2, 10.0), (5, 0.05, 12.0)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> RegionIntensityParams:
+        center, size = _draw_region(rng, sample, uniform(rng, self.config.size_range))
+        return RegionIntensityParams(center=tuple(center), size=tuple(size),  # type: ignore[arg-type]
+                                     factor=uniform(rng, self.config.factor_range))
+
+    def apply(self, sample: Scene, params: RegionIntensityParams) -> Scene:
+        cloud = sample.points
+        if params.is_identity() or len(cloud) == 0:
+            return sample
+        inside = in_axis_box(cloud.xyz, params.center, params.size)
+        if not inside.any():
+            return sample
+        intensity = cloud.intensity.astype(np.float64)
+        limit = _intensity_limit(intensity)
+        intensity[inside] = np.clip(intensity[inside] * params.factor, 0.0, limit)
+        return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
+
+
+# --------------------------------------------------------------------------- Zhou & Sun
+class OutsideRoiScatterConfig(Config):
+    count_range: Range = Field((100, 100), description="scattered points (the paper uses 10, 100, 1000)")
+    range_m: float | None = Field(None, gt=0, description="sensor range; default: the cloud's farthest point")
+
+
+class OutsideRoiScatterParams(Params):
+    count: int = Field(ge=0)
+    radius: float = Field(gt=0)
+    z_low: float
+    z_high: float
+    intensity_low: float
+    intensity_high: float
+    region: str = Field(description="'roi' when the frame's map is used; 'boxes' for the fallback")
+    seed: int
+
+    def is_identity(self) -> bool:
+        return self.count == 0
+
+
+class OutsideRoiScatter(Operator[Scene, OutsideRoiScatterConfig, OutsideRoiScatterParams]):
+    """Zhou & Sun's metamorphic test of Baidu Apollo: n random points in the 3D space outside
+    the drivable-area ROI, within sensor range, with z and intensity drawn uniformly between
+    the frame's own minimum and maximum. Points outside the ROI must not change what a
+    correct perception module finds inside it. Without a map the points are kept outside
+    every ground-truth box (grown by 1 m) instead, and the params say ``region: boxes``.
+    Adds points only."""
+
+    name = "outside_roi_scatter"
+    aliases = ("ROI_SCATTER",)
+    family = "noise"
+    relation = Relation.INVARIANT
+    targets = POINTS
+    ConfigModel = OutsideRoiScatterConfig
+    ParamsModel = OutsideRoiScatterParams
+    IDENTITY: ClassVar = {"count_range": (0, 0)}
+    SEVERITIES: ClassVar = {s: {"count_range": (c, c)} for s, c in
+                            [(1, 10), (2, 100), (3, 1000), (4, 3000), (5, 10000)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> OutsideRoiScatterParams:
+        cloud = sample.points
+        lo, hi = cloud_extent(cloud)
+        if len(cloud):
+            radius = self.config.range_m or float(np.hypot(cloud.xyz[:, 0], cloud.xyz[:, 1]).max())
+            i_lo, i_hi = float(cloud.intensity.min()), float(cloud.intensity.max())
+        else:
+            radius, i_lo, i_hi = self.config.range_m or 100.0, 0.0, 1.0
+        c_lo, c_hi = self.config.count_range
+        count = int(c_lo) if c_lo == c_hi else int(rng.integers(int(c_lo), int(c_hi) + 1))
+        return OutsideRoiScatterParams(count=count, radius=max(radius, 1e-3), z_low=float(lo[2]), z_high=float(hi[2]),
+                                       intensity_low=i_lo, intensity_high=i_hi,
+                                       region="roi" if sample.roi is not None else "boxes", seed=draw_seed(rng))
+
+    def apply(self, sample: Scene, params: OutsideRoiScatterParams) -> Scene:
+        if params.count == 0:
+            return sample
+        if params.region == "roi" and sample.roi is None:
+            raise ValueError("outside_roi_scatter: params were drawn for a frame with an ROI map; this one has none")
+        rng = np.random.default_rng(params.seed)
+        chosen: list[np.ndarray] = []
+        needed = params.count
+        for _ in range(100):  # rejection sampling; the ROI rarely covers most of the disc
+            batch = max(2 * needed, 64)
+            r = params.radius * np.sqrt(rng.random(batch))  # uniform over the disc's area
+            theta = rng.uniform(-np.pi, np.pi, batch)
+            xy = np.column_stack([r * np.cos(theta), r * np.sin(theta)])
+            ok = self._outside(sample, xy)
+            chosen.append(xy[ok][:needed])
+            needed -= int(min(ok.sum(), needed))
+            if needed == 0:
+                break
+        xy = np.concatenate(chosen)
+        n = len(xy)
+        z = rng.uniform(params.z_low, params.z_high, n)
+        intensity = rng.uniform(params.intensity_low, params.intensity_high, n)
+        return sample.with_points(with_added_points(sample.points, np.column_stack([xy, z]), intensity))
+
+    @staticmethod
+    def _outside(sample: Scene, xy: np.ndarray) -> np.ndarray:
+        if sample.roi is not None:
+            return ~sample.roi.contains_xy(xy)
+        boxes = sample.boxes.select(sample.boxes.has_geometry)
+        if len(boxes) == 0:
+            return np.ones(len(xy), bool)
+        grown = boxes.as_array().copy()
+        grown[:, 2] = 0.0
+        grown[:, 5] = 1e6  # any height: the test is in the ground plane
+        points = np.column_stack([xy, np.zeros(len(xy))])
+        inside: np.ndarray = points_in_boxes(points, grown, margin=1.0).any(axis=1)
+        return ~inside
+
+
+__all__ = [
+    "GaussianNoiseAddition", "IntensityScaling", "OutsideRoiScatter", "RandomRegionNoiseAddition",
+    "RandomRegionPointDeletion", "RegionIntensityScaling", "UniformNoiseAddition", "UniformPointDeletion",
+]
