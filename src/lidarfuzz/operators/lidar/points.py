@@ -452,7 +452,7 @@ class OutsideRoiScatter(Operator[Scene, OutsideRoiScatterConfig, OutsideRoiScatt
         grown[:, 2] = 0.0
         grown[:, 5] = 1e6  # any height: the test is in the ground plane
         points = np.column_stack([xy, np.zeros(len(xy))])
-        inside: np.ndarray = points_in_boxes(points, grown, margin=1.0).any(axis=1)
+        inside = np.asarray(points_in_boxes(points, grown, margin=1.0).any(axis=1), dtype=bool)
         return ~inside
 
 
