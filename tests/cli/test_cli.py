@@ -22,7 +22,7 @@ def lidarfuzz(*args: str) -> subprocess.CompletedProcess[str]:
 def test_version_and_help():
     result = runner.invoke(app, ["--version"])
     assert result.exit_code == 0 and __version__ in result.output
-    for command in ([], ["info"], ["convert"], ["demo"], ["gen"]):
+    for command in ([], ["info"], ["convert"], ["demo"], ["gen"], ["operators"], ["mutate"]):
         result = runner.invoke(app, [*command, "--help"])
         assert result.exit_code == 0, result.output
         assert "Usage" in result.output
@@ -176,3 +176,38 @@ def test_gen_killed_midway_resumes_to_the_same_bytes(tmp_path):
     fresh = tmp_path / "fresh"
     assert lidarfuzz(*args, "--out", str(fresh)).returncode == 0
     assert digest(out) == digest(fresh)
+
+
+# ---------------------------------------------------------------- operators, mutate
+def test_operators_lists_the_registry_and_shows_one():
+    result = runner.invoke(app, ["operators"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0 and "uniform_point_deletion" in result.output and "UPD" in result.output
+    result = runner.invoke(app, ["operators", "RAR"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0 and "angle_range" in result.output and "equivariant" in result.output
+
+
+def test_mutate_a_data_set_writes_mutants_and_replayable_params(kitti_log, tmp_path):
+    from lidarfuzz.operators import from_spec
+
+    out = tmp_path / "rotated"
+    result = runner.invoke(app, ["mutate", str(kitti_log), str(out), "--op", "RAR", "--severity", "4", "--seed", "3"])
+    assert result.exit_code == 0, result.output
+    source, mutants = open_dataset(kitti_log), open_dataset(out)
+    records = [json.loads(line) for line in (out / "mutations.jsonl").read_text().splitlines()]
+    assert [r["frame_id"] for r in records] == list(source.frame_ids()) == list(mutants.frame_ids())
+    for original, mutant, record in zip(source, mutants, records, strict=True):
+        op = from_spec(record["operator"])
+        replayed = op.apply(original, op.parse_params(record["params"]))
+        np.testing.assert_allclose(mutant.points.xyz, replayed.points.xyz, atol=1e-6)
+        assert mutant.boxes.allclose(replayed.boxes, atol=1e-6)
+        assert not np.allclose(mutant.points.xyz, original.points.xyz)
+    again = runner.invoke(app, ["mutate", str(kitti_log), str(out), "--op", "RAR"])
+    assert again.exit_code != 0
+
+
+def test_mutate_bad_arguments_give_one_line(kitti_log, tmp_path):
+    result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "x"), "--op", "UPD", "--param", "rate=0.3")
+    assert result.returncode == 2 and "ratio_range" in result.stderr
+    result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "y"), "--op", "teleport")
+    assert result.returncode == 2 and "unknown operator" in result.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()

@@ -151,3 +151,19 @@ def test_plugins_register_through_entry_points(monkeypatch):
     finally:
         registry.available.cache_clear()
 
+
+
+def test_global_flip_mirrors_boxes_and_headings(scene):
+    mutant, _ = get("global_flip").at_severity(1)(scene, rng())
+    labelled = scene.boxes.has_geometry
+    np.testing.assert_allclose(mutant.boxes.centers[labelled, 1], -scene.boxes.centers[labelled, 1])
+    np.testing.assert_allclose(np.sin(mutant.boxes.yaw[labelled]), -np.sin(scene.boxes.yaw[labelled]), atol=1e-12)
+    np.testing.assert_array_equal(mutant.points.xyz[:, 1], -scene.points.xyz[:, 1])
+    np.testing.assert_array_equal(mutant.points.intensity, scene.points.intensity)
+
+
+def test_global_scale_scales_box_sizes(scene):
+    mutant, _ = get("global_scale")(factor_range=(1.2, 1.2))(scene, rng())
+    labelled = scene.boxes.has_geometry
+    np.testing.assert_allclose(mutant.boxes.sizes[labelled], scene.boxes.sizes[labelled] * 1.2)
+    assert mutant.roi.area == pytest.approx(scene.roi.area * 1.44)

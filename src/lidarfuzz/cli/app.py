@@ -39,9 +39,9 @@ def root(
 
 
 def _register() -> None:
-    from lidarfuzz.cli import convert, demo, gen, info
+    from lidarfuzz.cli import convert, demo, gen, info, operators
 
-    for module in (demo, gen, info, convert):
+    for module in (demo, gen, info, convert, operators):
         module.register(app)
 
 

@@ -60,8 +60,10 @@ def convert(
     overwrite: bool = False,
     nonfinite: NonFinitePolicy = "drop",
     on_frame: Callable[[int, int], None] | None = None,
+    transform: Callable[[Scene], Scene] | None = None,
 ) -> ConvertResult:
-    """Convert ``src`` into ``dst``; ``on_frame(done, total)`` reports progress."""
+    """Convert ``src`` into ``dst``; ``on_frame(done, total)`` reports progress; ``transform``
+    (e.g. a mutation operator) maps each scene on the way."""
     src_path, dst_path = Path(src), Path(dst)
     src_abs, dst_abs = src_path.resolve(), dst_path.resolve()
     if dst_abs == src_abs or src_abs in dst_abs.parents:
@@ -72,7 +74,7 @@ def convert(
 
     def scenes() -> Iterator[Scene]:
         for i, scene in enumerate(dataset, start=1):
-            yield scene
+            yield transform(scene) if transform is not None else scene
             if on_frame:
                 on_frame(i, total)
 

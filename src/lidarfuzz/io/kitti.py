@@ -41,6 +41,7 @@ from lidarfuzz.io.dataset import Dataset, Log
 from lidarfuzz.io.formats import bin as bin_format
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.geometry import box_corners
 from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
 from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
@@ -166,8 +167,13 @@ def format_labels(boxes: Boxes3D, calib: KittiCalibration | None, *, complete: b
         if complete:
             fill_alpha = geometric & np.isnan(alpha)
             alpha[fill_alpha] = calib.alpha(arr[fill_alpha])
+            # Only boxes wholly in front of the camera have a projection; others stay unknown (-1).
             fill_box = geometric & np.isnan(bbox2d).any(axis=1)
-            bbox2d[fill_box] = calib.boxes_to_image(arr[fill_box])
+            if fill_box.any():
+                corners = box_corners(arr[fill_box]).reshape(-1, 3)
+                _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
+                in_front = np.flatnonzero(fill_box)[np.all(depth.reshape(-1, 8) > 0.1, axis=1)]
+                bbox2d[in_front] = calib.boxes_to_image(arr[in_front])
     alpha = np.where(np.isnan(alpha), -10.0, alpha)
     bbox2d = np.where(np.isnan(bbox2d).any(axis=1, keepdims=True), -1.0, bbox2d)
     truncation = np.where(np.isnan(boxes.truncation), -1.0, boxes.truncation)

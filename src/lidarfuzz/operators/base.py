@@ -123,6 +123,9 @@ class Operator(ABC, Generic[S, CfgT, ParT]):
     ParamsModel: ClassVar[type[Params]]
     SEVERITIES: ClassVar[Mapping[int, Mapping[str, Any]]]
     IDENTITY: ClassVar[Mapping[str, Any]]  # config fields of severity 0
+    #: True when the severity table's configs draw no randomness (e.g. a mirror): every seed
+    #: then gives the same mutant.
+    deterministic: ClassVar[bool] = False
 
     def __init__(self, config: CfgT | None = None, **fields: Any) -> None:
         if config is not None and fields:

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, uniform
-from lidarfuzz.operators.lidar.common import rigid_transform
+from lidarfuzz.operators.lidar.common import relabel_in_image, rigid_transform
 from lidarfuzz.scene.scene import Scene
 
 Range = tuple[float, float]
@@ -110,3 +110,138 @@ class HeightShift(Operator[Scene, HeightConfig, HeightParams]):
         if params.is_identity():
             return sample
         return rigid_transform(sample, self.transform(params))
+
+
+class TranslationConfig(Config):
+    x_range: Range = Field((-1.0, 1.0), description="metres")
+    y_range: Range = Field((-1.0, 1.0), description="metres")
+    z_range: Range = Field((0.0, 0.0), description="metres")
+
+
+class TranslationParams(Params):
+    offset: tuple[float, float, float]
+
+    def is_identity(self) -> bool:
+        return not any(self.offset)
+
+
+class GlobalTranslate(Operator[Scene, TranslationConfig, TranslationParams]):
+    """The whole scene shifted (a sensor mounted elsewhere on the car): points, boxes and the ROI
+    move by one offset; labels get new alpha and 2D boxes from the unchanged camera."""
+
+    name = "global_translate"
+    family = "geometric"
+    relation = Relation.EQUIVARIANT
+    targets = GEOMETRY
+    ConfigModel = TranslationConfig
+    ParamsModel = TranslationParams
+    IDENTITY: ClassVar = {"x_range": (0.0, 0.0), "y_range": (0.0, 0.0), "z_range": (0.0, 0.0)}
+    SEVERITIES: ClassVar = {s: {"x_range": (-d, d), "y_range": (-d, d), "z_range": (-d / 5, d / 5)} for s, d in
+                            [(1, 0.2), (2, 0.5), (3, 1.0), (4, 2.0), (5, 4.0)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> TranslationParams:
+        c = self.config
+        return TranslationParams(offset=(uniform(rng, c.x_range), uniform(rng, c.y_range), uniform(rng, c.z_range)))
+
+    def transform(self, params: TranslationParams) -> NDArray[np.float64]:
+        m = np.eye(4)
+        m[:3, 3] = params.offset
+        return m
+
+    def apply(self, sample: Scene, params: TranslationParams) -> Scene:
+        if params.is_identity():
+            return sample
+        return rigid_transform(sample, self.transform(params))
+
+
+class ScaleConfig(Config):
+    factor_range: Range = Field((0.95, 1.05), description="uniform scale about the sensor")
+
+
+class ScaleParams(Params):
+    factor: float = Field(gt=0)
+
+    def is_identity(self) -> bool:
+        return self.factor == 1.0
+
+
+class GlobalScale(Operator[Scene, ScaleConfig, ScaleParams]):
+    """The whole scene scaled about the sensor (the standard augmentation; objects change size,
+    so it tests scale robustness rather than a physical effect): points, box centres and sizes,
+    and the ROI scale together."""
+
+    name = "global_scale"
+    family = "geometric"
+    relation = Relation.EQUIVARIANT
+    targets = GEOMETRY
+    ConfigModel = ScaleConfig
+    ParamsModel = ScaleParams
+    IDENTITY: ClassVar = {"factor_range": (1.0, 1.0)}
+    SEVERITIES: ClassVar = {s: {"factor_range": (1 - d, 1 + d)} for s, d in
+                            [(1, 0.02), (2, 0.05), (3, 0.1), (4, 0.15), (5, 0.25)]}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> ScaleParams:
+        return ScaleParams(factor=uniform(rng, self.config.factor_range))
+
+    def transform(self, params: ScaleParams) -> NDArray[np.float64]:
+        m = np.eye(4)
+        m[:3, :3] *= params.factor
+        return m
+
+    def apply(self, sample: Scene, params: ScaleParams) -> Scene:
+        if params.is_identity():
+            return sample
+        f = params.factor
+        points = sample.points.with_xyz((sample.points.xyz.astype(np.float64) * f).astype(np.float32))
+        boxes = sample.boxes
+        if len(boxes):
+            boxes = relabel_in_image(boxes.with_geometry(centers=boxes.centers * f, sizes=boxes.sizes * f),
+                                     sample.calib)
+        roi = sample.roi.transformed(self.transform(params)) if sample.roi is not None else None
+        return sample.replace(points=points, boxes=boxes, roi=roi)
+
+
+class FlipConfig(Config):
+    probability: float = Field(1.0, ge=0, le=1, description="chance that the mirror is applied")
+
+
+class FlipParams(Params):
+    flipped: bool
+
+    def is_identity(self) -> bool:
+        return not self.flipped
+
+
+class GlobalFlip(Operator[Scene, FlipConfig, FlipParams]):
+    """The scene mirrored left–right (y → −y, headings mirrored): left-hand traffic from
+    right-hand data. Points, boxes and the ROI mirror; other channels are kept as they are
+    (a mirrored sweep would run anticlockwise: ``time`` is not reversed)."""
+
+    name = "global_flip"
+    family = "geometric"
+    deterministic = True
+    relation = Relation.EQUIVARIANT
+    targets = GEOMETRY
+    ConfigModel = FlipConfig
+    ParamsModel = FlipParams
+    IDENTITY: ClassVar = {"probability": 0.0}
+    SEVERITIES: ClassVar = {s: {"probability": 1.0} for s in range(1, 6)}
+
+    def sample(self, rng: np.random.Generator, sample: Scene) -> FlipParams:
+        return FlipParams(flipped=bool(rng.random() < self.config.probability))
+
+    def transform(self, params: FlipParams) -> NDArray[np.float64]:
+        return np.diag([1.0, -1.0 if params.flipped else 1.0, 1.0, 1.0])
+
+    def apply(self, sample: Scene, params: FlipParams) -> Scene:
+        if params.is_identity():
+            return sample
+        xyz = sample.points.xyz.copy()
+        xyz[:, 1] = -xyz[:, 1]
+        boxes = sample.boxes
+        if len(boxes):
+            centers = boxes.centers.copy()
+            centers[:, 1] = -centers[:, 1]
+            boxes = relabel_in_image(boxes.with_geometry(centers=centers, yaw=-boxes.yaw), sample.calib)
+        roi = sample.roi.transformed(self.transform(params)) if sample.roi is not None else None
+        return sample.replace(points=sample.points.with_xyz(xyz), boxes=boxes, roi=roi)

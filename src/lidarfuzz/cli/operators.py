@@ -1,0 +1,82 @@
+"""``lidarfuzz operators`` (what exists) and ``lidarfuzz mutate`` (apply one)."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import Progress
+from rich.table import Table
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, tuple | list) and len(value) == 2 and value[0] == value[1]:
+        return _fmt(value[0])
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, tuple | list):
+        return "–".join(_fmt(v) for v in value)
+    return str(value)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("operators")
+    def operators_command(
+        name: Annotated[str | None, typer.Argument(help="Show one operator in full (name or alias).")] = None,
+    ) -> None:
+        """List the mutation operators: family, relation, targets, parameters and severity table."""
+        from lidarfuzz.cli.app import console
+        from lidarfuzz.operators import available, get
+
+        if name is not None:
+            cls = get(name)
+            console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.family}, "
+                          f"{cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
+            console.print(inspect.getdoc(cls) or "")
+            fields = cls.ConfigModel.model_fields
+            table = Table("parameter", "description", "default")
+            for field, info in fields.items():
+                table.add_row(field, info.description or "", _fmt(info.default))
+            console.print(table)
+            severities = Table("severity", *fields)
+            for severity in (0, *cls.SEVERITIES):
+                config = cls.at_severity(severity).config.model_dump()
+                severities.add_row(str(severity), *(_fmt(config[f]) for f in fields))
+            console.print(severities)
+            return
+        table = Table("name", "aliases", "family", "relation", "changes", "severity 1 … 5")
+        for op_name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+            low, high = cls.SEVERITIES.get(1, {}), cls.SEVERITIES.get(max(cls.SEVERITIES, default=1), {})
+            span = "; ".join(f"{k} {_fmt(low[k])} … {_fmt(high.get(k))}" for k in low)
+            table.add_row(op_name, ", ".join(cls.aliases), cls.family, cls.relation.value,
+                          ", ".join(sorted(t.value for t in cls.targets)), span)
+        console.print(table)
+        console.print("details: [cyan]lidarfuzz operators NAME[/]")
+
+    @app.command("mutate")
+    def mutate_command(
+        src: Annotated[Path, typer.Argument(help="Frame file, data set folder or log to mutate (never modified).")],
+        dst: Annotated[Path, typer.Argument(help="Where to write the mutants (any destination `convert` takes).")],
+        op: Annotated[str, typer.Option("--op", help="Operator name or alias (see lidarfuzz operators).")],
+        severity: Annotated[int | None, typer.Option(min=0, max=5, help="Severity 0–5 (default 3).")] = None,
+        param: Annotated[list[str] | None, typer.Option(help="Config field as key=value (repeatable), e.g. "
+                                                        "ratio=0.2 or angle_range=[10,20]; instead of "
+                                                        "--severity.")] = None,
+        seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same mutants.")] = 0,
+        to: Annotated[str | None, typer.Option(help="Destination format, as for convert.")] = None,
+        overwrite: Annotated[bool, typer.Option(help="Replace an existing destination.")] = False,
+    ) -> None:
+        """Apply one operator to every frame; labels are updated with the points and each frame's
+        concrete params are saved (mutations.jsonl) so every mutant replays exactly."""
+        from lidarfuzz.cli.app import console
+        from lidarfuzz.operators.mutate import build_operator, mutate, parse_assignments
+
+        operator = build_operator(op, severity, parse_assignments(param or []))
+        with Progress(console=console, transient=True) as progress:
+            task = progress.add_task(f"mutating ({operator.name})", total=None)
+            result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite,
+                            on_frame=lambda done, total: progress.update(task, completed=done, total=total))
+        console.print(f"wrote {result.conversion.frames} mutant(s) of {src} to {result.conversion.destination} "
+                      f"({result.conversion.target}); params: {result.record}")
