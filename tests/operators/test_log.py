@@ -1,0 +1,58 @@
+"""Log operators (Neves et al.): AVG and mutants interleaved into logs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarfuzz.operators import get
+from lidarfuzz.operators.lidar.log import FrameAverage, interleave
+
+
+def test_average_of_a_frame_with_itself_is_the_frame(sample_scenes):
+    frame = sample_scenes[0]
+    combined = FrameAverage().apply(frame, frame)
+    assert len(combined.points) <= len(frame.points)
+    # Every combined point is an original one (cells hold one point each; duplicates in a cell drop).
+    original = {tuple(row) for row in frame.points.data.tolist()}
+    assert {tuple(row) for row in combined.points.data.tolist()} <= original
+    assert combined.boxes.allclose(frame.boxes)
+
+
+def test_average_of_two_frames_is_their_midpoint(sample_scenes):
+    a, b = sample_scenes[0], sample_scenes[1]
+    combined = FrameAverage().apply(a, b)
+    assert combined.timestamp == pytest.approx((a.timestamp + b.timestamp) / 2)
+    np.testing.assert_allclose(combined.pose[:3, 3], (a.pose[:3, 3] + b.pose[:3, 3]) / 2)
+    # Boxes of the same track sit half-way.
+    for i, track in enumerate(combined.boxes.track_ids):
+        ja = np.flatnonzero(a.boxes.track_ids == track)
+        jb = np.flatnonzero(b.boxes.track_ids == track)
+        if len(jb) and combined.boxes.has_geometry[i]:
+            np.testing.assert_allclose(combined.boxes.centers[i], (a.boxes.centers[ja[0]] + b.boxes.centers[jb[0]]) / 2)
+    # A matched cell's point is the mean of the two frames' points in that cell.
+    avg = FrameAverage()
+    columns = avg.column_count(a.points, b.points)
+    cell_a, cell_b = avg.cells(a.points, columns), avg.cells(b.points, columns)
+    shared = np.intersect1d(cell_a, cell_b)
+    assert len(shared) > 0.5 * len(np.unique(cell_a))
+    assert len(combined.points) < len(a.points) + len(b.points)
+
+
+def test_interleave_builds_the_logs_neves_et_al_use(sample_scenes):
+    hgt = get("HGT").at_severity(3)
+    log = list(interleave(sample_scenes, hgt, seed=1))
+    assert [s.frame_id for s in log] == ["000000", "000000m", "000001", "000001m", "000002", "000002m"]
+    stamps = [s.timestamp for s in log]
+    assert stamps == sorted(stamps)
+    assert not np.allclose(log[1].points.xyz, log[0].points.xyz)
+    averaged = list(interleave(sample_scenes, FrameAverage()))
+    assert [s.frame_id for s in averaged] == ["000000", "000000+000001", "000001", "000001+000002", "000002"]
+    assert [s.timestamp for s in averaged] == sorted(s.timestamp for s in averaged)
+
+
+def test_average_needs_rings(sample_scenes):
+    frame = sample_scenes[0]
+    bare = frame.replace(points=frame.points.without_channels(["ring"]))
+    with pytest.raises(ValueError, match="ring"):
+        FrameAverage().apply(bare, bare)
