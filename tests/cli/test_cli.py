@@ -211,3 +211,15 @@ def test_mutate_bad_arguments_give_one_line(kitti_log, tmp_path):
     result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "y"), "--op", "teleport")
     assert result.returncode == 2 and "unknown operator" in result.stderr
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_mutate_interleave_writes_the_logs_of_neves_et_al(kitti_log, tmp_path):
+    result = runner.invoke(app, ["mutate", str(kitti_log), str(tmp_path / "hgt.mcap"), "--op", "HGT", "--interleave"])
+    assert result.exit_code == 0, result.output
+    log = open_dataset(tmp_path / "hgt.mcap")
+    assert len(log) == 6 and list(log.timestamps()) == sorted(log.timestamps())
+    result = runner.invoke(app, ["mutate", str(kitti_log), str(tmp_path / "avg"), "--op", "AVG", "--interleave"])
+    assert result.exit_code == 0, result.output
+    assert len(open_dataset(tmp_path / "avg")) == 5
+    result = runner.invoke(app, ["mutate", str(kitti_log), str(tmp_path / "avg2"), "--op", "AVG"])
+    assert result.exit_code != 0 and "--interleave" in result.output

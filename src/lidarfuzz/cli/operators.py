@@ -67,13 +67,28 @@ def register(app: typer.Typer) -> None:
         seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same mutants.")] = 0,
         to: Annotated[str | None, typer.Option(help="Destination format, as for convert.")] = None,
         overwrite: Annotated[bool, typer.Option(help="Replace an existing destination.")] = False,
+        interleave: Annotated[bool, typer.Option(help="For a log: write a new log with each mutant after its "
+                                                 "source frame (Neves et al.); with --op AVG, each average of "
+                                                 "two consecutive frames between them.")] = False,
     ) -> None:
         """Apply one operator to every frame; labels are updated with the points and each frame's
         concrete params are saved (mutations.jsonl) so every mutant replays exactly."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.operators.mutate import build_operator, mutate, parse_assignments
+        from lidarfuzz.operators.lidar.log import FrameAverage
+        from lidarfuzz.operators.mutate import build_operator, is_frame_average, mutate, mutate_log, parse_assignments
 
+        if is_frame_average(op):
+            if not interleave:
+                raise typer.BadParameter("AVG combines consecutive frames of a log: add --interleave",
+                                         param_hint="--op")
+            written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite)
+            console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
+            return
         operator = build_operator(op, severity, parse_assignments(param or []))
+        if interleave:
+            written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite)
+            console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
+            return
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task(f"mutating ({operator.name})", total=None)
             result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite,

@@ -78,31 +78,52 @@ def convert(
             if on_frame:
                 on_frame(i, total)
 
+    return write_scenes(scenes(), dst_path, target, total=total, overwrite=overwrite)
+
+
+def write_scenes(scenes: Iterator[Scene], dst: str | PathLike[str], target: str, *, total: int | None = None,
+                 overwrite: bool = False) -> ConvertResult:
+    """Write ``scenes`` to ``dst`` as ``target`` (see :func:`destination_kind`)."""
+    dst_path = Path(dst)
     if target.startswith("frame:"):
-        if total != 1:
+        first = next(scenes, None)
+        if first is None or next(scenes, None) is not None or (total is not None and total != 1):
             raise DataFormatError(
-                dst_path, f"the source has {total} frames but the destination is a single file",
-                hint="give a folder as destination (KITTI layout by default, or --to pcd/ply/...)",
+                dst_path, f"the source has {total if total is not None else 'several'} frames but the destination "
+                "is a single file", hint="give a folder as destination (KITTI layout by default, or --to pcd/ply/...)",
             )
-        write_frame(dst_path, next(scenes()), overwrite=overwrite)
+        write_frame(dst_path, first, overwrite=overwrite)
         return ConvertResult(dst_path, target.split(":", 1)[1], 1)
     if target in LOG_TARGETS:
         from lidarfuzz.io.logs.bags import write_log
 
-        write_log(dst_path, scenes(), kind=target, overwrite=overwrite)  # type: ignore[arg-type]
-        return ConvertResult(dst_path, target, total)
+        counted = _Counted(scenes)
+        write_log(dst_path, counted, kind=target, overwrite=overwrite)  # type: ignore[arg-type]
+        return ConvertResult(dst_path, target, counted.count)
     if target == "kitti":
         writer = KittiWriter(dst_path, overwrite=overwrite)
-        for scene in scenes():
+        count = 0
+        for scene in scenes:
             writer.add(scene)
+            count += 1
         writer.close()
-        return ConvertResult(dst_path, "kitti", total)
+        return ConvertResult(dst_path, "kitti", count)
     # A folder of frame files in one format.
     if dst_path.exists() and any(dst_path.iterdir()) and not overwrite:
         raise DataFormatError(dst_path, "folder exists and is not empty; choose a new folder or pass --overwrite")
     suffix = f".{target}"
     count = 0
-    for scene in scenes():
+    for scene in scenes:
         write_frame(dst_path / f"{scene.frame_id or f'{count:06d}'}{suffix}", scene, overwrite=overwrite)
         count += 1
     return ConvertResult(dst_path, target, count)
+
+
+class _Counted:
+    def __init__(self, scenes: Iterator[Scene]) -> None:
+        self._scenes, self.count = scenes, 0
+
+    def __iter__(self) -> Iterator[Scene]:
+        for scene in self._scenes:
+            self.count += 1
+            yield scene

@@ -17,8 +17,10 @@ from typing import Any
 
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.io.atomic import write_text
-from lidarfuzz.io.convert import ConvertResult, convert
+from lidarfuzz.io.convert import ConvertResult, convert, destination_kind, write_scenes
+from lidarfuzz.io.open import open_dataset
 from lidarfuzz.operators.base import Operator, generator
+from lidarfuzz.operators.lidar.log import FrameAverage, interleave
 from lidarfuzz.operators.registry import get
 from lidarfuzz.scene.scene import Scene
 
@@ -85,3 +87,21 @@ def mutate(src: str | PathLike[str], dst: str | PathLike[str], operator: Operato
         destination.name + ".mutations.jsonl")
     write_text(record, "\n".join(records) + "\n", overwrite=True)
     return MutationResult(result, record)
+
+
+def is_frame_average(name: str) -> bool:
+    return name.strip().lower().replace("-", "_") in ("avg", "frame_average")
+
+
+def mutate_log(src: str | PathLike[str], dst: str | PathLike[str], operator: Operator[Any, Any, Any] | FrameAverage,
+               *, seed: int = 0, to: str | None = None, overwrite: bool = False) -> ConvertResult:
+    """A new log from an ordered source (a log, or a data set with timestamps): each mutant right
+    after its source frame, or for AVG each averaged frame between its two sources (Neves et al.)."""
+    src_path, dst_path = Path(src), Path(dst)
+    if dst_path.resolve() == src_path.resolve() or src_path.resolve() in dst_path.resolve().parents:
+        raise LidarfuzzError(f"{dst_path}: the destination is the source or inside it; originals are never modified")
+    dataset = open_dataset(src_path)
+    if not dataset.ordered:
+        raise LidarfuzzError(f"{src_path}: not a log (no timestamps): --interleave needs ordered frames")
+    return write_scenes(interleave(iter(dataset), operator, seed=seed), dst_path, destination_kind(dst_path, to),
+                        overwrite=overwrite)
