@@ -4,10 +4,11 @@ The first four channels are always ``x, y, z, intensity`` in that order (metres 
 the LiDAR frame: x forward, y left, z up). Optional channels follow, in any order:
 
 ========== ==============================================================
-``ring``     laser/beam index (0 = top beam), stored as an integer value
-``time``     seconds relative to the frame timestamp (start of the sweep)
+``ring``     laser/beam index (0 = the lowest beam, as ROS drivers number them)
+``time``     firing time in seconds relative to the frame timestamp (negative
+             before it; the simulator's frames span [-period/2, period/2))
 ``label``    per-point semantic class id
-``instance`` per-point object instance id (0 = background)
+``instance`` per-point object instance (track) id (-1 = background)
 ========== ==============================================================
 
 Other names are allowed (foreign formats carry e.g. ``ambient`` or ``range``) and

@@ -77,3 +77,14 @@ def rigid_transform(scene: Scene, matrix: NDArray[np.float64]) -> Scene:
         boxes = relabel_in_image(boxes.with_geometry(centers=centers, yaw=yaw), scene.calib)
     roi = scene.roi.transformed(m) if scene.roi is not None else None
     return scene.replace(points=points, boxes=boxes, roi=roi)
+
+
+def intensity_scale(values: NDArray[np.floating]) -> float:
+    """The data's intensity full scale, inferred: 1 for [0, 1] data (KITTI, the simulator), 255 for
+    8-bit, 65535 for 16-bit, else the maximum itself. Operators that model physics convert with
+    it explicitly (a model fed 0–255 units with [0, 1] data is a known defect of public tools)."""
+    top = float(values.max()) if len(values) else 0.0
+    for scale in (1.0, 255.0, 65535.0):
+        if top <= scale:
+            return scale
+    return top

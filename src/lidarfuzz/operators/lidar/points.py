@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
-from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, with_added_points
+from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, intensity_scale, with_added_points
 from lidarfuzz.scene.geometry import points_in_boxes
 from lidarfuzz.scene.scene import Scene
 
@@ -277,15 +277,15 @@ class IntensityScaleParams(Params):
 
 
 def _intensity_limit(values: np.ndarray) -> float:
-    # The data's own scale: [0, 1] clouds stay in [0, 1]; 0–255 clouds stay in 0–255.
-    return 1.0 if len(values) == 0 or float(values.max()) <= 1.0 else 255.0
+    # The data's own scale: [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255, 16-bit ones in 0–65535.
+    return intensity_scale(values)
 
 
 class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParams]):
     """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
     a random share of the points get their intensity multiplied by a random factor each
-    (the thesis's UIM), clipped to the data's own scale ([0, 1], or 0–255 when the cloud
-    uses it). Positions are untouched."""
+    (the thesis's UIM), clipped to the data's own scale ([0, 1], 0–255 or 0–65535, inferred).
+    Positions are untouched."""
 
     name = "intensity_scaling"
     aliases = ("UIM",)
