@@ -25,6 +25,14 @@ Tr_imu_to_velo: 9.999976000000e-01 7.553071000000e-04 -2.035826000000e-03 -8.086
 KITTI_000000_LABEL = "Pedestrian 0.00 0 -0.20 712.40 143.00 810.73 307.92 1.89 0.48 1.20 1.84 1.47 8.41 0.01\n"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Caches (e.g. the default object library) go to a temporary folder, not the user's ~/.cache."""
+    import os
+
+    os.environ["LIDARFUZZ_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+
+
 @pytest.fixture(scope="session")
 def sample_scenes() -> list[Scene]:
     """Three frames of a simulated sequence (VLP-16, to keep tests fast): labelled, timed, posed, with a ROI."""
