@@ -7,7 +7,8 @@ timing is ``sample`` + ``apply`` on the same simulator frame, median of ``--repe
 runs after one warm-up. Baseline measured in the same run: copying the frame's
 point array (``numpy.ndarray.copy``), the least any operator that returns a new
 cloud must do. Targets (issue 4): ≤ 10 ms for the simple operators; fog ≤ 100 ms;
-rain and snow ≤ 300 ms; object insertion ≤ 50 ms.
+rain and snow ≤ 300 ms; object insertion (and, here, the other operators that
+recompute occlusion: object moves and removal) ≤ 50 ms.
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ import numpy as np
 from lidarfuzz.operators import available, generator
 from lidarfuzz.sim import GenerationConfig, render_frames
 
-TARGETS_MS = {"fog": 100.0, "rain": 300.0, "snow": 300.0, "object_insertion": 50.0}
+# Object moves and removal recompute occlusion with a range image (and removal re-casts the ground),
+# like insertion: they are held to insertion's target rather than the simple operators'.
+TARGETS_MS = {"fog": 100.0, "rain": 300.0, "snow": 300.0, "object_insertion": 50.0, "object_translate": 50.0,
+              "object_rotate": 50.0, "object_scale": 50.0, "object_removal": 50.0}
 
 
 def median_ms(fn: Callable[[], object], repeat: int) -> float:
