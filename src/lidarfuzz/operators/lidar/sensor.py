@@ -137,6 +137,13 @@ def time_of_azimuth(azimuth: NDArray[np.floating], rotation_hz: float = 10.0) ->
     return (turns - 0.5) / rotation_hz
 
 
+def _squared_ranges(cloud: PointCloud) -> NDArray[np.float32]:
+    """x² + y² + z² column by column (reductions over the strided N×3 view are several times slower)."""
+    xyz = cloud.xyz
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return x * x + y * y + z * z
+
+
 def _draw_int(rng: np.random.Generator, interval: Range) -> int:
     lo, hi = round(interval[0]), round(interval[1])
     return lo if lo == hi else int(rng.integers(lo, hi + 1))
@@ -565,7 +572,7 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
         noise = uniform(rng, self.config.noise_range)
         max_range: float | None = None
         if factor < 1.0:
-            farthest = float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max()) if len(cloud) else 100.0
+            farthest = float(np.sqrt(_squared_ranges(cloud).max())) if len(cloud) else 100.0
             max_range = max(factor * farthest, 1e-3)
         return RangeDegradationParams(max_range=max_range, noise_at_max=noise, seed=draw_seed(rng))
 
@@ -574,7 +581,7 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
         if params.is_identity() or len(cloud) == 0:
             return sample
         xyz = cloud.xyz
-        distance = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+        distance = np.sqrt(_squared_ranges(cloud))
         keep = distance <= params.max_range if params.max_range is not None else np.ones(len(xyz), bool)
         if params.noise_at_max > 0:
             reference = params.max_range if params.max_range is not None else max(float(distance.max()), 1e-3)
