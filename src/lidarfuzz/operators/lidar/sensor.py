@@ -23,6 +23,7 @@ the car at 10 Hz, so a point's firing time relative to the frame timestamp is
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
@@ -157,6 +158,15 @@ def _signed(rng: np.random.Generator, interval: Range) -> float:
 
 def _with_xyz(sample: Scene, xyz: NDArray[np.floating]) -> Scene:
     return sample.with_points(sample.points.with_xyz(xyz.astype(np.float32)))
+
+
+def _jittered(sample: Scene, offsets: Callable[[int], NDArray[np.float32]]) -> Scene:
+    """The cloud with ``offsets(n)`` added to x, then y, then z — column by column into one copy
+    of the data, so no N×3 temporaries (positions only: every other channel is copied as is)."""
+    data = sample.points.data.copy()
+    for axis in range(3):
+        data[:, axis] += offsets(len(data))
+    return sample.with_points(PointCloud(data, sample.points.channels))
 
 
 # --------------------------------------------------------------------------- beam missing
@@ -588,7 +598,11 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
             noise = np.random.default_rng(params.seed).standard_normal(len(xyz), np.float32)
             noisy = np.maximum(distance + noise * np.float32(params.noise_at_max / reference**2) * distance**2,
                                np.float32(0.05))
-            cloud = cloud.with_xyz(xyz * (noisy / np.maximum(distance, np.float32(1e-9)))[:, None])
+            factor = noisy / np.maximum(distance, np.float32(1e-9))
+            data = cloud.data.copy()
+            for axis in range(3):  # radially, column by column
+                data[:, axis] *= factor
+            cloud = PointCloud(data, cloud.channels)
         return sample.with_points(cloud.select(keep) if not keep.all() else cloud)
 
 
@@ -727,8 +741,8 @@ class GaussianJitter(Operator[Scene, GaussianJitterConfig, GaussianJitterParams]
     def apply(self, sample: Scene, params: GaussianJitterParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
-        noise = np.random.default_rng(params.seed).standard_normal((len(sample.points), 3), np.float32)
-        return _with_xyz(sample, sample.points.xyz + noise * np.float32(params.sigma))
+        rng, sigma = np.random.default_rng(params.seed), np.float32(params.sigma)
+        return _jittered(sample, lambda n: rng.standard_normal(n, np.float32) * sigma)
 
 
 class UniformJitterConfig(Config):
@@ -766,8 +780,8 @@ class UniformJitter(Operator[Scene, UniformJitterConfig, UniformJitterParams]):
     def apply(self, sample: Scene, params: UniformJitterParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
-        unit = np.random.default_rng(params.seed).random((len(sample.points), 3), np.float32)
-        return _with_xyz(sample, sample.points.xyz + (2 * unit - 1) * np.float32(params.amplitude))
+        rng, amplitude = np.random.default_rng(params.seed), np.float32(params.amplitude)
+        return _jittered(sample, lambda n: (2 * rng.random(n, np.float32) - 1) * amplitude)
 
 
 class ImpulseJitterConfig(Config):
