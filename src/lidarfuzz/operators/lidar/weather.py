@@ -8,8 +8,8 @@ longer hits the surface or object it was labelled with.
 
 Intensity units: the models work on a physical scale (received power or reflectivity in
 [0, 1]). Each operator converts with an explicit ``intensity_scale`` — given in the config,
-or inferred from the frame at sampling time (1.0 when every intensity is ≤ 1, else 255) and
-stored in the params — and converts back, so a [0, 1] frame and the same frame in 0–255
+or inferred from the frame at sampling time (1 for [0, 1] data, 255 for 8-bit, 65535 for
+16-bit) and stored in the params — and converts back, so a [0, 1] frame and the same frame in 0–255
 give the same result up to the scale.
 """
 
