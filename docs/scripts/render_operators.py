@@ -25,6 +25,7 @@ import numpy as np
 from PIL import Image
 
 from lidarfuzz.operators import available, generator
+from lidarfuzz.operators.catalogue import severity_rows
 from lidarfuzz.scene.geometry import bev_corners
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim import GenerationConfig, render_frames
@@ -35,16 +36,6 @@ PAGE = DOCS / "operators.md"
 BEGIN, END = "<!-- catalogue -->", "<!-- /catalogue -->"
 SEED = 12
 DPI = 60
-
-
-def _fmt(value: object) -> str:
-    if isinstance(value, tuple | list) and len(value) == 2 and value[0] == value[1]:
-        return _fmt(value[0])
-    if isinstance(value, float):
-        return f"{value:g}"
-    if isinstance(value, tuple | list):
-        return " – ".join(_fmt(v) for v in value)
-    return str(value)
 
 
 def _bev(ax: plt.Axes, scene: Scene, title: str) -> None:
@@ -117,13 +108,10 @@ def catalogue(scene: Scene) -> str:
                          f"{', '.join(sorted(t.value for t in cls.targets))}.\n")
             lines.append(inspect.getdoc(cls) or "")
             lines.append("")
-            fields = cls.ConfigModel.model_fields
             lines.append("| parameter | meaning | " + " | ".join(f"severity {s}" for s in (0, *cls.SEVERITIES)) + " |")
             lines.append("|---|---|" + "---:|" * (len(cls.SEVERITIES) + 1))
-            configs = [cls.at_severity(s).config.model_dump() for s in (0, *cls.SEVERITIES)]
-            for field, info in fields.items():
-                lines.append(f"| `{field}` | {info.description or ''} | "
-                             + " | ".join(_fmt(c[field]) for c in configs) + " |")
+            for field, description, values in severity_rows(cls):
+                lines.append(f"| `{field}` | {description} | " + " | ".join(values) + " |")
             lines.append("")
             image = IMAGES / f"{name}.png"
             op = cls.at_severity(3)

@@ -10,15 +10,7 @@ import typer
 from rich.progress import Progress
 from rich.table import Table
 
-
-def _fmt(value: object) -> str:
-    if isinstance(value, tuple | list) and len(value) == 2 and value[0] == value[1]:
-        return _fmt(value[0])
-    if isinstance(value, float):
-        return f"{value:g}"
-    if isinstance(value, tuple | list):
-        return "–".join(_fmt(v) for v in value)
-    return str(value)
+from lidarfuzz.operators.catalogue import format_value, severity_rows
 
 
 def register(app: typer.Typer) -> None:
@@ -35,21 +27,15 @@ def register(app: typer.Typer) -> None:
             console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.family}, "
                           f"{cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
             console.print(inspect.getdoc(cls) or "")
-            fields = cls.ConfigModel.model_fields
-            table = Table("parameter", "description", "default")
-            for field, info in fields.items():
-                table.add_row(field, info.description or "", _fmt(info.default))
+            table = Table("parameter", "description", *(f"severity {s}" for s in (0, *cls.SEVERITIES)))
+            for field, description, values in severity_rows(cls):
+                table.add_row(field, description, *values)
             console.print(table)
-            severities = Table("severity", *fields)
-            for severity in (0, *cls.SEVERITIES):
-                config = cls.at_severity(severity).config.model_dump()
-                severities.add_row(str(severity), *(_fmt(config[f]) for f in fields))
-            console.print(severities)
             return
         table = Table("name", "aliases", "family", "relation", "changes", "severity 1 … 5")
         for op_name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
             low, high = cls.SEVERITIES.get(1, {}), cls.SEVERITIES.get(max(cls.SEVERITIES, default=1), {})
-            span = "; ".join(f"{k} {_fmt(low[k])} … {_fmt(high.get(k))}" for k in low)
+            span = "; ".join(f"{k} {format_value(low[k])} … {format_value(high.get(k))}" for k in low)
             table.add_row(op_name, ", ".join(cls.aliases), cls.family, cls.relation.value,
                           ", ".join(sorted(t.value for t in cls.targets)), span)
         console.print(table)

@@ -76,7 +76,8 @@ class FogConfig(Config):
     mor_range: Range | None = Field((200.0, 200.0), description="meteorological optical range, metres; None: no fog")
     tau_h_ns: float = Field(20.0, gt=0, description="half-power width of the transmitted pulse, ns")
     threshold: float = Field(0.5 / 255, ge=0, description="receiver threshold, as a fraction of full intensity")
-    intensity_scale: float | None = Field(None, gt=0, description="full-scale intensity; None: inferred (1 or 255)")
+    intensity_scale: float | None = Field(None, gt=0,
+                                          description="full-scale intensity; None: inferred (1, 255 or 65535)")
 
 
 class FogParams(Params):

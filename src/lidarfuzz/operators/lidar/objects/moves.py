@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
@@ -102,6 +103,24 @@ class _ObjectMove:
     def _free(sample: Scene, pts: _Pts, i: int, new_box: F64, ground: _Ground, own: NDArray[np.intp]) -> bool:
         return _footprint_free(sample.boxes, new_box, skip=i) and _clutter(pts, new_box, ground, own) <= 3
 
+    def _search(self, rng: np.random.Generator, sample: Scene, none: Any,
+                propose: Callable[[int, _Pts, F64, int], Any]) -> Any:
+        """Draw one object and try destinations until ``propose(index, points, boxes, seed)`` returns
+        params (a free one) or the attempts run out (``none``: the identity)."""
+        config = self.config  # type: ignore[attr-defined]
+        count = min(_draw_count(rng, config.count_range), 1)
+        candidates = _choose_objects(rng, sample, config, len(sample.boxes) if count else 0)
+        if not candidates:
+            return none
+        order = rng.permutation(candidates)
+        pts, arr = _Pts(sample.points.xyz), sample.boxes.as_array()
+        seed = draw_seed(rng)
+        for attempt in range(config.attempts):
+            params = propose(int(order[attempt % len(order)]), pts, arr, seed)
+            if params is not None:
+                return params
+        return none
+
 
 # -- translation
 class ObjectTranslateConfig(ObjectChoiceConfig):
@@ -144,15 +163,8 @@ class ObjectTranslate(_ObjectMove, Operator[Scene, ObjectTranslateConfig, Object
     def sample(self, rng: np.random.Generator, sample: Scene) -> ObjectTranslateParams:
         none = ObjectTranslateParams(object=-1, track_id=-1, offset=(0.0, 0.0, 0.0),
                                      fill_ground=self.config.fill_ground, seed=0)
-        count = min(_draw_count(rng, self.config.count_range), 1)
-        candidates = _choose_objects(rng, sample, self.config, len(sample.boxes) if count else 0)
-        if not candidates:
-            return none
-        order = rng.permutation(candidates)
-        pts, arr = _Pts(sample.points.xyz), sample.boxes.as_array()
-        seed = draw_seed(rng)
-        for attempt in range(self.config.attempts):
-            i = int(order[attempt % len(order)])
+
+        def propose(i: int, pts: _Pts, arr: F64, seed: int) -> ObjectTranslateParams | None:
             box = arr[i]
             distance, theta = uniform(rng, self.config.distance_range), float(rng.uniform(-np.pi, np.pi))
             new_box = box.copy()
@@ -162,14 +174,15 @@ class ObjectTranslate(_ObjectMove, Operator[Scene, ObjectTranslateConfig, Object
             if sample.roi is not None:
                 on_road = bool(sample.roi.contains_xy(box[None, :2])[0])
                 if (_on_roi(sample, new_box) if on_road else sample.roi.contains_xy(new_box[None, :2])[0]) != on_road:
-                    continue
+                    return None
             own = _object_points(pts, box, here, sample.points, int(sample.boxes.track_ids[i]))
             if not self._free(sample, pts, i, new_box, there, own):
-                continue
+                return None
             offset = tuple(float(v) for v in new_box[:3] - box[:3])
             return ObjectTranslateParams(object=i, track_id=int(sample.boxes.track_ids[i]), offset=offset,  # type: ignore[arg-type]
                                          fill_ground=self.config.fill_ground, seed=seed)
-        return none
+
+        return self._search(rng, sample, none, propose)  # type: ignore[no-any-return]
 
     def _map(self, xyz: F64, box: F64, params: ObjectTranslateParams) -> tuple[F64, F64]:
         offset = np.asarray(params.offset, np.float64)
@@ -216,15 +229,8 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> ObjectRotateParams:
         none = ObjectRotateParams(object=-1, track_id=-1, angle=0.0, fill_ground=self.config.fill_ground, seed=0)
-        count = min(_draw_count(rng, self.config.count_range), 1)
-        candidates = _choose_objects(rng, sample, self.config, len(sample.boxes) if count else 0)
-        if not candidates:
-            return none
-        order = rng.permutation(candidates)
-        pts, arr = _Pts(sample.points.xyz), sample.boxes.as_array()
-        seed = draw_seed(rng)
-        for attempt in range(self.config.attempts):
-            i = int(order[attempt % len(order)])
+
+        def propose(i: int, pts: _Pts, arr: F64, seed: int) -> ObjectRotateParams | None:
             angle = uniform(rng, self.config.angle_range)
             if self.config.both_directions and rng.random() < 0.5:
                 angle = -angle
@@ -232,9 +238,10 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
                                         fill_ground=self.config.fill_ground, seed=seed)
             ground = _local_ground(pts, arr[i])
             own = _object_points(pts, arr[i], ground, sample.points, int(sample.boxes.track_ids[i]))
-            if self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1], ground, own):
-                return params
-        return none
+            free = self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1], ground, own)
+            return params if free else None
+
+        return self._search(rng, sample, none, propose)  # type: ignore[no-any-return]
 
     def _map(self, xyz: F64, box: F64, params: ObjectRotateParams) -> tuple[F64, F64]:
         angle = np.deg2rad(params.angle)
@@ -280,24 +287,19 @@ class ObjectScale(_ObjectMove, Operator[Scene, ObjectScaleConfig, ObjectScalePar
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> ObjectScaleParams:
         none = ObjectScaleParams(object=-1, track_id=-1, factor=1.0, fill_ground=self.config.fill_ground, seed=0)
-        count = min(_draw_count(rng, self.config.count_range), 1)
-        candidates = _choose_objects(rng, sample, self.config, len(sample.boxes) if count else 0)
-        if not candidates:
-            return none
-        order = rng.permutation(candidates)
-        pts, arr = _Pts(sample.points.xyz), sample.boxes.as_array()
-        seed = draw_seed(rng)
-        for attempt in range(self.config.attempts):
-            i = int(order[attempt % len(order)])
+
+        def propose(i: int, pts: _Pts, arr: F64, seed: int) -> ObjectScaleParams | None:
             params = ObjectScaleParams(object=i, track_id=int(sample.boxes.track_ids[i]),
                                        factor=uniform(rng, self.config.factor_range),
                                        fill_ground=self.config.fill_ground, seed=seed)
+            if params.factor <= 1.0:  # shrinking in place cannot collide
+                return params
             ground = _local_ground(pts, arr[i])
             own = _object_points(pts, arr[i], ground, sample.points, int(sample.boxes.track_ids[i]))
-            if params.factor <= 1.0 or self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1],
-                                                  ground, own):
-                return params
-        return none
+            free = self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1], ground, own)
+            return params if free else None
+
+        return self._search(rng, sample, none, propose)  # type: ignore[no-any-return]
 
     def _map(self, xyz: F64, box: F64, params: ObjectScaleParams) -> tuple[F64, F64]:
         bottom = box[:3] - np.array([0.0, 0.0, box[5] / 2])

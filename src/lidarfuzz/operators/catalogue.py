@@ -1,0 +1,25 @@
+"""Describing operators to people: parameter values and severity tables as text (CLI and docs)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lidarfuzz.operators.base import Operator
+
+
+def format_value(value: object) -> str:
+    """A config value for a table: ``(0.2, 0.2)`` → ``0.2``, ``(5, 15)`` → ``5 – 15``."""
+    if isinstance(value, tuple | list) and len(value) == 2 and value[0] == value[1]:
+        return format_value(value[0])
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, tuple | list):
+        return " – ".join(format_value(v) for v in value)
+    return str(value)
+
+
+def severity_rows(cls: type[Operator[Any, Any, Any]]) -> list[tuple[str, str, list[str]]]:
+    """One row per config field: (name, description, values at severity 0, 1, … 5)."""
+    configs = [cls.at_severity(s).config.model_dump() for s in (0, *cls.SEVERITIES)]
+    return [(field, info.description or "", [format_value(c[field]) for c in configs])
+            for field, info in cls.ConfigModel.model_fields.items()]
