@@ -208,6 +208,8 @@ def test_mutate_a_data_set_writes_mutants_and_replayable_params(kitti_log, tmp_p
 def test_mutate_bad_arguments_give_one_line(kitti_log, tmp_path):
     result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "x"), "--op", "UPD", "--param", "rate=0.3")
     assert result.returncode == 2 and "ratio_range" in result.stderr
+    result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "z"), "--op", "UPD", "--param", "ratio=2")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and "less than or equal to 1" in result.stderr
     result = lidarfuzz("mutate", str(kitti_log), str(tmp_path / "y"), "--op", "teleport")
     assert result.returncode == 2 and "unknown operator" in result.stderr
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()

@@ -15,6 +15,9 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from pydantic import ValidationError
+
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.io.atomic import write_text
 from lidarfuzz.io.convert import ConvertResult, convert, destination_kind, write_scenes
@@ -22,6 +25,7 @@ from lidarfuzz.io.open import open_dataset
 from lidarfuzz.operators.base import Operator, generator
 from lidarfuzz.operators.lidar.log import FrameAverage, interleave
 from lidarfuzz.operators.registry import get
+from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
 
@@ -42,9 +46,23 @@ def build_operator(name: str, severity: int | None = None, params: dict[str, Any
             value = (value, value)
         fields[target] = value
     try:
-        return cls(**fields)
-    except Exception as exc:  # pydantic's ValidationError names the field
-        raise LidarfuzzError(f"{cls.name}: {exc}") from None
+        operator = cls(**fields)
+    except ValidationError as exc:
+        raise LidarfuzzError(f"{cls.name}: {_first_error(exc)}") from None
+    # A config can be valid yet draw impossible params (e.g. a deletion ratio of 2): try one draw.
+    try:
+        operator.sample(np.random.default_rng(0), Scene(PointCloud.empty()))
+    except ValidationError as exc:
+        raise LidarfuzzError(f"{cls.name}: the parameters you gave draw invalid values: {_first_error(exc)}") from None
+    except Exception:
+        pass
+    return operator
+
+
+def _first_error(exc: ValidationError) -> str:
+    error = exc.errors()[0]
+    where = ".".join(str(part) for part in error["loc"])
+    return f"{where}: {error['msg']} (got {error.get('input')!r})" if where else str(error["msg"])
 
 
 def parse_assignments(items: list[str]) -> dict[str, Any]:
