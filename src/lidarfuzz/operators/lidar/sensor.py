@@ -590,20 +590,23 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
         cloud = sample.points
         if params.is_identity() or len(cloud) == 0:
             return sample
-        xyz = cloud.xyz
+        n = len(cloud)
         distance = np.sqrt(_squared_ranges(cloud))
-        keep = distance <= params.max_range if params.max_range is not None else np.ones(len(xyz), bool)
-        if params.noise_at_max > 0:
-            reference = params.max_range if params.max_range is not None else max(float(distance.max()), 1e-3)
-            noise = np.random.default_rng(params.seed).standard_normal(len(xyz), np.float32)
-            noisy = np.maximum(distance + noise * np.float32(params.noise_at_max / reference**2) * distance**2,
-                               np.float32(0.05))
-            factor = noisy / np.maximum(distance, np.float32(1e-9))
+        keep = distance <= params.max_range if params.max_range is not None else None
+        if params.noise_at_max <= 0:
+            return sample.with_points(cloud.select(keep)) if keep is not None and not keep.all() else sample
+        reference = params.max_range if params.max_range is not None else max(float(distance.max()), 1e-3)
+        noise = np.random.default_rng(params.seed).standard_normal(n, np.float32)  # drawn for every point
+        noisy = np.maximum(distance + noise * np.float32(params.noise_at_max / reference**2) * distance**2,
+                           np.float32(0.05))
+        factor = noisy / np.maximum(distance, np.float32(1e-9))
+        if keep is not None and not keep.all():  # one copy: the kept rows only
+            data, factor = np.compress(keep, cloud.data, axis=0), factor[keep]
+        else:
             data = cloud.data.copy()
-            for axis in range(3):  # radially, column by column
-                data[:, axis] *= factor
-            cloud = PointCloud(data, cloud.channels)
-        return sample.with_points(cloud.select(keep) if not keep.all() else cloud)
+        for axis in range(3):  # radially, column by column
+            data[:, axis] *= factor
+        return sample.with_points(PointCloud(data, cloud.channels))
 
 
 # --------------------------------------------------------------------------- intensity
