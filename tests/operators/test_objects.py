@@ -28,8 +28,8 @@ from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.geometry import bev_corners, iou_bev, points_in_boxes
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.scene.semantics import SEMANTIC_ID
 from lidarfuzz.sim import GenerationConfig, render_frames
-from lidarfuzz.sim.materials import SEMANTIC_ID
 
 
 def rng(trial: int = 0) -> np.random.Generator:

@@ -11,12 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-#: Point-level classes written to the ``label`` channel (the index is the value).
-SEMANTIC_CLASSES: tuple[str, ...] = (
-    "unlabelled", "road", "lane-marking", "sidewalk", "terrain", "building", "wall", "vegetation",
-    "trunk", "pole", "traffic-sign", "car", "van", "truck", "pedestrian", "cyclist", "other-ground",
-)
-SEMANTIC_ID: dict[str, int] = {name: i for i, name in enumerate(SEMANTIC_CLASSES)}
+from lidarfuzz.scene.semantics import OBJECT_SEMANTIC, SEMANTIC_CLASSES, SEMANTIC_ID
 
 
 @dataclass(frozen=True)
@@ -63,14 +58,13 @@ MATERIALS: dict[str, Material] = {m.name: m for m in _MATERIALS}
 #: Vehicle paint from black (0.05) to white (0.75): sampled per vehicle.
 PAINT_REFLECTIVITY = (0.05, 0.75)
 
-#: KITTI object class → semantic class of its points.
-OBJECT_SEMANTIC: dict[str, str] = {
-    "Car": "car", "Van": "van", "Truck": "truck", "Pedestrian": "pedestrian", "Cyclist": "cyclist",
-}
-
-
 def material(name: str) -> Material:
     try:
         return MATERIALS[name]
     except KeyError:
         raise ValueError(f"unknown material {name!r}; known: {', '.join(MATERIALS)}") from None
+
+
+__all__ = [
+    "MATERIALS", "OBJECT_SEMANTIC", "PAINT_REFLECTIVITY", "SEMANTIC_CLASSES", "SEMANTIC_ID", "Material", "material",
+]

@@ -14,7 +14,7 @@ Per frame the renderer
 4. computes KITTI labels (see :mod:`lidarfuzz.sim.labels`).
 
 Channels: ``x y z intensity ring time label instance`` — ``label`` is the semantic
-class (:data:`~lidarfuzz.sim.materials.SEMANTIC_CLASSES`), ``instance`` the track id of
+class (:data:`~lidarfuzz.scene.semantics.SEMANTIC_CLASSES`), ``instance`` the track id of
 the road user hit, −1 for the background.
 """
 

@@ -25,6 +25,7 @@ from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target,
 from lidarfuzz.operators.lidar.common import intensity_scale
 from lidarfuzz.scene.points import CHANNEL_DEFAULTS, PointCloud
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.scene.semantics import GROUND_CLASSES, SEMANTIC_ID
 
 Range = tuple[float, float]
 POINTS = frozenset({Target.POINTS})
@@ -392,8 +393,7 @@ class Snow(_Precipitation):
 
 
 # =========================================================================== wet ground
-#: Semantic classes whose points are ground (see :data:`lidarfuzz.sim.materials.SEMANTIC_CLASSES`).
-GROUND_CLASSES = ("road", "lane-marking", "sidewalk", "other-ground", "terrain")
+
 WATER_INDEX = 1.33
 
 
@@ -427,8 +427,6 @@ def ground_plane(xyz: F64) -> tuple[F64, float]:
 
 def _ground(cloud: PointCloud) -> tuple[NDArray[np.intp], F64]:
     """(indices of the ground points, the ground plane's unit normal)."""
-    from lidarfuzz.sim.materials import SEMANTIC_ID
-
     if cloud.has("label"):
         ids = np.array([SEMANTIC_ID[name] for name in GROUND_CLASSES], np.float32)
         index = np.flatnonzero(np.isin(cloud.channel("label"), ids))

@@ -37,7 +37,7 @@ from lidarfuzz.operators.lidar.objects.support import (
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.sim.materials import OBJECT_SEMANTIC, SEMANTIC_ID
+from lidarfuzz.scene.semantics import OBJECT_SEMANTIC, SEMANTIC_ID
 
 
 def _cache_dir() -> Path:
