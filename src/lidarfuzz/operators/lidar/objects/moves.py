@@ -103,6 +103,13 @@ class _ObjectMove:
     def _free(sample: Scene, pts: _Pts, i: int, new_box: F64, ground: _Ground, own: NDArray[np.intp]) -> bool:
         return _footprint_free(sample.boxes, new_box, skip=i) and _clutter(pts, new_box, ground, own) <= 3
 
+    def _fits_in_place(self, sample: Scene, pts: _Pts, arr: F64, i: int, params: Any) -> bool:
+        """Whether object ``i``, transformed about its own place by ``params``, is free there."""
+        ground = _local_ground(pts, arr[i])
+        own = _object_points(pts, arr[i], ground, sample.points, int(sample.boxes.track_ids[i]))
+        new_box = self._map(np.zeros((0, 3)), arr[i], params)[1]  # type: ignore[attr-defined]
+        return self._free(sample, pts, i, new_box, ground, own)
+
     def _search(self, rng: np.random.Generator, sample: Scene, none: Any,
                 propose: Callable[[int, _Pts, F64, int], Any]) -> Any:
         """Draw one object and try destinations until ``propose(index, points, boxes, seed)`` returns
@@ -236,10 +243,7 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
                 angle = -angle
             params = ObjectRotateParams(object=i, track_id=int(sample.boxes.track_ids[i]), angle=angle,
                                         fill_ground=self.config.fill_ground, seed=seed)
-            ground = _local_ground(pts, arr[i])
-            own = _object_points(pts, arr[i], ground, sample.points, int(sample.boxes.track_ids[i]))
-            free = self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1], ground, own)
-            return params if free else None
+            return params if self._fits_in_place(sample, pts, arr, i, params) else None
 
         return self._search(rng, sample, none, propose)  # type: ignore[no-any-return]
 
@@ -294,10 +298,7 @@ class ObjectScale(_ObjectMove, Operator[Scene, ObjectScaleConfig, ObjectScalePar
                                        fill_ground=self.config.fill_ground, seed=seed)
             if params.factor <= 1.0:  # shrinking in place cannot collide
                 return params
-            ground = _local_ground(pts, arr[i])
-            own = _object_points(pts, arr[i], ground, sample.points, int(sample.boxes.track_ids[i]))
-            free = self._free(sample, pts, i, self._map(np.zeros((0, 3)), arr[i], params)[1], ground, own)
-            return params if free else None
+            return params if self._fits_in_place(sample, pts, arr, i, params) else None
 
         return self._search(rng, sample, none, propose)  # type: ignore[no-any-return]
 
