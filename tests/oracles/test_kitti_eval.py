@@ -275,3 +275,72 @@ def test_loose_thresholds_accept_a_half_overlap() -> None:
     assert loose.overlaps["3d"]["Car"] == 0.5 and loose.overlaps["bbox"]["Car"] == 0.7
     with pytest.raises(ValueError, match="overlaps"):
         evaluate_kitti([], overlaps="strict")  # type: ignore[arg-type]
+
+
+# -- the batched evaluation against the readable per-frame loop ---------------------------
+def _random_frames(seed: int) -> list[KittiFrame]:
+    """Frames that exercise every rule: neighbour classes, DontCare, far (low) boxes of any
+    class, occlusion/truncation beyond each difficulty, tied scores, empty frames."""
+    rng = np.random.default_rng(seed)
+    sizes = {"Car": CAR, "Van": (4.8, 1.9, 2.1), "Pedestrian": PED, "Person_sitting": (0.9, 0.6, 1.2), "Cyclist": CYC}
+    names = list(sizes)
+    frames = []
+    for _ in range(int(rng.integers(1, 12))):
+        m = int(rng.integers(0, 7))
+        labels = list(rng.choice(names, m))
+        centres = np.c_[rng.uniform(4, 70, m), rng.uniform(-12, 12, m), np.full(m, -0.9)]
+        dims = np.array([sizes[label] for label in labels]).reshape(-1, 3)
+        yaw = rng.uniform(-np.pi, np.pi, m)
+        gt = Boxes3D.create(
+            centres, dims, yaw, labels, occlusion=rng.integers(0, 4, m), truncation=rng.uniform(0, 0.6, m)
+        )
+        if rng.random() < 0.5:
+            x1, y1 = rng.uniform(0, 1000), rng.uniform(100, 300)
+            gt = Boxes3D.concat(
+                [
+                    gt,
+                    Boxes3D.create(
+                        [[np.nan] * 3], [[np.nan] * 3], [np.nan], ["DontCare"], bbox2d=[[x1, y1, x1 + 200, y1 + 60]]
+                    ),
+                ]
+            )
+        keep = rng.random(m) < 0.8
+        k = int(keep.sum())
+        extra = int(rng.integers(0, 4))
+        dt_labels = [label for label, kept in zip(labels, keep, strict=True) if kept] + list(rng.choice(names, extra))
+        dt = Boxes3D.create(
+            np.r_[
+                centres[keep] + rng.normal(0, 0.25, (k, 3)),
+                np.c_[rng.uniform(4, 70, extra), rng.uniform(-12, 12, extra), np.full(extra, -0.9)],
+            ],
+            np.r_[
+                dims[keep] * rng.uniform(0.9, 1.1, (k, 3)), np.array([sizes[n] for n in dt_labels[k:]]).reshape(-1, 3)
+            ],
+            np.r_[yaw[keep] + rng.normal(0, 0.2, k), rng.uniform(-np.pi, np.pi, extra)],
+            dt_labels,
+            scores=rng.choice([0.2, 0.5, 0.5, 0.7, 0.9], k + extra),  # ties on purpose
+        )
+        frames.append(KittiFrame(gt, dt))
+    frames.append(KittiFrame(Boxes3D.empty(), Boxes3D.empty()))
+    return frames
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_batched_evaluation_equals_the_per_frame_loop(seed: int) -> None:
+    from lidarfuzz.oracles import kitti_eval as k
+
+    frames = _random_frames(seed)
+    batch = k._batch(frames)
+    prepared = k._prepare(frames)
+    for cls in k.CLASSES:
+        view = k._class_view(batch, cls)
+        for difficulty in range(3):
+            ignored_gt, ignored_dt = k._ignored(batch, view, cls, difficulty)
+            cleans = [k._clean(fr, cls, difficulty) for fr in prepared]
+            for metric in k.GEOMETRIC_METRICS:
+                overlap = k.OFFICIAL_OVERLAPS[metric][cls]
+                ref_prec, ref_aos = k._precision_curves(prepared, cleans, metric, overlap, metric == "bbox")
+                prec, aos = k._curves(batch, view, ignored_gt, ignored_dt, metric, overlap)
+                np.testing.assert_allclose(prec, ref_prec, atol=1e-12, err_msg=f"{cls} {difficulty} {metric}")
+                if metric == "bbox":
+                    np.testing.assert_allclose(aos, ref_aos, atol=1e-12, err_msg=f"{cls} {difficulty} aos")

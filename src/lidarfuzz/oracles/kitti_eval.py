@@ -112,27 +112,6 @@ class _Frame:
     iou: dict[str, NDArray[np.float64]]  # metric -> (n_dt, n_gt)
 
 
-def _fill_projection(boxes: Boxes3D, calib: KittiCalibration) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    bbox = np.array(boxes.bbox2d, dtype=np.float64)
-    alpha = np.array(boxes.alpha, dtype=np.float64)
-    geo = boxes.has_geometry
-    need_box = geo & ~np.all(np.isfinite(bbox), axis=1)
-    if need_box.any():
-        bbox[need_box] = calib.boxes_to_image(boxes.as_array()[need_box])
-    need_alpha = geo & ~np.isfinite(alpha)
-    if need_alpha.any():
-        alpha[need_alpha] = calib.alpha(boxes.as_array()[need_alpha])
-    return bbox, alpha
-
-
-def _camera(
-    boxes: Boxes3D, calib: KittiCalibration
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    if len(boxes) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
-    return calib.boxes_to_camera(boxes.as_array())
-
-
 def image_box_overlap(a: NDArray[np.float64], b: NDArray[np.float64], criterion: int = -1) -> NDArray[np.float64]:
     """M×K overlap of 2D boxes: IoU (criterion -1) or intersection over the area of ``a`` (0)."""
     iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
@@ -149,79 +128,190 @@ def image_box_overlap(a: NDArray[np.float64], b: NDArray[np.float64], criterion:
     return np.nan_to_num(out, nan=0.0)
 
 
+# -- all frames at once --------------------------------------------------------------------
+@dataclass
+class _Batch:
+    """Every frame's boxes concatenated (frame order kept) with their camera-frame geometry.
+
+    ``*_frame`` gives each box's frame; ``pair_offset[f]`` is where frame ``f``'s
+    ``n_dt × n_gt`` block of pair overlaps starts in ``pair_iou[metric]`` (row-major).
+    """
+
+    num_frames: int
+    gt_frame: NDArray[np.int64]
+    dt_frame: NDArray[np.int64]
+    gt_offset: NDArray[np.int64]
+    dt_offset: NDArray[np.int64]
+    gt_labels: NDArray[np.str_]
+    dt_labels: NDArray[np.str_]
+    gt_bbox: NDArray[np.float64]
+    dt_bbox: NDArray[np.float64]
+    gt_alpha: NDArray[np.float64]
+    dt_alpha: NDArray[np.float64]
+    gt_trunc: NDArray[np.float64]
+    gt_occ: NDArray[np.int64]
+    dt_scores: NDArray[np.float64]
+    pair_offset: NDArray[np.int64]
+    pair_iou: dict[str, NDArray[np.float64]]
+
+
+def _calib_key(calib: KittiCalibration) -> bytes:
+    return calib.velo_to_rect.tobytes() + calib.P2.tobytes() + np.asarray(calib.image_shape).tobytes()
+
+
+def _boxes_arrays(parts: Sequence[Boxes3D]) -> dict[str, NDArray[Any]]:
+    if not parts:
+        parts = [Boxes3D.empty()]
+    return {
+        "geometry": np.concatenate([b.as_array() for b in parts]),
+        "labels": np.char.lower(np.concatenate([b.labels.astype(str) for b in parts]).astype(str)),
+        "bbox": np.concatenate([b.bbox2d for b in parts]).astype(np.float64),
+        "alpha": np.concatenate([b.alpha for b in parts]).astype(np.float64),
+        "trunc": np.concatenate([b.truncation for b in parts]).astype(np.float64),
+        "occ": np.concatenate([b.occlusion for b in parts]).astype(np.int64),
+        "scores": np.concatenate([b.scores for b in parts]).astype(np.float64),
+    }
+
+
+def _camera_geometry(
+    geometry: NDArray[np.float64],
+    bbox: NDArray[np.float64],
+    alpha: NDArray[np.float64],
+    box_frame: NDArray[np.int64],
+    frame_group: NDArray[np.int64],
+    calibs: list[KittiCalibration],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Fill missing 2D boxes and alphas by projection (in place) and return the footprint
+    corners on the camera x–z plane (M×4×2) and the vertical extent ``[y_top, y_bottom]`` (M×2),
+    one calibration group at a time."""
+    corners = np.full((len(geometry), 4, 2), np.nan)
+    vertical = np.full((len(geometry), 2), np.nan)
+    group = frame_group[box_frame]
+    has_geo = np.all(np.isfinite(geometry), axis=1)
+    for g, calib in enumerate(calibs):
+        rows = np.flatnonzero((group == g) & has_geo)
+        if rows.size == 0:
+            continue
+        boxes = geometry[rows]
+        need_box = ~np.all(np.isfinite(bbox[rows]), axis=1)
+        if need_box.any():
+            bbox[rows[need_box]] = calib.boxes_to_image(boxes[need_box])
+        need_alpha = ~np.isfinite(alpha[rows])
+        if need_alpha.any():
+            alpha[rows[need_alpha]] = calib.alpha(boxes[need_alpha])
+        loc, dims, ry = calib.boxes_to_camera(boxes)
+        corners[rows] = KittiCalibration.camera_box_corners(loc, dims, ry)[:, :4][..., [0, 2]]
+        # camera y points down: a box spans [y - h, y]
+        vertical[rows] = np.stack([loc[:, 1] - dims[:, 0], loc[:, 1]], axis=1)
+    return corners, vertical
+
+
+def _batch(frames: Sequence[KittiFrame]) -> _Batch:
+    n = len(frames)
+    groups: dict[bytes, int] = {}
+    calibs: list[KittiCalibration] = []
+    frame_group = np.zeros(n, dtype=np.int64)
+    for f, frame in enumerate(frames):
+        key = _calib_key(frame.calib)
+        if key not in groups:
+            groups[key] = len(calibs)
+            calibs.append(frame.calib)
+        frame_group[f] = groups[key]
+    n_gt = np.array([len(fr.gt) for fr in frames], dtype=np.int64)
+    n_dt = np.array([len(fr.detections) for fr in frames], dtype=np.int64)
+    gt = _boxes_arrays([fr.gt for fr in frames])
+    dt = _boxes_arrays([fr.detections for fr in frames])
+    gt_frame = np.repeat(np.arange(n), n_gt)
+    dt_frame = np.repeat(np.arange(n), n_dt)
+    g_corn, g_vert = _camera_geometry(gt["geometry"], gt["bbox"], gt["alpha"], gt_frame, frame_group, calibs)
+    d_corn, d_vert = _camera_geometry(dt["geometry"], dt["bbox"], dt["alpha"], dt_frame, frame_group, calibs)
+    gt_offset = np.concatenate([[0], np.cumsum(n_gt)])
+    dt_offset = np.concatenate([[0], np.cumsum(n_dt)])
+    pairs = n_dt * n_gt
+    pair_offset = np.concatenate([[0], np.cumsum(pairs)])
+    # flat (dt, gt) index of every pair, frame by frame, row-major within a frame
+    pair_frame = np.repeat(np.arange(n), pairs)
+    local = np.arange(int(pair_offset[-1])) - pair_offset[pair_frame]
+    ngt_p = n_gt[pair_frame]
+    di = dt_offset[pair_frame] + local // np.maximum(ngt_p, 1)
+    gi = gt_offset[pair_frame] + local % np.maximum(ngt_p, 1)
+    iou = {
+        "bbox": _paired_image_iou(dt["bbox"][di], gt["bbox"][gi]),
+    }
+    inter = np.zeros(len(di))
+    finite = np.all(np.isfinite(d_corn[di]), axis=(1, 2)) & np.all(np.isfinite(g_corn[gi]), axis=(1, 2))
+    if finite.any():
+        inter[finite] = shapely.area(
+            shapely.intersection(shapely.polygons(d_corn[di[finite]]), shapely.polygons(g_corn[gi[finite]]))
+        )
+    d_geo, g_geo = dt["geometry"][di], gt["geometry"][gi]
+    area_d, area_g = d_geo[:, 3] * d_geo[:, 4], g_geo[:, 3] * g_geo[:, 4]
+    height = np.minimum(d_vert[di, 1], g_vert[gi, 1]) - np.maximum(d_vert[di, 0], g_vert[gi, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bev = inter / (area_d + area_g - inter)
+        inter3 = inter * np.clip(height, 0.0, None)
+        iou3 = inter3 / (area_d * d_geo[:, 5] + area_g * g_geo[:, 5] - inter3)
+    iou["bev"] = np.nan_to_num(np.where(inter > 0, bev, 0.0), nan=0.0)
+    iou["3d"] = np.nan_to_num(np.where(inter3 > 0, iou3, 0.0), nan=0.0)
+    return _Batch(
+        num_frames=n,
+        gt_frame=gt_frame,
+        dt_frame=dt_frame,
+        gt_offset=gt_offset,
+        dt_offset=dt_offset,
+        gt_labels=gt["labels"],
+        dt_labels=dt["labels"],
+        gt_bbox=gt["bbox"],
+        dt_bbox=dt["bbox"],
+        gt_alpha=gt["alpha"],
+        dt_alpha=dt["alpha"],
+        gt_trunc=gt["trunc"],
+        gt_occ=gt["occ"],
+        dt_scores=dt["scores"],
+        pair_offset=pair_offset,
+        pair_iou=iou,
+    )
+
+
+def _paired_image_iou(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Element-wise IoU of two K×4 lists of 2D boxes (no +1 pixel convention)."""
+    iw = np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0])
+    ih = np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1])
+    with np.errstate(invalid="ignore"):
+        inter = np.where((iw > 0) & (ih > 0), iw * ih, 0.0)
+    union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(inter > 0, inter / union, 0.0)
+    return np.nan_to_num(out, nan=0.0)
+
+
 def _prepare(frames: Sequence[KittiFrame]) -> list[_Frame]:
-    prepared: list[_Frame] = []
-    # All dt×gt pairs of all frames go to shapely in one call.
-    polys_dt: list[NDArray[np.float64]] = []
-    polys_gt: list[NDArray[np.float64]] = []
-    pair_frames: list[tuple[int, int, int]] = []
-    heights: list[NDArray[np.float64]] = []
-    dims: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
-    for frame in frames:
-        gt, dt, calib = frame.gt, frame.detections, frame.calib
-        gt_bbox, gt_alpha = _fill_projection(gt, calib)
-        dt_bbox, dt_alpha = _fill_projection(dt, calib)
-        g_loc, g_dim, g_ry = _camera(gt, calib)
-        d_loc, d_dim, d_ry = _camera(dt, calib)
-        g_corn = (
-            KittiCalibration.camera_box_corners(g_loc, g_dim, g_ry)[:, :4][..., [0, 2]]
-            if len(gt)
-            else np.zeros((0, 4, 2))
-        )
-        d_corn = (
-            KittiCalibration.camera_box_corners(d_loc, d_dim, d_ry)[:, :4][..., [0, 2]]
-            if len(dt)
-            else np.zeros((0, 4, 2))
-        )
-        n_dt, n_gt = len(dt), len(gt)
-        di, gi = np.meshgrid(np.arange(n_dt), np.arange(n_gt), indexing="ij")
-        polys_dt.append(d_corn[di.ravel()])
-        polys_gt.append(g_corn[gi.ravel()])
-        pair_frames.append((len(prepared), n_dt, n_gt))
-        # height overlap along camera y (down): a box spans [y - h, y]
-        top = np.minimum(d_loc[:, None, 1], g_loc[None, :, 1])
-        bottom = np.maximum(d_loc[:, None, 1] - d_dim[:, None, 0], g_loc[None, :, 1] - g_dim[None, :, 0])
-        heights.append(top - bottom)
-        prepared.append(
+    """Per-frame views of :func:`_batch` for the readable reference loop (:func:`_statistics`)."""
+    b = _batch(frames)
+    out: list[_Frame] = []
+    for f in range(b.num_frames):
+        g = slice(b.gt_offset[f], b.gt_offset[f + 1])
+        d = slice(b.dt_offset[f], b.dt_offset[f + 1])
+        shape = (d.stop - d.start, g.stop - g.start)
+        p = slice(b.pair_offset[f], b.pair_offset[f + 1])
+        out.append(
             _Frame(
-                gt_labels=np.char.lower(gt.labels.astype(str)),
-                dt_labels=np.char.lower(dt.labels.astype(str)),
-                gt_bbox=gt_bbox,
-                dt_bbox=dt_bbox,
-                gt_alpha=gt_alpha,
-                dt_alpha=dt_alpha,
-                gt_trunc=np.asarray(gt.truncation, dtype=np.float64),
-                gt_occ=np.asarray(gt.occlusion, dtype=np.int64),
-                dt_scores=np.asarray(dt.scores, dtype=np.float64),
-                iou={"bbox": image_box_overlap(dt_bbox, gt_bbox)},
+                gt_labels=b.gt_labels[g],
+                dt_labels=b.dt_labels[d],
+                gt_bbox=b.gt_bbox[g],
+                dt_bbox=b.dt_bbox[d],
+                gt_alpha=b.gt_alpha[g],
+                dt_alpha=b.dt_alpha[d],
+                gt_trunc=b.gt_trunc[g],
+                gt_occ=b.gt_occ[g],
+                dt_scores=b.dt_scores[d],
+                iou={m: v[p].reshape(shape) for m, v in b.pair_iou.items()},
             )
         )
-        dims.append((d_dim, g_dim))
-    all_dt = np.concatenate(polys_dt) if polys_dt else np.zeros((0, 4, 2))
-    all_gt = np.concatenate(polys_gt) if polys_gt else np.zeros((0, 4, 2))
-    inter_all = np.zeros(all_dt.shape[0])
-    finite = np.all(np.isfinite(all_dt), axis=(1, 2)) & np.all(np.isfinite(all_gt), axis=(1, 2))
-    if finite.any():
-        a = shapely.polygons(all_dt[finite])
-        b = shapely.polygons(all_gt[finite])
-        inter_all[finite] = shapely.area(shapely.intersection(a, b))
-    offset = 0
-    for (idx, n_dt, n_gt), dy, (d_dim, g_dim) in zip(pair_frames, heights, dims, strict=True):
-        fr = prepared[idx]
-        inter = inter_all[offset : offset + n_dt * n_gt].reshape(n_dt, n_gt)
-        offset += n_dt * n_gt
-        area_d, area_g = d_dim[:, 2] * d_dim[:, 1], g_dim[:, 2] * g_dim[:, 1]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            bev = inter / (area_d[:, None] + area_g[None, :] - inter)
-            inter3 = inter * np.clip(dy, 0.0, None)
-            vol_d, vol_g = area_d * d_dim[:, 0], area_g * g_dim[:, 0]
-            iou3 = inter3 / (vol_d[:, None] + vol_g[None, :] - inter3)
-        fr.iou["bev"] = np.nan_to_num(np.where(inter > 0, bev, 0.0), nan=0.0)
-        fr.iou["3d"] = np.nan_to_num(np.where(inter3 > 0, iou3, 0.0), nan=0.0)
-    return prepared
+    return out
 
 
-# -- the devkit's matching ---------------------------------------------------------------
+# -- the devkit's matching, one frame at a time (the readable reference) -------------------
 @dataclass
 class _Clean:
     ignored_gt: NDArray[np.int64]
@@ -372,6 +462,221 @@ def _precision_curves(
     return precision, aos if with_aos else np.zeros(NUM_SAMPLE_POINTS)
 
 
+# -- the devkit's matching, all frames at once -----------------------------------------------
+@dataclass
+class _ClassView:
+    """One class's boxes padded per frame: ``F × D`` detections (score order kept as given)
+    and ``F × G`` ground truth of the class or its neighbour class; padding indexes -1."""
+
+    gt: NDArray[np.int64]  # F × G flat GT index, -1 pad
+    dt: NDArray[np.int64]  # F × D flat detection index, -1 pad
+    scores: NDArray[np.float64]  # F × D, -inf pad
+    overlaps: dict[str, NDArray[np.float64]]  # metric -> F × D × G
+    gt_alpha: NDArray[np.float64]
+    dt_alpha: NDArray[np.float64]
+    dontcare: NDArray[np.float64]  # F × D × C intersection over detection area, -inf pad
+
+
+def _padded(flat_index: NDArray[np.int64], frame: NDArray[np.int64], num_frames: int) -> NDArray[np.int64]:
+    """F × K table of the flat indices of each frame's selected boxes, -1 padded."""
+    counts = np.bincount(frame, minlength=num_frames)
+    width = int(counts.max()) if counts.size and len(frame) else 0
+    table = np.full((num_frames, width), -1, dtype=np.int64)
+    if len(frame):
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        rank = np.arange(len(frame)) - starts[frame]
+        table[frame, rank] = flat_index
+    return table
+
+
+def _class_view(b: _Batch, cls: str) -> _ClassView:
+    name = cls.lower()
+    neighbour = NEIGHBOUR_CLASSES.get(name, "\0")
+    gsel = np.flatnonzero((b.gt_labels == name) | (b.gt_labels == neighbour))
+    # As in the devkit, a detection of any class lower than the difficulty's minimum height is
+    # an *ignored* detection (it may absorb a GT); only taller ones of other classes drop out.
+    with np.errstate(invalid="ignore"):
+        low = (b.dt_bbox[:, 3] - b.dt_bbox[:, 1]) < max(MIN_HEIGHT)
+    dsel = np.flatnonzero((b.dt_labels == name) | low)
+    gt = _padded(gsel, b.gt_frame[gsel], b.num_frames)
+    dt = _padded(dsel, b.dt_frame[dsel], b.num_frames)
+    gmask, dmask = gt >= 0, dt >= 0
+    d_local = np.where(dmask, dt - b.dt_offset[:-1, None], 0)[:, :, None]
+    g_local = np.where(gmask, gt - b.gt_offset[:-1, None], 0)[:, None, :]
+    n_gt = (b.gt_offset[1:] - b.gt_offset[:-1])[:, None, None]
+    pair = b.pair_offset[:-1, None, None] + d_local * n_gt + g_local
+    valid = dmask[:, :, None] & gmask[:, None, :]
+    pair = np.where(valid, pair, 0)
+    overlaps = {}
+    for metric, values in b.pair_iou.items():
+        taken = values[pair] if values.size else np.zeros(pair.shape)
+        overlaps[metric] = np.where(valid, taken, 0.0)
+    # DontCare regions of the frame: intersection over the detection's own area
+    dc = _padded(*(lambda s: (s, b.gt_frame[s]))(np.flatnonzero(b.gt_labels == "dontcare")), b.num_frames)
+    dc_box = (
+        np.where((dc >= 0)[..., None], b.gt_bbox[np.maximum(dc, 0)], np.nan)
+        if b.gt_bbox.size
+        else np.full((*dc.shape, 4), np.nan)
+    )
+    d_box = (
+        np.where(dmask[..., None], b.dt_bbox[np.maximum(dt, 0)], np.nan)
+        if b.dt_bbox.size
+        else np.full((*dt.shape, 4), np.nan)
+    )
+    iw = np.minimum(d_box[:, :, None, 2], dc_box[:, None, :, 2]) - np.maximum(
+        d_box[:, :, None, 0], dc_box[:, None, :, 0]
+    )
+    ih = np.minimum(d_box[:, :, None, 3], dc_box[:, None, :, 3]) - np.maximum(
+        d_box[:, :, None, 1], dc_box[:, None, :, 1]
+    )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inter = np.where((iw > 0) & (ih > 0), iw * ih, 0.0)
+        area = ((d_box[..., 2] - d_box[..., 0]) * (d_box[..., 3] - d_box[..., 1]))[:, :, None]
+        dontcare = np.nan_to_num(np.where(inter > 0, inter / area, 0.0), nan=0.0)
+    scores = np.where(dmask, b.dt_scores[np.maximum(dt, 0)] if b.dt_scores.size else 0.0, -np.inf)
+    return _ClassView(
+        gt=gt,
+        dt=dt,
+        scores=scores,
+        overlaps=overlaps,
+        gt_alpha=np.where(gmask, b.gt_alpha[np.maximum(gt, 0)] if b.gt_alpha.size else 0.0, np.nan),
+        dt_alpha=np.where(dmask, b.dt_alpha[np.maximum(dt, 0)] if b.dt_alpha.size else 0.0, np.nan),
+        dontcare=dontcare,
+    )
+
+
+def _ignored(b: _Batch, view: _ClassView, cls: str, difficulty: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The devkit's ``ignored_gt`` (F × G) and ``ignored_dt`` (F × D): 0 counts, 1 ignored, -1 absent."""
+    name = cls.lower()
+    # indexing with an empty F × 0 table is fine even when there are no boxes at all
+    g = np.maximum(view.gt, 0)
+    height = b.gt_bbox[g, 3] - b.gt_bbox[g, 1]
+    with np.errstate(invalid="ignore"):
+        outside = (
+            (b.gt_occ[g] > MAX_OCCLUSION[difficulty])
+            | (b.gt_trunc[g] > MAX_TRUNCATION[difficulty])
+            | (height <= MIN_HEIGHT[difficulty])
+        )
+    ignored_gt = np.where((b.gt_labels[g] == name) & ~outside, 0, 1)
+    ignored_gt[view.gt < 0] = -1
+    d = np.maximum(view.dt, 0)
+    with np.errstate(invalid="ignore"):
+        low = (b.dt_bbox[d, 3] - b.dt_bbox[d, 1]) < MIN_HEIGHT[difficulty]
+    ignored_dt = np.where(low, 1, np.where(b.dt_labels[d] == name, 0, -1))
+    ignored_dt[view.dt < 0] = -1
+    return ignored_gt.astype(np.int64), ignored_dt.astype(np.int64)
+
+
+def _match(
+    overlaps: NDArray[np.float64],
+    ignored_gt: NDArray[np.int64],
+    ignored_dt: NDArray[np.int64],
+    active: NDArray[np.bool_],
+    scores: NDArray[np.float64],
+    gt_alpha: NDArray[np.float64],
+    dt_alpha: NDArray[np.float64],
+    min_overlap: float,
+    compute_fp: bool,
+) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The devkit's per-frame assignment for N instances at once (N × D detections, N × G GT).
+
+    GT are visited in order. Without ``compute_fp`` the candidate with the highest score wins
+    (the first on ties); with it, the non-ignored candidate of highest overlap (the first on
+    ties), else the first ignored one. Returns (assigned N × D, TP N, FN N, similarity N,
+    TP mask N × G).
+    """
+    n, num_dt = active.shape
+    rows = np.arange(n)
+    usable = (ignored_dt != -1) & active
+    assigned = np.zeros((n, num_dt), dtype=bool)
+    tp = np.zeros(n, dtype=np.int64)
+    fn = np.zeros(n, dtype=np.int64)
+    similarity = np.zeros(n)
+    tp_det = np.full(ignored_gt.shape, -1, dtype=np.int64)
+    if num_dt == 0:  # nothing to match anywhere: every counted GT is a miss
+        return assigned, tp, np.count_nonzero(ignored_gt == 0, axis=1), similarity, tp_det
+    for i in range(ignored_gt.shape[1]):
+        g = ignored_gt[:, i]
+        cand = usable & ~assigned & (overlaps[:, :, i] > min_overlap)
+        if compute_fp:
+            counted = cand & (ignored_dt == 0)
+            has_counted = counted.any(axis=1)
+            best = np.argmax(np.where(counted, overlaps[:, :, i], -1.0), axis=1)
+            first_ignored = np.argmax(cand, axis=1)  # only used when no counted candidate: all are ignored
+            det = np.where(has_counted, best, first_ignored)
+            found = cand.any(axis=1)
+        else:
+            found = cand.any(axis=1)
+            det = np.argmax(np.where(cand, scores, -np.inf), axis=1)
+        live = g != -1
+        fn += (live & ~found & (g == 0)).astype(np.int64)
+        hit = live & found
+        assigned[rows[hit], det[hit]] = True
+        is_tp = hit & (g == 0) & (ignored_dt[rows, det] == 0)
+        tp += is_tp
+        tp_det[is_tp, i] = det[is_tp]
+        if compute_fp and is_tp.any():
+            delta = gt_alpha[is_tp, i] - dt_alpha[rows[is_tp], det[is_tp]]
+            similarity[is_tp] += (1.0 + np.cos(delta)) / 2.0
+    return assigned, tp, fn, similarity, tp_det
+
+
+def _curves(
+    b: _Batch,
+    view: _ClassView,
+    ignored_gt: NDArray[np.int64],
+    ignored_dt: NDArray[np.int64],
+    metric: str,
+    min_overlap: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Precision and AOS at the 41 sampled recall levels for one class, difficulty and metric."""
+    precision = np.zeros(NUM_SAMPLE_POINTS)
+    aos = np.zeros(NUM_SAMPLE_POINTS)
+    overlaps = view.overlaps[metric]
+    num_valid = int(np.count_nonzero(ignored_gt == 0))
+    everything = np.ones(view.scores.shape, dtype=bool)
+    _, _, _, _, tp_det = _match(
+        overlaps, ignored_gt, ignored_dt, everything, view.scores, view.gt_alpha, view.dt_alpha, min_overlap, False
+    )
+    frame_of, column = np.nonzero(tp_det >= 0)
+    tp_scores = view.scores[frame_of, tp_det[frame_of, column]]
+    if tp_scores.size == 0:
+        return precision, aos
+    thresholds = np.asarray(get_thresholds(tp_scores, num_valid))
+    # A frame's outcome at a threshold only depends on which detections pass it, i.e. on how
+    # many do: one instance per distinct (frame, count), scattered back to every threshold.
+    count = np.count_nonzero(view.scores[:, :, None] >= thresholds[None, None, :], axis=1)  # F × T
+    num_frames, num_thr = count.shape
+    key = np.arange(num_frames)[:, None] * (view.scores.shape[1] + 1) + count
+    _, first, inverse = np.unique(key.ravel(), return_index=True, return_inverse=True)
+    frame = first // num_thr
+    active = view.scores[frame] >= thresholds[first % num_thr][:, None]
+    assigned, tp, fn, similarity, _ = _match(
+        overlaps[frame],
+        ignored_gt[frame],
+        ignored_dt[frame],
+        active,
+        view.scores[frame],
+        view.gt_alpha[frame],
+        view.dt_alpha[frame],
+        min_overlap,
+        True,
+    )
+    counted = active & ~assigned & (ignored_dt[frame] == 0)
+    fp = np.count_nonzero(counted, axis=1)
+    if metric == "bbox":
+        fp -= np.count_nonzero(counted & np.any(view.dontcare[frame] > min_overlap, axis=2), axis=1)
+    stats = np.stack([tp, fp, fn, similarity], axis=1)[inverse.reshape(-1)].reshape(num_frames, num_thr, 4)
+    pr = stats.sum(axis=0)
+    n = len(thresholds)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        precision[:n] = pr[:, 0] / (pr[:, 0] + pr[:, 1])
+        aos[:n] = pr[:, 3] / (pr[:, 0] + pr[:, 1])
+    precision = np.maximum.accumulate(precision[::-1])[::-1]
+    aos = np.maximum.accumulate(aos[::-1])[::-1]
+    return precision, aos
+
+
 def ap_r11(precision: NDArray[np.float64]) -> float:
     """Mean of the 11 samples 0, 4, …, 40 (recall 0, 0.1, …, 1), in percent."""
     return float(np.sum(precision[0::4]) / 11.0 * 100.0)
@@ -418,15 +723,19 @@ def evaluate_kitti(
     if missing:
         raise ValueError(f"no overlap threshold for (metric, class) {missing}; add them to `overlaps`")
     frame_list = list(frames)
-    prepared = _prepare(frame_list)
+    for index, frame in enumerate(frame_list):
+        if len(frame.detections) and not np.all(np.isfinite(frame.detections.scores)):
+            raise ValueError(f"frame {index}: every detection needs a finite score")
+    batch = _batch(frame_list)
     ap: dict[str, dict[str, dict[str, dict[str, float]]]] = {m: {} for m in METRICS}
     for cls in classes:
         for m in METRICS:
             ap[m][cls] = {}
+        view = _class_view(batch, cls)
         for d, difficulty in enumerate(DIFFICULTIES):
-            cleans = [_clean(fr, cls, d) for fr in prepared]
+            ignored_gt, ignored_dt = _ignored(batch, view, cls, d)
             for metric in GEOMETRIC_METRICS:
-                prec, aos = _precision_curves(prepared, cleans, metric, table[metric][cls], metric == "bbox")
+                prec, aos = _curves(batch, view, ignored_gt, ignored_dt, metric, table[metric][cls])
                 ap[metric][cls][difficulty] = {"R11": ap_r11(prec), "R40": ap_r40(prec)}
                 if metric == "bbox":
                     ap["aos"][cls][difficulty] = {"R11": ap_r11(aos), "R40": ap_r40(aos)}
