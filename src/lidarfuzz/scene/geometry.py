@@ -153,3 +153,32 @@ def iou_3d(boxes_a: ArrayLike, boxes_b: ArrayLike) -> NDArray[np.float64]:
     with np.errstate(invalid="ignore", divide="ignore"):
         iou = np.where(union > 0, inter / union, 0.0)
     return np.nan_to_num(iou, nan=0.0)
+
+
+def transform_boxes(boxes: ArrayLike, matrix: ArrayLike) -> NDArray[np.float64]:
+    """M×7 boxes mapped by a 4×4 transform whose linear part keeps z vertical.
+
+    Centres go through the full map; the heading follows the image of the box's forward
+    axis (so a mirror turns ``yaw`` into ``-yaw``); length, width and height scale by the
+    stretch of the forward, sideways and vertical axes.
+
+    Example:
+        >>> m = np.diag([1.0, -1.0, 1.0, 1.0])
+        >>> transform_boxes([[5, 2, 0, 4, 2, 1.5, 0.5]], m).round(2).tolist()
+        [[5.0, -2.0, 0.0, 4.0, 2.0, 1.5, -0.5]]
+    """
+    b = _boxes(boxes)
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape != (4, 4):
+        raise ValueError(f"matrix must be 4×4, got shape {m.shape}")
+    linear = m[:3, :3]
+    out = b.copy()
+    out[:, :3] = b[:, :3] @ linear.T + m[:3, 3]
+    cos, sin = np.cos(b[:, 6]), np.sin(b[:, 6])
+    forward = np.stack([cos, sin, np.zeros_like(cos)], axis=1) @ linear.T
+    sideways = np.stack([-sin, cos, np.zeros_like(cos)], axis=1) @ linear.T
+    out[:, 6] = (np.arctan2(forward[:, 1], forward[:, 0]) + np.pi) % (2.0 * np.pi) - np.pi
+    out[:, 3] = b[:, 3] * np.linalg.norm(forward, axis=1)
+    out[:, 4] = b[:, 4] * np.linalg.norm(sideways, axis=1)
+    out[:, 5] = b[:, 5] * np.linalg.norm(linear[:, 2])
+    return out

@@ -1,0 +1,433 @@
+"""Metamorphic relations for 3D object detection (outputs are :class:`~lidarfuzz.scene.boxes.Boxes3D`).
+
+* ``preservation`` — Zhou & Sun's MR1, strict form: every object detected in the source
+  (inside the drivable-area ROI when the frame has one) is detected in the follow-up,
+  same class, IoU at least ``min_iou``. The paper's weaker count form ``|O| <= |O'|`` is
+  reported in ``stats`` so results compare with its table.
+* ``equivariance`` — detections of ``T(x)`` match ``T`` applied to the detections of ``x``,
+  both ways (nothing lost, nothing invented), for operators exposing ``T``.
+* ``invariance`` — each source detection is found again with its score dropping by at most
+  ``max_score_drop``, its centre moving at most ``max_drift_m`` and its heading turning at
+  most ``max_heading_change`` radians.
+* ``deeptest_tolerance`` — DeepTest's relaxed relation for regression outputs:
+  ``(ŷ_t − y)^2 <= λ · MSE_orig``; for boxes the regressed value is each ground-truth
+  object's centre, for scalar outputs (e.g. a steering angle) the sample's label.
+* ``gt_recall`` — objects of the ground truth that the source detections found and the
+  follow-up detections lost.
+
+"Detected" means a score of at least ``min_score``; the follow-up side of ``invariance``
+accepts any score, so that a drop is measured instead of declared a loss.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import ConfigDict, Field
+
+from lidarfuzz.operators.base import Relation as OperatorRelation
+from lidarfuzz.oracles.matching import IGNORED_LABELS, Matching, ground_range, match_boxes, overlap_matrix
+from lidarfuzz.oracles.relations.base import MetamorphicRelation, Pair, RelationConfig, RelationOutcome, Violation
+from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
+from lidarfuzz.scene.geometry import transform_boxes
+
+DetectionPair = Pair[Any, Boxes3D]
+
+
+class MatchConfig(RelationConfig):
+    """How boxes are matched and what counts as detected."""
+
+    metric: Literal["bev", "3d"] = "bev"
+    min_iou: float | dict[str, float] = Field(default=0.5)
+    method: Literal["hungarian", "greedy"] = "hungarian"
+    min_score: float = Field(default=0.5, ge=0.0)
+    roi_only: bool = True
+
+
+def _detected(boxes: Boxes3D, min_score: float) -> NDArray[np.int64]:
+    keep = ~(boxes.scores < min_score) & ~np.isin(np.char.lower(boxes.labels.astype(str)), list(IGNORED_LABELS))
+    return np.flatnonzero(keep)
+
+
+def _in_roi(sample: Any, boxes: Boxes3D, index: NDArray[np.int64], roi_only: bool) -> NDArray[np.int64]:
+    roi = getattr(sample, "roi", None)
+    if not roi_only or roi is None or index.size == 0:
+        return index
+    return index[roi.contains_xy(boxes.centers[index, :2])]
+
+
+def _match(a: Boxes3D, b: Boxes3D, cfg: MatchConfig) -> Matching:
+    return match_boxes(a, b, metric=cfg.metric, min_iou=cfg.min_iou, method=cfg.method)
+
+
+def _best_iou(a: Boxes3D, b: Boxes3D, metric: str) -> NDArray[np.float64]:
+    """For each box of ``a``, its best IoU with a same-class box of ``b`` (0 when none)."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(len(a))
+    overlap = overlap_matrix(a, b, metric)  # type: ignore[arg-type]
+    same = np.char.lower(a.labels.astype(str))[:, None] == np.char.lower(b.labels.astype(str))[None, :]
+    return np.where(same, overlap, 0.0).max(axis=1)
+
+
+def _ranges(boxes: Boxes3D) -> NDArray[np.float64]:
+    return ground_range(boxes) if len(boxes) else np.zeros(0)
+
+
+def _checked(boxes: Boxes3D) -> dict[str, int]:
+    return dict(Counter(boxes.labels.astype(str).tolist()))
+
+
+def _missing(
+    relation: str,
+    src: Boxes3D,
+    src_index: NDArray[np.int64],
+    follow: Boxes3D,
+    unmatched: NDArray[np.int64],
+    metric: str,
+    kind: str = "missing",
+    what: str = "no match in the follow-up",
+) -> list[Violation]:
+    best = _best_iou(src.select(unmatched), follow, metric)
+    ranges = _ranges(src)
+    out = []
+    for k, local in enumerate(unmatched.tolist()):
+        i = int(src_index[local])
+        cls = str(src.labels[local])
+        out.append(
+            Violation(
+                relation=relation,
+                kind=kind,
+                cls=cls,
+                source_index=i,
+                magnitude=float(best[k]),
+                measure="iou",
+                range_m=float(ranges[local]),
+                message=f"{cls} #{i} at {ranges[local]:.1f} m: {what} (best IoU {best[k]:.2f})",
+            )
+        )
+    return out
+
+
+class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
+    """Zhou & Sun MR1: no object detected in the source disappears in the follow-up."""
+
+    name: ClassVar[str] = "preservation"
+    description: ClassVar[str] = "every source detection (in the ROI) has a same-class match in the follow-up"
+    ConfigModel = MatchConfig
+    applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})
+
+    def check(self, pair: DetectionPair) -> RelationOutcome:
+        cfg = self.config
+        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        fol_idx = _detected(pair.follow_output, cfg.min_score)
+        fol_roi = _in_roi(pair.follow, pair.follow_output, fol_idx, cfg.roi_only)
+        src = pair.source_output.select(src_idx)
+        follow = pair.follow_output.select(fol_idx)
+        m = _match(src, follow, cfg)
+        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric)
+        count_holds = len(src_idx) <= len(fol_roi)
+        return RelationOutcome(
+            self.name,
+            holds=not violations,
+            violations=tuple(violations),
+            checked=_checked(src),
+            stats={"n_source": len(src_idx), "n_follow": len(fol_roi), "count_holds": float(count_holds)},
+        )
+
+
+class EquivarianceConfig(MatchConfig):
+    check_spurious: bool = True
+
+
+class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
+    """Detections follow the operator's transform: det(T(x)) = T(det(x)), both ways."""
+
+    name: ClassVar[str] = "equivariance"
+    description: ClassVar[str] = "follow-up detections equal the source detections moved by the operator's transform"
+    ConfigModel = EquivarianceConfig
+    applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.EQUIVARIANT})
+
+    def applicable(self, pair: DetectionPair) -> bool:
+        return super().applicable(pair) and pair.transform is not None
+
+    def check(self, pair: DetectionPair) -> RelationOutcome:
+        cfg = self.config
+        assert pair.transform is not None
+        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        fol_idx = _in_roi(pair.follow, pair.follow_output, _detected(pair.follow_output, cfg.min_score), cfg.roi_only)
+        src = pair.source_output.select(src_idx)
+        moved = Boxes3D.from_array(transform_boxes(src.as_array(), pair.transform), src.labels, scores=src.scores)
+        follow = pair.follow_output.select(fol_idx)
+        m = _match(moved, follow, cfg)
+        violations = _missing(
+            self.name,
+            moved,
+            src_idx,
+            follow,
+            m.unmatched_a,
+            cfg.metric,
+            what="its transformed box has no match in the follow-up",
+        )
+        checked = Counter(_checked(src))
+        if cfg.check_spurious:
+            best = _best_iou(follow.select(m.unmatched_b), moved, cfg.metric)
+            ranges = _ranges(follow)
+            for k, local in enumerate(m.unmatched_b.tolist()):
+                j = int(fol_idx[local])
+                cls = str(follow.labels[local])
+                violations.append(
+                    Violation(
+                        relation=self.name,
+                        kind="spurious",
+                        cls=cls,
+                        follow_index=j,
+                        magnitude=float(best[k]),
+                        measure="iou",
+                        range_m=float(ranges[local]),
+                        message=f"{cls} #{j} of the follow-up at {ranges[local]:.1f} m matches no transformed "
+                        f"source detection (best IoU {best[k]:.2f})",
+                    )
+                )
+            checked.update(_checked(follow.select(m.unmatched_b)))
+        return RelationOutcome(
+            self.name,
+            holds=not violations,
+            violations=tuple(violations),
+            checked=dict(checked),
+            stats={"n_source": len(src_idx), "n_follow": len(fol_idx)},
+        )
+
+
+class InvarianceConfig(MatchConfig):
+    min_iou: float | dict[str, float] = Field(default=0.3)
+    max_score_drop: float = Field(default=0.2, ge=0.0)
+    max_drift_m: float = Field(default=0.3, ge=0.0)
+    max_heading_change: float = Field(default=0.35, ge=0.0, description="radians")
+
+
+class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
+    """The same objects, within tolerances on score, centre and heading."""
+
+    name: ClassVar[str] = "invariance"
+    description: ClassVar[str] = "source detections found again with bounded score drop, centre drift and turn"
+    ConfigModel = InvarianceConfig
+    applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})
+
+    def check(self, pair: DetectionPair) -> RelationOutcome:
+        cfg = self.config
+        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        fol_idx = _detected(pair.follow_output, 0.0)
+        src = pair.source_output.select(src_idx)
+        follow = pair.follow_output.select(fol_idx)
+        m = _match(src, follow, cfg)
+        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric)
+        ranges = _ranges(src)
+        drift = (
+            np.hypot(*(follow.centers[m.pairs[:, 1], :2] - src.centers[m.pairs[:, 0], :2]).T) if len(m.pairs) else []
+        )
+        for k, (a, b) in enumerate(m.pairs.tolist()):
+            i, j, cls, rng = int(src_idx[a]), int(fol_idx[b]), str(src.labels[a]), float(ranges[a])
+            drop = float(src.scores[a] - follow.scores[b])
+            turn = float(abs(wrap_angle(follow.yaw[b] - src.yaw[a])))
+            for kind, value, limit, measure, text in (
+                ("score_drop", drop, cfg.max_score_drop, "score", f"score fell by {drop:.2f}"),
+                ("drift", float(drift[k]), cfg.max_drift_m, "metres", f"centre moved {drift[k]:.2f} m"),
+                ("heading", turn, cfg.max_heading_change, "radians", f"heading turned {turn:.2f} rad"),
+            ):
+                if value > limit:
+                    violations.append(
+                        Violation(
+                            relation=self.name,
+                            kind=kind,
+                            cls=cls,
+                            source_index=i,
+                            follow_index=j,
+                            magnitude=value,
+                            measure=measure,
+                            range_m=rng,
+                            message=f"{cls} #{i} at {rng:.1f} m: {text} (limit {limit:g})",
+                        )
+                    )
+        return RelationOutcome(
+            self.name,
+            holds=not violations,
+            violations=tuple(violations),
+            checked=_checked(src),
+            stats={"n_source": len(src_idx), "n_matched": len(m.pairs)},
+        )
+
+
+def gt_correspondence(source_gt: Boxes3D, follow_gt: Boxes3D) -> NDArray[np.int64] | None:
+    """For each source ground-truth box, the index of the same object in the follow-up (-1 if it is gone).
+
+    Objects are identified by track id when every box has a distinct one, otherwise by
+    position in the list when both lists have the same labels; None when neither works.
+    """
+    s_ids, f_ids = source_gt.track_ids, follow_gt.track_ids
+    if (
+        len(s_ids)
+        and np.all(s_ids >= 0)
+        and len(np.unique(s_ids)) == len(s_ids)
+        and len(np.unique(f_ids)) == len(f_ids)
+    ):
+        lookup = {int(t): k for k, t in enumerate(f_ids.tolist())}
+        return np.array([lookup.get(int(t), -1) for t in s_ids.tolist()], dtype=np.int64)
+    if len(source_gt) == len(follow_gt) and np.array_equal(source_gt.labels, follow_gt.labels):
+        return np.arange(len(source_gt), dtype=np.int64)
+    return None
+
+
+def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig) -> NDArray[np.int64]:
+    """For each ground-truth box, the detection (score >= min_score) matched to it, or -1."""
+    idx = _detected(dets, cfg.min_score)
+    m = _match(dets.select(idx), gt, cfg)
+    partner = m.partner_of_b(len(gt))
+    return np.where(partner >= 0, idx[np.maximum(partner, 0)], -1)
+
+
+class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
+    """Ground-truth objects the source detections found and the follow-up detections lost."""
+
+    name: ClassVar[str] = "gt_recall"
+    description: ClassVar[str] = "objects found in the source (matched to ground truth) are still found"
+    ConfigModel = MatchConfig
+
+    def applicable(self, pair: DetectionPair) -> bool:
+        return (
+            super().applicable(pair)
+            and len(getattr(pair.source, "boxes", ())) > 0
+            and gt_correspondence(pair.source.boxes, pair.follow.boxes) is not None
+        )
+
+    def check(self, pair: DetectionPair) -> RelationOutcome:
+        cfg = self.config
+        src_gt, fol_gt = pair.source.boxes, pair.follow.boxes
+        corr = gt_correspondence(src_gt, fol_gt)
+        assert corr is not None
+        found_src = _gt_matches(pair.source_output, src_gt, cfg)
+        found_fol = _gt_matches(pair.follow_output, fol_gt, cfg)
+        in_roi = _in_roi(pair.source, src_gt, np.arange(len(src_gt)), cfg.roi_only)
+        considered = np.zeros(len(src_gt), dtype=bool)
+        considered[in_roi] = True
+        considered &= (found_src >= 0) & (corr >= 0)
+        ranges = _ranges(src_gt)
+        violations = []
+        lost = considered & (found_fol[np.maximum(corr, 0)] < 0)
+        best = _best_iou(
+            fol_gt.select(corr[lost]),
+            pair.follow_output.select(_detected(pair.follow_output, cfg.min_score)),
+            cfg.metric,
+        )
+        for k, g in enumerate(np.flatnonzero(lost).tolist()):
+            cls = str(src_gt.labels[g])
+            violations.append(
+                Violation(
+                    relation=self.name,
+                    kind="lost_gt",
+                    cls=cls,
+                    source_index=int(found_src[g]),
+                    gt_index=g,
+                    magnitude=float(best[k]),
+                    measure="iou",
+                    range_m=float(ranges[g]),
+                    message=f"ground-truth {cls} #{g} at {ranges[g]:.1f} m was detected in the source, "
+                    f"not in the follow-up (best IoU {best[k]:.2f})",
+                )
+            )
+        n_gt = int(np.count_nonzero(corr >= 0))
+        return RelationOutcome(
+            self.name,
+            holds=not violations,
+            violations=tuple(violations),
+            checked=_checked(src_gt.select(considered)),
+            stats={
+                "n_gt": n_gt,
+                "n_found_source": int(np.count_nonzero(considered)),
+                "n_lost": int(np.count_nonzero(lost)),
+            },
+        )
+
+
+class DeepTestConfig(MatchConfig):
+    lambda_: float = Field(default=5.0, gt=0.0, alias="lambda")
+    epsilon: float = Field(default=0.03, ge=0.0)
+
+    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+
+
+def _regression(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Labels and predictions of one sample: GT centres and matched detection centres for
+    boxes (unmatched objects are left out: losing them is ``gt_recall``'s business), the
+    sample's ``label`` for scalar outputs."""
+    if isinstance(output, Boxes3D):
+        gt = sample.boxes.select(sample.boxes.has_geometry)
+        found = _gt_matches(output, gt, cfg)
+        ok = found >= 0
+        return gt.centers[ok], output.centers[found[ok]]
+    label = getattr(sample, "label", None)
+    if label is None:
+        label = getattr(sample, "metadata", {}).get("label")
+    if label is None:
+        raise ValueError(
+            "deeptest_tolerance on scalar outputs needs the sample's label (sample.label or metadata['label'])"
+        )
+    return np.atleast_2d(np.asarray(label, dtype=np.float64)), np.atleast_2d(np.asarray(output, dtype=np.float64))
+
+
+class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
+    """DeepTest's relaxed relation: the follow-up's squared error is within λ times the original MSE.
+
+    ``MSE_orig`` is the mean squared error of the system on the original data set; pass it
+    as ``pair.reference["mse_orig"]`` (a campaign computes it from the originals). Without
+    it, the source sample's own error stands in. DeepTest's ε filter — count violations only
+    for transformations whose MSE stays within ε of ``MSE_orig`` — applies across a whole
+    transformation and is :meth:`keeps_transformation`.
+    """
+
+    name: ClassVar[str] = "deeptest_tolerance"
+    description: ClassVar[str] = "(y_follow - y)^2 <= lambda * MSE_orig, DeepTest's relaxed relation"
+    ConfigModel = DeepTestConfig
+    applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})
+
+    def check(self, pair: Pair[Any, Any]) -> RelationOutcome:
+        cfg = self.config
+        src_y, src_pred = _regression(pair.source, pair.source_output, cfg)
+        fol_y, fol_pred = _regression(pair.follow, pair.follow_output, cfg)
+        src_sq = np.sum((src_pred - src_y) ** 2, axis=1)
+        fol_sq = np.sum((fol_pred - fol_y) ** 2, axis=1)
+        if "mse_orig" in pair.reference:
+            mse_orig = float(pair.reference["mse_orig"])
+        else:
+            mse_orig = float(src_sq.mean()) if src_sq.size else float("nan")
+        limit = cfg.lambda_ * mse_orig
+        violations = []
+        if np.isfinite(limit):
+            for k in np.flatnonzero(fol_sq > limit).tolist():
+                violations.append(
+                    Violation(
+                        relation=self.name,
+                        kind="regression",
+                        magnitude=float(fol_sq[k]),
+                        measure="squared error",
+                        gt_index=k,
+                        message=f"squared error {fol_sq[k]:.3g} exceeds λ·MSE_orig = {limit:.3g}",
+                    )
+                )
+        return RelationOutcome(
+            self.name,
+            holds=not violations,
+            violations=tuple(violations),
+            checked={"": int(fol_sq.size)},
+            stats={
+                "mse_orig": mse_orig,
+                "sum_squared_error": float(fol_sq.sum()),
+                "n": int(fol_sq.size),
+            },
+        )
+
+    def keeps_transformation(self, mse_transformation: float, mse_orig: float) -> bool:
+        """DeepTest's Equation 3: ``|MSE_(trans, param) − MSE_orig| <= ε``."""
+        return abs(mse_transformation - mse_orig) <= self.config.epsilon

@@ -1,0 +1,213 @@
+"""Metamorphic relations on hand-built (source, follow-up) pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lidarfuzz.operators.base import Relation
+from lidarfuzz.oracles.relations import (
+    DeepTestTolerance,
+    Equivariance,
+    GroundTruthRecall,
+    Invariance,
+    Pair,
+    Preservation,
+    available,
+    for_operator,
+    from_spec,
+    get,
+)
+from lidarfuzz.plugins import UnknownPluginError
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.geometry import transform_boxes
+from lidarfuzz.scene.points import PointCloud
+from lidarfuzz.scene.roi import RoiMap
+from lidarfuzz.scene.scene import Scene
+
+
+def boxes(
+    xy: list[tuple[float, float]],
+    scores: list[float] | None = None,
+    labels: list[str] | None = None,
+    yaw: list[float] | None = None,
+    track_ids: list[int] | None = None,
+) -> Boxes3D:
+    n = len(xy)
+    return Boxes3D.create(
+        [[x, y, -0.8] for x, y in xy],
+        [[4.0, 1.8, 1.5]] * n,
+        yaw or [0.0] * n,
+        labels or ["Car"] * n,
+        scores=scores,
+        track_ids=track_ids,
+    )
+
+
+def scene(gt: Boxes3D | None = None, roi: RoiMap | None = None) -> Scene:
+    return Scene(PointCloud(np.zeros((0, 4))), boxes=gt if gt is not None else Boxes3D.empty(), roi=roi)
+
+
+def pair(src: Boxes3D, fol: Boxes3D, kind: Relation | None = Relation.INVARIANT, **kw: object) -> Pair:
+    return Pair(kw.pop("source", scene()), kw.pop("follow", scene()), src, fol, kind, **kw)  # type: ignore[arg-type]
+
+
+# -- preservation (Zhou & Sun MR1) ----------------------------------------------------------
+def test_preservation_names_the_lost_object_and_gives_the_count_form() -> None:
+    src = boxes([(10, 0), (30, 4)], scores=[0.9, 0.8])
+    out = Preservation()(pair(src, boxes([(10.1, 0)], scores=[0.9])))
+    assert not out.holds and out.applicable
+    (v,) = out.violations
+    assert (v.kind, v.cls, v.source_index, v.magnitude) == ("missing", "Car", 1, 0.0)
+    assert v.range_m == pytest.approx(np.hypot(30, 4))
+    assert "30.3 m" in v.message
+    assert out.checked == {"Car": 2}
+    assert out.stats == {"n_source": 2, "n_follow": 1, "count_holds": 0.0}
+
+
+def test_preservation_holds_with_extra_follow_up_detections_and_ignores_low_scores() -> None:
+    src = boxes([(10, 0), (30, 4)], scores=[0.9, 0.2])  # the second is not "detected"
+    fol = boxes([(10, 0), (50, 0)], scores=[0.7, 0.6])
+    out = Preservation()(pair(src, fol))
+    assert out.holds and out.stats["count_holds"] == 1.0 and out.checked == {"Car": 1}
+    # the strict form can fail while the count form holds: same number, different objects
+    out = Preservation()(pair(boxes([(10, 0)], [0.9]), boxes([(40, 0)], [0.9])))
+    assert not out.holds and out.stats["count_holds"] == 1.0
+
+
+def test_preservation_checks_only_objects_inside_the_roi() -> None:
+    roi = RoiMap.from_polygons([[(0, -5), (20, -5), (20, 5), (0, 5)]])
+    src = boxes([(10, 0), (30, 0)], scores=[0.9, 0.9])
+    out = Preservation()(pair(src, Boxes3D.empty(), source=scene(roi=roi), follow=scene(roi=roi)))
+    assert [v.source_index for v in out.violations] == [0]
+    assert len(Preservation(roi_only=False)(pair(src, Boxes3D.empty(), source=scene(roi=roi))).violations) == 2
+
+
+def test_class_must_be_kept() -> None:
+    out = Preservation()(pair(boxes([(10, 0)], [0.9]), boxes([(10, 0)], [0.9], labels=["Cyclist"])))
+    assert not out.holds and out.violations[0].magnitude == 0.0
+
+
+def test_relations_do_not_apply_to_other_operator_kinds() -> None:
+    out = Preservation()(pair(boxes([(10, 0)], [0.9]), Boxes3D.empty(), Relation.DEGRADING))
+    assert not out.applicable and out.holds and not out.violations
+    assert Preservation()(pair(boxes([(10, 0)], [0.9]), Boxes3D.empty(), None)).applicable
+
+
+# -- equivariance -----------------------------------------------------------------------------
+def rotation(angle: float, shift: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0, shift[0]], [s, c, 0, shift[1]], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+def moved(b: Boxes3D, t: np.ndarray) -> Boxes3D:
+    return Boxes3D.from_array(transform_boxes(b.as_array(), t), b.labels, scores=b.scores)
+
+
+@pytest.mark.parametrize("t", [rotation(0.5), rotation(-1.0, (2, 1)), np.diag([1.0, -1.0, 1.0, 1.0])])
+def test_equivariance_holds_when_detections_follow_the_transform(t: np.ndarray) -> None:
+    src = boxes([(10, 2), (25, -6)], scores=[0.9, 0.8], yaw=[0.3, 1.2])
+    out = Equivariance()(pair(src, moved(src, t), Relation.EQUIVARIANT, transform=t))
+    assert out.holds, out.violations
+
+
+def test_equivariance_reports_lost_and_invented_objects() -> None:
+    t = rotation(0.5)
+    src = boxes([(10, 2), (25, -6)], scores=[0.9, 0.8])
+    follow = Boxes3D.concat([moved(src, t).select([0]), boxes([(5, 5)], scores=[0.9])])
+    out = Equivariance()(pair(src, follow, Relation.EQUIVARIANT, transform=t))
+    kinds = sorted((v.kind, v.source_index, v.follow_index) for v in out.violations)
+    assert kinds == [("missing", 1, -1), ("spurious", -1, 1)]
+    assert out.checked == {"Car": 3}
+    # untransformed follow-up boxes do not match a rotated frame
+    assert not Equivariance()(pair(src, src, Relation.EQUIVARIANT, transform=t)).holds
+    assert len(Equivariance(check_spurious=False)(pair(src, follow, Relation.EQUIVARIANT, transform=t)).violations) == 1
+
+
+def test_equivariance_needs_a_transform() -> None:
+    src = boxes([(10, 2)], scores=[0.9])
+    assert not Equivariance()(pair(src, src, Relation.EQUIVARIANT)).applicable
+
+
+# -- invariance with tolerance ------------------------------------------------------------
+def test_invariance_bounds_score_drop_drift_and_turn() -> None:
+    src = boxes([(10, 0), (20, 0), (30, 0), (40, 0)], scores=[0.9, 0.9, 0.9, 0.9])
+    fol = boxes([(10, 0), (20.5, 0), (30, 0), (40.1, 0)], scores=[0.6, 0.85, 0.9, 0.8], yaw=[0, 0, np.pi, 0.1])
+    out = Invariance()(pair(src, fol))
+    found = sorted((v.kind, v.source_index, round(v.magnitude, 3)) for v in out.violations)
+    assert found == [("drift", 1, 0.5), ("heading", 2, round(np.pi, 3)), ("score_drop", 0, 0.3)]
+    loose = Invariance(max_score_drop=0.5, max_drift_m=1.0, max_heading_change=4.0)(pair(src, fol))
+    assert loose.holds
+
+
+# -- ground-truth recall --------------------------------------------------------------------
+def test_gt_recall_reports_objects_found_then_lost_by_track_id() -> None:
+    gt = boxes([(10, 0), (20, 5), (35, -3)], track_ids=[7, 8, 9])
+    follow_gt = gt.select([2, 0])  # object 8 removed by the operator; order changed
+    src_dets = boxes([(10, 0), (20, 5)], scores=[0.9, 0.9])  # 9 never found in the source
+    fol_dets = boxes([(35, -3)], scores=[0.9])  # finds 9, loses 7
+    p = pair(src_dets, fol_dets, Relation.DEGRADING, source=scene(gt), follow=scene(follow_gt))
+    out = GroundTruthRecall()(p)
+    (v,) = out.violations
+    assert (v.kind, v.gt_index, v.source_index, v.range_m) == ("lost_gt", 0, 0, 10.0)
+    assert out.stats == {"n_gt": 2, "n_found_source": 1, "n_lost": 1}
+
+
+def test_gt_recall_needs_ground_truth_it_can_pair_up() -> None:
+    d = boxes([(10, 0)], scores=[0.9])
+    assert not GroundTruthRecall()(pair(d, d)).applicable
+    gt = boxes([(10, 0), (20, 0)])
+    different = pair(d, d, source=scene(gt), follow=scene(gt.select([0])))
+    assert not GroundTruthRecall()(different).applicable
+    assert GroundTruthRecall()(pair(d, d, source=scene(gt), follow=scene(gt))).holds
+
+
+# -- DeepTest tolerance -------------------------------------------------------------------------
+def test_deeptest_tolerance_on_box_centres() -> None:
+    gt = boxes([(10, 0), (20, 0)])
+    src = boxes([(10.1, 0), (20.1, 0)], scores=[0.9, 0.9])  # squared errors 0.01, MSE_orig 0.01
+    relation = DeepTestTolerance()  # λ = 5: limit 0.05
+    ok = relation(pair(src, boxes([(10.2, 0), (20.1, 0)], scores=[0.9, 0.9]), source=scene(gt), follow=scene(gt)))
+    assert ok.holds and ok.stats["mse_orig"] == pytest.approx(0.01)
+    assert ok.stats["sum_squared_error"] == pytest.approx(0.05)
+    bad = relation(pair(src, boxes([(10.3, 0), (20.1, 0)], scores=[0.9, 0.9]), source=scene(gt), follow=scene(gt)))
+    (v,) = bad.violations
+    assert v.kind == "regression" and v.magnitude == pytest.approx(0.09) and v.gt_index == 0
+    # a data-set MSE from the campaign overrides the per-frame fallback
+    strict = relation(
+        pair(
+            src,
+            boxes([(10.2, 0), (20.1, 0)], scores=[0.9, 0.9]),
+            source=scene(gt),
+            follow=scene(gt),
+            reference={"mse_orig": 0.001},
+        )
+    )
+    assert len(strict.violations) == 2
+    assert DeepTestTolerance(**{"lambda": 10}).config.lambda_ == 10
+
+
+def test_deeptest_tolerance_on_scalar_outputs_and_the_epsilon_filter() -> None:
+    src = scene().replace(metadata={"label": 0.1})
+    out = DeepTestTolerance()(Pair(src, src, 0.12, 0.5, Relation.INVARIANT, reference={"mse_orig": 0.01}))
+    assert not out.holds and out.violations[0].magnitude == pytest.approx(0.16)
+    relation = DeepTestTolerance(epsilon=0.03)
+    assert relation.keeps_transformation(0.04, 0.02) and not relation.keeps_transformation(0.06, 0.02)
+    with pytest.raises(ValueError, match="label"):
+        DeepTestTolerance()(Pair(scene(), scene(), 0.1, 0.2, Relation.INVARIANT))
+
+
+# -- registry ------------------------------------------------------------------------------
+def test_registry_lists_builtins_and_round_trips_specs() -> None:
+    assert {"preservation", "equivariance", "invariance", "deeptest_tolerance", "gt_recall"} <= set(available())
+    assert get("GT-Recall") is GroundTruthRecall
+    relation = from_spec({"name": "invariance", "config": {"max_drift_m": 0.5}})
+    assert relation.config.max_drift_m == 0.5
+    assert from_spec(relation.spec()).spec() == relation.spec()
+    assert from_spec(DeepTestTolerance(**{"lambda": 3}).spec()).config.lambda_ == 3
+    with pytest.raises(UnknownPluginError, match=r"known: .*preservation"):
+        get("nope")
+    with pytest.raises(ValueError):
+        Invariance(max_drift_m=-1)
+    names = {r.name for r in for_operator(Relation.EQUIVARIANT)}
+    assert names == {"equivariance", "gt_recall"}
