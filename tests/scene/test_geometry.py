@@ -91,3 +91,12 @@ def test_box_index_of_points():
     points = np.array([[0, 0, 0], [5, 0.5, 0.5], [9, 9, 9.0]])
     assert box_index_of_points(points, boxes).tolist() == [0, 1, -1]
     assert box_index_of_points(points, np.zeros((0, 7))).tolist() == [-1, -1, -1]
+
+
+def test_boxes_without_geometry_overlap_nothing() -> None:
+    from lidarfuzz.scene.geometry import iou_3d, iou_bev
+
+    box = [0.0, 0.0, 0.0, 4.0, 2.0, 1.5, 0.0]
+    dontcare = [np.nan] * 7
+    assert iou_bev([box, dontcare], [box]).tolist() == [[1.0], [0.0]]
+    assert iou_3d([dontcare], [box, dontcare]).tolist() == [[0.0, 0.0]]

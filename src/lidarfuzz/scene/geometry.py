@@ -125,8 +125,11 @@ def bev_intersection_area(boxes_a: ArrayLike, boxes_b: ArrayLike) -> NDArray[np.
         return area
     ia, ib = _candidates(a, b)
     if ia.size:
-        polys_a, polys_b = _polygons(a), _polygons(b)
-        area[ia, ib] = shapely.area(shapely.intersection(polys_a[ia], polys_b[ib]))
+        # polygons only for boxes with a candidate (NaN boxes, e.g. DontCare, never are)
+        ua, inv_a = np.unique(ia, return_inverse=True)
+        ub, inv_b = np.unique(ib, return_inverse=True)
+        polys_a, polys_b = _polygons(a[ua]), _polygons(b[ub])
+        area[ia, ib] = shapely.area(shapely.intersection(polys_a[inv_a], polys_b[inv_b]))
     return area
 
 
