@@ -21,7 +21,9 @@ def perfect(scene: Scene) -> object:
 
 
 @pytest.mark.parametrize("name", EQUIVARIANT)
-def test_an_exact_detector_is_equivariant_under_every_equivariant_operator(name: str, sample_scenes: list[Scene]) -> None:
+def test_an_exact_detector_is_equivariant_under_every_equivariant_operator(
+    name: str, sample_scenes: list[Scene]
+) -> None:
     source = sample_scenes[0]
     op = available()[name].at_severity(3)
     follow, params = op(source, generator(1, source.frame_id, 0, 0))
