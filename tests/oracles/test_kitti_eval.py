@@ -84,8 +84,17 @@ def test_perfect_detector_scores_100_everywhere() -> None:
             for d in ("easy", "moderate", "hard"):
                 for pts in ("R11", "R40"):
                     assert result.get(metric, cls, d, pts) == pytest.approx(100.0), (metric, cls, d, pts)
-    json.loads(result.to_json())
+    assert json.loads(result.to_json())["map"]["3d"]["moderate"]["R40"] == pytest.approx(100.0)
     assert "Car AP_R40@0.70, 0.70, 0.70:" in result.format_table()
+
+
+def test_map_is_the_mean_over_classes() -> None:
+    # Car perfect (100), Pedestrian and Cyclist without any detection (0): mAP = 100 / 3
+    frames = [KittiFrame(f.gt, f.detections.select(f.detections.labels == "Car")) for f in perfect_frames()]
+    result = evaluate_kitti(frames)
+    assert result.get("bev", "Pedestrian", "easy") == 0.0
+    assert result.mean_ap("bev", "easy") == pytest.approx(100.0 / 3)
+    assert evaluate_kitti(frames, classes=("Car",)).mean_ap("bev", "easy") == pytest.approx(100.0)
 
 
 def test_single_match_fills_only_first_sample() -> None:

@@ -78,8 +78,14 @@ class KittiEvalResult:
     def get(self, metric: str, cls: str, difficulty: str, points: str = "R40") -> float:
         return self.ap[metric][cls][difficulty][points]
 
+    def mean_ap(self, metric: str, difficulty: str, points: str = "R40") -> float:
+        """mAP: the mean over the evaluated classes."""
+        values = [self.ap[metric][cls][difficulty][points] for cls in self.ap[metric]]
+        return float(np.mean(values)) if values else float("nan")
+
     def to_dict(self) -> dict[str, Any]:
-        return {"ap": self.ap, "overlaps": self.overlaps, "num_frames": self.num_frames}
+        mean = {m: {d: {p: self.mean_ap(m, d, p) for p in ("R11", "R40")} for d in DIFFICULTIES} for m in self.ap}
+        return {"ap": self.ap, "map": mean, "overlaps": self.overlaps, "num_frames": self.num_frames}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
