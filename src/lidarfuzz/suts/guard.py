@@ -1,0 +1,201 @@
+"""Failures are results: running a SUT so that crashes, hangs and garbage become :class:`Failure` records.
+
+* :func:`run_guarded` calls a SUT in this process: an exception becomes ``crash`` (with its
+  traceback), a :class:`SutError` keeps its kind (adapters raise it for a non-zero exit or
+  a killed subprocess), and an output that fails :meth:`SystemUnderTest.validate` becomes
+  ``invalid_output``.
+* :class:`IsolatedSut` hosts any SUT, named by its spec, in a worker process. A hang is cut
+  off after ``timeout`` seconds by killing the worker (``timeout``), a worker that dies —
+  segfault, ``os._exit``, out of memory — is a ``crash``; either way the next call starts a
+  fresh worker, so a campaign goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import time
+import traceback
+from collections.abc import Sequence
+from multiprocessing.connection import Connection
+from typing import Any
+
+from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.suts.base import Failure, FailureKind, SutResult, SystemUnderTest
+
+
+class SutError(LidarfuzzError):
+    """Raised by adapters when the system under test failed in a known way."""
+
+    def __init__(self, kind: FailureKind, message: str, detail: str = "") -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.message = message
+        self.detail = detail
+
+    def failure(self) -> Failure:
+        return Failure(self.kind, self.message, self.detail)
+
+
+def _failure_of(exc: BaseException) -> Failure:
+    if isinstance(exc, SutError):
+        return exc.failure()
+    message = f"{type(exc).__name__}: {exc}".splitlines()[0][:500]
+    return Failure(FailureKind.CRASH, message, "".join(traceback.format_exception(exc))[-8000:])
+
+
+def run_guarded(sut: SystemUnderTest[Any, Any], sample: Any) -> SutResult[Any]:
+    """One call of ``sut.detect`` that never raises for a failure of the SUT itself."""
+    start = time.perf_counter()
+    try:
+        output = sut.detect(sample)
+    except Exception as exc:  # the system under test's failure is a result
+        return SutResult(None, _failure_of(exc), time.perf_counter() - start)
+    elapsed = time.perf_counter() - start
+    problem = sut.validate(output)
+    if problem is not None:
+        return SutResult(None, Failure(FailureKind.INVALID_OUTPUT, problem), elapsed)
+    return SutResult(output, None, elapsed)
+
+
+def _serve(spec: str, conn: Connection) -> None:
+    """Worker process: build the SUT from its spec, then answer samples until told to stop."""
+    from lidarfuzz.suts.registry import create
+
+    try:
+        sut = create(spec)
+        sut.load()
+        conn.send(("ready", sut.name, sut.version, sut.fingerprint(), sut.classes))
+    except Exception as exc:
+        conn.send(("error", _failure_of(exc)))
+        return
+    while True:
+        try:
+            message = conn.recv()
+        except EOFError:
+            break
+        if message is None:
+            break
+        try:
+            conn.send(("ok", sut.detect(message)))
+        except Exception as exc:
+            conn.send(("error", _failure_of(exc)))
+    sut.close()
+
+
+class IsolatedSut(SystemUnderTest[Any, Any]):
+    """A SUT (given by its spec string) running in its own worker process, with a timeout.
+
+    Args:
+        spec: What :func:`lidarfuzz.suts.registry.create` builds in the worker.
+        timeout: Seconds one sample may take; the worker is killed beyond it.
+        start_timeout: Seconds the worker may take to import and load the SUT.
+    """
+
+    def __init__(self, spec: str, *, timeout: float = 60.0, start_timeout: float = 120.0) -> None:
+        self.spec = spec
+        self.timeout = timeout
+        self.start_timeout = start_timeout
+        self._process: multiprocessing.process.BaseProcess | None = None
+        self._conn: Connection | None = None
+        self._identity: tuple[str, str, str, tuple[str, ...] | None] | None = None
+        self.restarts = 0
+
+    # identity comes from the hosted SUT
+    @property  # type: ignore[override]
+    def name(self) -> str:
+        return self._ensure_identity()[0]
+
+    @property  # type: ignore[override]
+    def version(self) -> str:
+        return self._ensure_identity()[1]
+
+    @property  # type: ignore[override]
+    def classes(self) -> tuple[str, ...] | None:
+        return self._ensure_identity()[3]
+
+    def fingerprint(self) -> str:
+        return self._ensure_identity()[2]
+
+    def config(self) -> dict[str, Any]:
+        return {"spec": self.spec, "timeout": self.timeout}
+
+    def _ensure_identity(self) -> tuple[str, str, str, tuple[str, ...] | None]:
+        if self._identity is None:
+            self.load()
+        assert self._identity is not None
+        return self._identity
+
+    def load(self) -> None:
+        if self._process is not None and self._process.is_alive():
+            return
+        ctx = multiprocessing.get_context("spawn")
+        parent, child = ctx.Pipe()
+        process = ctx.Process(target=_serve, args=(self.spec, child), daemon=True, name=f"sut:{self.spec}")
+        process.start()
+        child.close()
+        if not parent.poll(self.start_timeout):
+            process.kill()
+            process.join()
+            raise SutError(FailureKind.TIMEOUT, f"{self.spec}: not ready after {self.start_timeout:g} s")
+        try:
+            reply = parent.recv()
+        except EOFError:
+            process.join()
+            message = f"{self.spec}: worker died while loading (exit code {process.exitcode})"
+            raise SutError(FailureKind.CRASH, message) from None
+        if reply[0] == "error":
+            process.join()
+            failure: Failure = reply[1]
+            raise SutError(failure.kind, f"{self.spec}: could not load: {failure.message}", failure.detail)
+        self._identity = (reply[1], reply[2], reply[3], reply[4])
+        self._process, self._conn = process, parent
+
+    def _kill(self) -> None:
+        if self._process is not None:
+            self._process.kill()
+            self._process.join()
+        if self._conn is not None:
+            self._conn.close()
+        self._process = self._conn = None
+        self.restarts += 1
+
+    def detect(self, sample: Any) -> Any:
+        self.load()
+        assert self._conn is not None and self._process is not None
+        try:
+            self._conn.send(sample)
+        except (BrokenPipeError, OSError):
+            code = self._process.exitcode
+            self._kill()
+            raise SutError(FailureKind.CRASH, f"worker process died (exit code {code})") from None
+        if not self._conn.poll(self.timeout):
+            self._kill()
+            raise SutError(FailureKind.TIMEOUT, f"no answer within {self.timeout:g} s; worker restarted")
+        try:
+            reply = self._conn.recv()
+        except EOFError:
+            self._process.join(5)
+            code = self._process.exitcode
+            self._kill()
+            raise SutError(FailureKind.CRASH, f"worker process died (exit code {code}); restarted") from None
+        if reply[0] == "error":
+            failure: Failure = reply[1]
+            raise SutError(failure.kind, failure.message, failure.detail)
+        return reply[1]
+
+    def detect_batch(self, samples: Sequence[Any]) -> list[Any]:
+        return [self.detect(s) for s in samples]
+
+    def close(self) -> None:
+        if self._conn is not None:
+            with contextlib.suppress(BrokenPipeError, OSError):
+                self._conn.send(None)
+        if self._process is not None:
+            self._process.join(5)
+            if self._process.is_alive():
+                self._process.kill()
+                self._process.join()
+        if self._conn is not None:
+            self._conn.close()
+        self._process = self._conn = None

@@ -1,0 +1,120 @@
+"""Naming systems under test: one spec string for the CLI, campaign files and the web.
+
+========================  =====================================================================
+spec                      system
+========================  =====================================================================
+``classic``               a built-in (or plugin) SUT registered under ``lidarfuzz.suts``
+``classic?ground=grid``   the same with configuration (query string; values parsed as JSON
+                          when they are JSON, else kept as text)
+``pkg.module:name``       a :class:`SystemUnderTest` subclass or instance, a factory returning
+                          one, or any detector callable (wrapped by :class:`PythonSut`;
+                          query options go to it, e.g. ``?input=points&convention=mmdet3d``)
+``subprocess:COMMAND``    a program run once per frame (:class:`SubprocessSut`)
+``worker:COMMAND``        a long-lived program serving frames (:class:`WorkerSut`)
+``onnx:PATH``             an ONNX model run by ONNX Runtime (:class:`OnnxSut`; extra ``onnx``)
+========================  =====================================================================
+
+Options for the command forms come from :func:`create`'s keyword arguments (a campaign
+file's ``options``), since a command line may itself contain ``?``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+from typing import Any
+from urllib.parse import parse_qsl
+
+from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.plugins import find, load_group
+from lidarfuzz.suts.base import SystemUnderTest
+
+GROUP = "lidarfuzz.suts"
+SCHEMES = ("subprocess", "worker", "onnx")
+
+
+class SutSpecError(LidarfuzzError, ValueError):
+    """A SUT spec that names nothing usable."""
+
+
+def available() -> dict[str, type[SystemUnderTest[Any, Any]]]:
+    """Registered SUT classes by name (built-ins first)."""
+    return load_group(GROUP, SystemUnderTest)
+
+
+def _value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def split_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """``name?k=v&k2=v2`` → (``name``, {k: v, k2: v2}) with JSON-parsed values."""
+    base, _, query = spec.partition("?")
+    return base.strip(), {k: _value(v) for k, v in parse_qsl(query, keep_blank_values=True)}
+
+
+def _import(target: str) -> Any:
+    module_name, _, attr = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise SutSpecError(f"SUT spec {target!r}: cannot import module {module_name!r} ({exc})") from None
+    obj: Any = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise SutSpecError(f"SUT spec {target!r}: module {module_name!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    return obj
+
+
+def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
+    """Build the SUT a spec names (see the module docstring); ``options`` configure it.
+
+    Raises:
+        SutSpecError: for a spec naming nothing, with what is available.
+    """
+    spec = spec.strip()
+    scheme, sep, rest = spec.partition(":")
+    if sep and scheme in SCHEMES:
+        if not rest.strip():
+            raise SutSpecError(f"SUT spec {spec!r}: nothing after '{scheme}:'")
+        if scheme == "subprocess":
+            from lidarfuzz.suts.external import SubprocessSut
+
+            return SubprocessSut(rest, **options)
+        if scheme == "worker":
+            from lidarfuzz.suts.external import WorkerSut
+
+            return WorkerSut(rest, **options)
+        from lidarfuzz.suts.onnx import OnnxSut
+
+        path, query = split_spec(rest)
+        return OnnxSut(path, **{**query, **options})
+    base, query = split_spec(spec)
+    options = {**query, **options}
+    if ":" in base:
+        obj = _import(base)
+        if isinstance(obj, type) and issubclass(obj, SystemUnderTest):
+            return obj(**options)
+        if isinstance(obj, SystemUnderTest):
+            if options:
+                raise SutSpecError(f"SUT spec {spec!r}: {base} is an instance; it takes no options")
+            return obj
+        if not callable(obj):
+            raise SutSpecError(f"SUT spec {spec!r}: {base} is neither a SUT nor callable")
+        made = obj() if getattr(obj, "__lidarfuzz_factory__", False) else None
+        if isinstance(made, SystemUnderTest):
+            return made
+        from lidarfuzz.suts.python import PythonSut
+
+        return PythonSut(obj, **options)
+    cls = find(GROUP, SystemUnderTest, base, "system under test", "see lidarfuzz suts")
+    return cls(**options)
+
+
+def sut_factory(fn: Any) -> Any:
+    """Mark a zero-argument function as a factory returning a SUT (for ``module:function`` specs)."""
+    fn.__lidarfuzz_factory__ = True
+    return fn
