@@ -40,11 +40,13 @@ DetectionPair = Pair[Any, Boxes3D]
 class MatchConfig(RelationConfig):
     """How boxes are matched and what counts as detected."""
 
-    metric: Literal["bev", "3d"] = "bev"
-    min_iou: float | dict[str, float] = Field(default=0.5)
-    method: Literal["hungarian", "greedy"] = "hungarian"
-    min_score: float = Field(default=0.5, ge=0.0)
-    roi_only: bool = True
+    metric: Literal["bev", "3d"] = Field(default="bev", description="IoU used to match boxes")
+    min_iou: float | dict[str, float] = Field(
+        default=0.5, description="smallest IoU of a match; a number or {class: IoU, '*': rest}"
+    )
+    method: Literal["hungarian", "greedy"] = Field(default="hungarian", description="optimal or greedy by score")
+    min_score: float = Field(default=0.5, ge=0.0, description="a detection counts as detected from this score")
+    roi_only: bool = Field(default=True, description="check only objects inside the frame's drivable-area ROI")
 
 
 def _detected(boxes: Boxes3D, min_score: float) -> NDArray[np.int64]:
@@ -139,7 +141,7 @@ class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
 
 
 class EquivarianceConfig(MatchConfig):
-    check_spurious: bool = True
+    check_spurious: bool = Field(default=True, description="also report follow-up detections nothing maps to")
 
 
 class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
@@ -202,10 +204,10 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
 
 
 class InvarianceConfig(MatchConfig):
-    min_iou: float | dict[str, float] = Field(default=0.3)
-    max_score_drop: float = Field(default=0.2, ge=0.0)
-    max_drift_m: float = Field(default=0.3, ge=0.0)
-    max_heading_change: float = Field(default=0.35, ge=0.0, description="radians")
+    min_iou: float | dict[str, float] = Field(default=0.3, description="smallest IoU to count as the same object")
+    max_score_drop: float = Field(default=0.2, ge=0.0, description="largest allowed fall of the score")
+    max_drift_m: float = Field(default=0.3, ge=0.0, description="largest allowed move of the centre (metres)")
+    max_heading_change: float = Field(default=0.35, ge=0.0, description="largest allowed turn (radians)")
 
 
 class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
@@ -352,8 +354,8 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
 
 
 class DeepTestConfig(MatchConfig):
-    lambda_: float = Field(default=5.0, gt=0.0, alias="lambda")
-    epsilon: float = Field(default=0.03, ge=0.0)
+    lambda_: float = Field(default=5.0, gt=0.0, alias="lambda", description="λ: allowed multiple of MSE_orig")
+    epsilon: float = Field(default=0.03, ge=0.0, description="ε: keep transformations with |MSE_t − MSE_orig| ≤ ε")
 
     model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
 
