@@ -12,6 +12,8 @@ spec                      system
 ``subprocess:COMMAND``    a program run once per frame (:class:`SubprocessSut`)
 ``worker:COMMAND``        a long-lived program serving frames (:class:`WorkerSut`)
 ``onnx:PATH``             an ONNX model run by ONNX Runtime (:class:`OnnxSut`; extra ``onnx``)
+``open3d:CHECKPOINT``     Open3D-ML PointPillars from a user's checkpoint (extra ``open3d``;
+                          ``?config=pointpillars_kitti`` or a YAML path)
 ========================  =====================================================================
 
 Options for the command forms come from :func:`create`'s keyword arguments (a campaign
@@ -30,7 +32,7 @@ from lidarfuzz.plugins import find, load_group
 from lidarfuzz.suts.base import SystemUnderTest
 
 GROUP = "lidarfuzz.suts"
-SCHEMES = ("subprocess", "worker", "onnx")
+SCHEMES = ("subprocess", "worker", "onnx", "open3d")
 
 
 class SutSpecError(LidarfuzzError, ValueError):
@@ -88,9 +90,13 @@ def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
             from lidarfuzz.suts.external import WorkerSut
 
             return WorkerSut(rest, **options)
+        path, query = split_spec(rest)
+        if scheme == "open3d":
+            from lidarfuzz.suts.open3d_ml import Open3DPointPillars
+
+            return Open3DPointPillars(path, **{**query, **options})
         from lidarfuzz.suts.onnx import OnnxSut
 
-        path, query = split_spec(rest)
         return OnnxSut(path, **{**query, **options})
     base, query = split_spec(spec)
     options = {**query, **options}
