@@ -39,9 +39,9 @@ def root(
 
 
 def _register() -> None:
-    from lidarfuzz.cli import convert, demo, gen, info, operators, relations, suts
+    from lidarfuzz.cli import convert, demo, evaluate, gen, info, operators, relations, suts
 
-    for module in (demo, gen, info, convert, operators, relations, suts):
+    for module in (demo, gen, info, convert, operators, relations, suts, evaluate):
         module.register(app)
 
 
