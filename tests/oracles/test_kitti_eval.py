@@ -353,3 +353,16 @@ def test_batched_evaluation_equals_the_per_frame_loop(seed: int) -> None:
                 np.testing.assert_allclose(prec, ref_prec, atol=1e-12, err_msg=f"{cls} {difficulty} {metric}")
                 if metric == "bbox":
                     np.testing.assert_allclose(aos, ref_aos, atol=1e-12, err_msg=f"{cls} {difficulty} aos")
+
+
+def test_a_detection_with_reversed_heading_still_overlaps_fully() -> None:
+    # plain GEOS overlay loses this intersection (coincident edges); BEV/3D must match like bbox does
+    gt_box = [28.472630568828517, 3.7997185326700578, -1.2500509599108747, 8.673443842941696, 4.065235603340231,
+              2.4105425628344315, -1.3080781776389534]
+    gt = Boxes3D.from_array([gt_box], ["Car"], truncation=[0.0], occlusion=[0])
+    flipped = list(gt_box)
+    flipped[6] += np.pi
+    dt = Boxes3D.from_array([flipped], ["Car"], scores=[0.9])
+    result = evaluate_kitti([KittiFrame(gt, dt)], classes=("Car",))
+    for metric in ("bbox", "bev", "3d"):
+        assert result.get(metric, "Car", "easy", "R11") == pytest.approx(100 / 11), metric

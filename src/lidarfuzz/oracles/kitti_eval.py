@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.geometry import polygon_intersection_area
 
 CLASSES: tuple[str, ...] = ("Car", "Pedestrian", "Cyclist")
 DIFFICULTIES: tuple[str, ...] = ("easy", "moderate", "hard")
@@ -245,10 +246,16 @@ def _batch(frames: Sequence[KittiFrame]) -> _Batch:
         "bbox": _paired_image_iou(dt["bbox"][di], gt["bbox"][gi]),
     }
     inter = np.zeros(len(di))
-    finite = np.all(np.isfinite(d_corn[di]), axis=(1, 2)) & np.all(np.isfinite(g_corn[gi]), axis=(1, 2))
-    if finite.any():
-        inter[finite] = shapely.area(
-            shapely.intersection(shapely.polygons(d_corn[di[finite]]), shapely.polygons(g_corn[gi[finite]]))
+    # only pairs whose footprints' bounding circles meet can overlap
+    d_centre, g_centre = d_corn.mean(axis=1), g_corn.mean(axis=1)
+    d_radius = np.linalg.norm(d_corn[:, 0] - d_centre, axis=1)
+    g_radius = np.linalg.norm(g_corn[:, 0] - g_centre, axis=1)
+    with np.errstate(invalid="ignore"):
+        near = np.linalg.norm(d_centre[di] - g_centre[gi], axis=1) <= d_radius[di] + g_radius[gi]
+    if near.any():
+        pairs = np.flatnonzero(near)
+        inter[pairs] = polygon_intersection_area(
+            shapely.polygons(d_corn[di[pairs]]), shapely.polygons(g_corn[gi[pairs]])
         )
     d_geo, g_geo = dt["geometry"][di], gt["geometry"][gi]
     area_d, area_g = d_geo[:, 3] * d_geo[:, 4], g_geo[:, 3] * g_geo[:, 4]
