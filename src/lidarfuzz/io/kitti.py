@@ -78,6 +78,7 @@ def parse_labels(
     """
     allowed = set(classes)
     rows: list[tuple[str, list[float]]] = []
+    line_numbers: list[int] = []
     for lineno, raw in enumerate(text.splitlines(), start=1):
         tokens = raw.split()
         if not tokens:
@@ -110,13 +111,18 @@ def parse_labels(
                 raise DataFormatError(path, f"occlusion must be 0, 1, 2, 3 (or -1), got {occ}", line=lineno,
                                       field="occluded")
         rows.append((cls, values))
+        line_numbers.append(lineno)
 
     n = len(rows)
     labels = [r[0] for r in rows]
     v = np.array([r[1][:14] for r in rows], dtype=np.float64).reshape(n, 14)
     has_score = [len(r[1]) == 15 for r in rows]
     if any(has_score) and not all(has_score):
-        raise DataFormatError(path, "some lines have a score and some do not", field="score")
+        first = line_numbers[has_score.index(not has_score[0])]
+        raise DataFormatError(
+            path, "some lines have a score and some do not (this one differs from the first)", line=first,
+            field="score",
+        )
     scores = np.array([r[1][14] for r in rows]) if n and all(has_score) else None
 
     dontcare = np.array([c == "DontCare" for c in labels], dtype=bool)
