@@ -166,3 +166,16 @@ def test_perfect_detections_score_what_the_devkit_sampling_allows(tmp_path: Path
         for difficulty in ("easy", "moderate", "hard"):
             assert result.get(metric, "Car", difficulty, "R40") == pytest.approx((filled - 1) / 40 * 100)
             assert result.get(metric, "Car", difficulty, "R11") == pytest.approx(len(range(0, filled, 4)) / 11 * 100)
+
+
+def test_an_empty_detection_folder_is_an_error_not_a_zero(tmp_path: Path) -> None:
+    from lidarfuzz.errors import DataFormatError
+    from lidarfuzz.oracles.kitti_files import load_kitti_eval_frames
+
+    labels = tmp_path / "label_2"
+    labels.mkdir()
+    (labels / "000000.txt").write_text("DontCare -1 -1 -10 1 2 3 4 -1 -1 -1 -1000 -1000 -1000 -10\n")
+    empty = tmp_path / "dets"
+    empty.mkdir()
+    with pytest.raises(DataFormatError, match="no detection files"):
+        load_kitti_eval_frames(labels, empty)

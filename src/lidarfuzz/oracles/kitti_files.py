@@ -132,6 +132,11 @@ def load_kitti_eval_frames(
     if not gt_files:
         raise DataFormatError(label_dir, "no label files (*.txt) in this folder")
     dt_files = _label_files(detection_dir)
+    if not dt_files:
+        raise DataFormatError(
+            detection_dir, "no detection files (*.txt) in this folder",
+            hint="give the folder holding one <frame id>.txt per frame, e.g. what lidarfuzz detect --out wrote",
+        )
     stray = sorted(set(dt_files) - set(gt_files))
     if stray:
         more = f" (and {len(stray) - 1} more)" if len(stray) > 1 else ""
