@@ -169,9 +169,6 @@ def test_perfect_detections_score_what_the_devkit_sampling_allows(tmp_path: Path
 
 
 def test_an_empty_detection_folder_is_an_error_not_a_zero(tmp_path: Path) -> None:
-    from lidarfuzz.errors import DataFormatError
-    from lidarfuzz.oracles.kitti_files import load_kitti_eval_frames
-
     labels = tmp_path / "label_2"
     labels.mkdir()
     (labels / "000000.txt").write_text("DontCare -1 -1 -10 1 2 3 4 -1 -1 -1 -1000 -1000 -1000 -10\n")
