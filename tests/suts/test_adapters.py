@@ -84,6 +84,8 @@ def adapters(c_worker: Path | None = None, onnx_model: Path | None = None) -> di
         "python": lambda: create("tests.suts.detectors:centroid_detector?input=points&convention=openpcdet"),
         "subprocess": lambda: create(f"subprocess:{PY} {EXAMPLE} {{points}} {{output}} {{frame_id}}"),
         "worker": lambda: create(f"worker:{PY} {EXAMPLE} --worker"),
+        "classic": lambda: create("classic"),
+        "classic-isolated": lambda: IsolatedSut("classic?cluster=euclidean", timeout=60),
     }
     if c_worker is not None:
         out["c-worker"] = lambda: create(f"worker:{c_worker}")
@@ -92,7 +94,7 @@ def adapters(c_worker: Path | None = None, onnx_model: Path | None = None) -> di
     return out
 
 
-ADAPTERS = ["python", "subprocess", "worker", "c-worker", "onnx", "isolated"]
+ADAPTERS = ["python", "subprocess", "worker", "c-worker", "onnx", "isolated", "classic", "classic-isolated"]
 
 
 @pytest.fixture(params=ADAPTERS)
