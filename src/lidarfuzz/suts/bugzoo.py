@@ -52,7 +52,7 @@ class PercentileIntensityNorm(BuggyPipeline):
     bug = "dust filter on intensity normalised over the whole cloud, outside-ROI points included"
     reveal = Reveal("outside_roi_scatter", 5, "preservation",
                     "points scattered outside the ROI move the percentile; dark cars inside fall below the cut")
-    hidden = "ordinary frames: the percentile is stable and cars sit well above the cut"
+    hidden = "bright and mid-grey objects on ordinary frames (very dark cars already fall below the cut)"
     DUST_LEVEL: ClassVar[float] = 0.2
 
     def points_xyzi(self, scene: Scene) -> NDArray[np.float32]:
@@ -171,7 +171,7 @@ class AbsoluteIntensitySigns(BuggyPipeline):
     bug = "sign filter on an absolute intensity threshold (0.6) tied to one sensor's calibration"
     reveal = Reveal("intensity_scaling", 5, "preservation",
                     "brighter returns push cars over the threshold: they are taken for signs")
-    hidden = "the calibration the threshold was tuned on"
+    hidden = "objects under the threshold in the calibration it was tuned on (most; a few bright cars already show)"
     SIGN_LEVEL: ClassVar[float] = 0.6
 
     def classify(self, m: Measurement, points: NDArray[np.float32]) -> tuple[str, float]:
