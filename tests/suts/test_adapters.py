@@ -16,7 +16,7 @@ from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import FailureKind, SystemUnderTest, validate_detections
 from lidarfuzz.suts.guard import IsolatedSut, run_guarded
 from lidarfuzz.suts.python import PythonSut
-from lidarfuzz.suts.registry import SutSpecError, create
+from lidarfuzz.suts.registry import SutSpecError, available, create
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "suts" / "grid_detector.py"
@@ -84,7 +84,6 @@ def adapters(c_worker: Path | None = None, onnx_model: Path | None = None) -> di
         "python": lambda: create("tests.suts.detectors:centroid_detector?input=points&convention=openpcdet"),
         "subprocess": lambda: create(f"subprocess:{PY} {EXAMPLE} {{points}} {{output}} {{frame_id}}"),
         "worker": lambda: create(f"worker:{PY} {EXAMPLE} --worker"),
-        "classic": lambda: create("classic"),
         "classic-isolated": lambda: IsolatedSut("classic?cluster=euclidean", timeout=60),
     }
     if c_worker is not None:
@@ -94,14 +93,18 @@ def adapters(c_worker: Path | None = None, onnx_model: Path | None = None) -> di
     return out
 
 
-ADAPTERS = ["python", "subprocess", "worker", "c-worker", "onnx", "isolated", "classic", "classic-isolated"]
+ADAPTERS = ["python", "subprocess", "worker", "c-worker", "onnx", "isolated", "classic-isolated"]
+# every registered SUT (the classic pipeline and the bug zoo) passes the same contract
+ADAPTERS += sorted(f"registered:{name}" for name in available())
 
 
 @pytest.fixture(params=ADAPTERS)
 def sut(request: pytest.FixtureRequest) -> SystemUnderTest:
     kind = request.param
-    if kind == "isolated":
-        made: SystemUnderTest = IsolatedSut("tests.suts.detectors:centroid_detector?input=points", timeout=30)
+    if kind.startswith("registered:"):
+        made: SystemUnderTest = create(kind.removeprefix("registered:"))
+    elif kind == "isolated":
+        made = IsolatedSut("tests.suts.detectors:centroid_detector?input=points", timeout=30)
     elif kind == "c-worker":
         made = adapters(c_worker=request.getfixturevalue("c_worker"))[kind]()
     elif kind == "onnx":
