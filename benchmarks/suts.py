@@ -40,10 +40,7 @@ CLASSES = ("Car", "Pedestrian", "Cyclist")
 def in_camera_view(dets: Boxes3D, scene: Scene) -> Boxes3D:
     if len(dets) == 0 or scene.calib is None:
         return dets
-    uv, depth = scene.calib.lidar_to_image(dets.centers)
-    height, width = scene.calib.image_shape
-    keep = (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-    return dets.select(keep)
+    return dets.select(scene.calib.in_view(dets.centers))
 
 
 def main() -> None:

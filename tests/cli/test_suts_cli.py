@@ -50,3 +50,14 @@ def test_suts_and_relations_listings() -> None:
     one = runner.invoke(app, ["relations", "preservation"])
     assert one.exit_code == 0 and "min_iou" in one.output
     assert runner.invoke(app, ["relations", "nope"]).exit_code != 0
+
+
+def test_detect_leaves_out_boxes_outside_the_camera_view_unless_asked(kitti_log: Path, tmp_path: Path) -> None:
+    # a detector answering one box behind the sensor and one ahead
+    spec = "tests.suts.detectors:behind_and_ahead"
+    args = ["detect", spec, str(kitti_log), "--out", str(tmp_path / "a"), "--limit", "1"]
+    assert runner.invoke(app, args).exit_code == 0
+    assert len((tmp_path / "a" / "000000.txt").read_text().splitlines()) == 1
+    args = ["detect", spec, str(kitti_log), "--out", str(tmp_path / "b"), "--limit", "1", "--all"]
+    assert runner.invoke(app, args).exit_code == 0
+    assert len((tmp_path / "b" / "000000.txt").read_text().splitlines()) == 2

@@ -100,3 +100,11 @@ def test_bad_calib_files_name_file_line_and_key(text, match):
 def test_tracking_spellings_are_accepted(calib):
     text = KITTI_000000_CALIB.replace("R0_rect:", "R_rect").replace("Tr_velo_to_cam:", "Tr_velo_cam")
     assert KittiCalibration.parse(text) == calib
+
+
+def test_in_view_is_in_front_of_the_camera_and_inside_the_image() -> None:
+    from lidarfuzz.scene.calib import KittiCalibration
+
+    calib = KittiCalibration.default()
+    mask = calib.in_view([[20.0, 0.0, -1.0], [-20.0, 0.0, -1.0], [5.0, 30.0, -1.0], [80.0, 2.0, 0.0]])
+    assert mask.tolist() == [True, False, False, True]

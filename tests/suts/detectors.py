@@ -32,3 +32,9 @@ def flaky(scene: Scene) -> object:
     if mode == 4:
         return {"boxes": [[np.nan, 0, 0, 4, 2, 1.5, 0]], "labels": ["Car"], "scores": [0.5]}
     return centroid_detector(scene.points.data)
+
+
+def behind_and_ahead(scene: Scene) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Two cars: 15 m behind the sensor and 15 m ahead."""
+    boxes = np.array([[-15.0, 0.0, -0.9, 4.0, 1.7, 1.5, 0.0], [15.0, 0.0, -0.9, 4.0, 1.7, 1.5, 0.0]])
+    return boxes, ["Car", "Car"], np.array([0.9, 0.8])

@@ -202,3 +202,7 @@ def test_bad_specs_say_what_is_wrong() -> None:
         create("subprocess:echo hello")
     with pytest.raises(Exception, match="unknown system under test 'nope'"):
         create("nope")
+    with pytest.raises(SutSpecError, match=r"'classic\?ground=magic': ground: Input should be 'ransac' or 'grid'"):
+        create("classic?ground=magic")
+    with pytest.raises(SutSpecError, match="typo"):
+        create("classic?typo=1")

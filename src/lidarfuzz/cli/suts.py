@@ -37,6 +37,9 @@ def register(app: typer.Typer) -> None:
                                                 "for in-process Python systems).")] = False,
         limit: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
         overwrite: Annotated[bool, typer.Option(help="Replace existing detection files.")] = False,
+        all_boxes: Annotated[bool, typer.Option("--all", help="Keep detections outside the camera's field of "
+                                                "view (by default they are left out, as KITTI results and "
+                                                "OpenPCDet's are).")] = False,
     ) -> None:
         """Run a system under test on every frame and write its detections as KITTI label files with
         scores (``OUT/<frame id>.txt``), ready for ``lidarfuzz eval``. Failures are listed, not fatal."""
@@ -72,7 +75,11 @@ def register(app: typer.Typer) -> None:
                 if result.failure is not None:
                     failures.append((frame_id, result.failure.kind.value, result.failure.message))
                 else:
-                    text = format_labels(result.output, scene.calib or KittiCalibration.default(), complete=True)
+                    calib = scene.calib or KittiCalibration.default()
+                    boxes = result.output
+                    if not all_boxes and len(boxes):
+                        boxes = boxes.select(calib.in_view(boxes.centers))
+                    text = format_labels(boxes, calib, complete=True)
                     write_text(target, text, overwrite=overwrite)
                 progress.advance(task)
         ok = len(ids) - len(failures)

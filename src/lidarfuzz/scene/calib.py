@@ -278,6 +278,13 @@ class KittiCalibration:
             box2d[:, [1, 3]] = np.clip(box2d[:, [1, 3]], 0, height - 1)
         return box2d
 
+    def in_view(self, points: ArrayLike) -> NDArray[np.bool_]:
+        """Mask of LiDAR-frame points in front of the camera that project inside the image."""
+        uv, depth = self.lidar_to_image(points)
+        height, width = self.image_shape
+        with np.errstate(invalid="ignore"):
+            return (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+
     def alpha(self, boxes: ArrayLike) -> NDArray[np.float64]:
         """Observation angle as the devkit's tooling computes it: ``-arctan2(-y, x) + rotation_y``."""
         b = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)

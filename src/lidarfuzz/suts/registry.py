@@ -27,6 +27,8 @@ import json
 from typing import Any
 from urllib.parse import parse_qsl
 
+from pydantic import ValidationError
+
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.plugins import find, load_group
 from lidarfuzz.suts.base import SystemUnderTest
@@ -71,6 +73,17 @@ def _import(target: str) -> Any:
     return obj
 
 
+def _build(spec: str, factory: Any, options: dict[str, Any]) -> Any:
+    """Call a SUT constructor; bad options become one line naming the spec and the field."""
+    try:
+        return factory(**options)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'options'}: {e['msg']}" for e in exc.errors())
+        raise SutSpecError(f"SUT spec {spec!r}: {problems}") from None
+    except TypeError as exc:
+        raise SutSpecError(f"SUT spec {spec!r}: {exc}") from None
+
+
 def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
     """Build the SUT a spec names (see the module docstring); ``options`` configure it.
 
@@ -85,25 +98,25 @@ def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
         if scheme == "subprocess":
             from lidarfuzz.suts.external import SubprocessSut
 
-            return SubprocessSut(rest, **options)
+            return _build(spec, lambda **o: SubprocessSut(rest, **o), options)
         if scheme == "worker":
             from lidarfuzz.suts.external import WorkerSut
 
-            return WorkerSut(rest, **options)
+            return _build(spec, lambda **o: WorkerSut(rest, **o), options)
         path, query = split_spec(rest)
         if scheme == "open3d":
             from lidarfuzz.suts.open3d_ml import Open3DPointPillars
 
-            return Open3DPointPillars(path, **{**query, **options})
+            return _build(spec, lambda **o: Open3DPointPillars(path, **o), {**query, **options})
         from lidarfuzz.suts.onnx import OnnxSut
 
-        return OnnxSut(path, **{**query, **options})
+        return _build(spec, lambda **o: OnnxSut(path, **o), {**query, **options})
     base, query = split_spec(spec)
     options = {**query, **options}
     if ":" in base:
         obj = _import(base)
         if isinstance(obj, type) and issubclass(obj, SystemUnderTest):
-            return obj(**options)
+            return _build(spec, obj, options)
         if isinstance(obj, SystemUnderTest):
             if options:
                 raise SutSpecError(f"SUT spec {spec!r}: {base} is an instance; it takes no options")
@@ -115,9 +128,9 @@ def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
             return made
         from lidarfuzz.suts.python import PythonSut
 
-        return PythonSut(obj, **options)
+        return _build(spec, lambda **o: PythonSut(obj, **o), options)
     cls = find(GROUP, SystemUnderTest, base, "system under test", "see lidarfuzz suts")
-    return cls(**options)
+    return _build(spec, cls, options)
 
 
 def sut_factory(fn: Any) -> Any:
