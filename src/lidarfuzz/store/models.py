@@ -1,0 +1,141 @@
+"""The campaign store's tables, in the spirit of the thesis's: data sets, models (systems under
+test), tasks, subtasks (operator × severity), per-frame results and findings.
+
+Everything a finding needs to be replayed is stored with it: the task's seed, the operator's
+spec and concrete params, the frame id, and the system's fingerprint. JSON columns hold
+specs, params, summaries and relation outcomes; detections are stored compactly as float32
+arrays (``[x, y, z, l, w, h, yaw, score]`` rows) with their labels.
+"""
+
+from __future__ import annotations
+
+import enum
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import JSON, DateTime, Enum, Float, ForeignKey, Integer, LargeBinary, String, Text, UniqueConstraint
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    type_annotation_map: ClassVar[dict[Any, Any]] = {dict[str, Any]: JSON, list[Any]: JSON}
+
+
+class Status(enum.StrEnum):
+    PENDING = "pending"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+def _status() -> Enum:
+    return Enum(Status, name="status", native_enum=False, length=16, values_callable=lambda e: [m.value for m in e])
+
+
+class Dataset(Base):
+    __tablename__ = "datasets"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    path: Mapped[str] = mapped_column(Text)
+    format: Mapped[str] = mapped_column(String(40))
+    frame_count: Mapped[int] = mapped_column(Integer)
+    notes: Mapped[str] = mapped_column(Text, default="")
+    added_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Model(Base):
+    """A registered system under test."""
+
+    __tablename__ = "models"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    spec: Mapped[str] = mapped_column(Text)
+    options: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    notes: Mapped[str] = mapped_column(Text, default="")
+    added_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Task(Base):
+    __tablename__ = "tasks"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    dataset_id: Mapped[int] = mapped_column(ForeignKey("datasets.id", ondelete="RESTRICT"))
+    model_id: Mapped[int] = mapped_column(ForeignKey("models.id", ondelete="RESTRICT"))
+    operators: Mapped[list[Any]] = mapped_column(default=list)  # [{"spec": {...}, "severities": [...]}]
+    relations: Mapped[list[Any]] = mapped_column(default=list)  # relation specs
+    seed: Mapped[int] = mapped_column(Integer, default=0)
+    status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
+    done: Mapped[int] = mapped_column(Integer, default=0)
+    total: Mapped[int] = mapped_column(Integer, default=0)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    summary: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+    dataset: Mapped[Dataset] = relationship()
+    model: Mapped[Model] = relationship()
+    subtasks: Mapped[list[Subtask]] = relationship(back_populates="task", cascade="all, delete-orphan",
+                                                   order_by="Subtask.id")
+
+
+class Subtask(Base):
+    """One operator at one severity (severity 0 with no operator: the originals)."""
+
+    __tablename__ = "subtasks"
+    __table_args__ = (UniqueConstraint("task_id", "operator_key", "severity"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
+    operator_key: Mapped[str] = mapped_column(String(64))  # stable hash of the operator spec ("original" for none)
+    operator: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the spec
+    severity: Mapped[int] = mapped_column(Integer)
+    status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
+    done: Mapped[int] = mapped_column(Integer, default=0)
+    total: Mapped[int] = mapped_column(Integer, default=0)
+    results: Mapped[dict[str, Any]] = mapped_column(default=dict)  # AP tables, rates
+
+    task: Mapped[Task] = relationship(back_populates="subtasks")
+
+
+class FrameResult(Base):
+    """The outcome of one work unit: (subtask, frame, trial), committed as soon as it exists."""
+
+    __tablename__ = "frame_results"
+    __table_args__ = (UniqueConstraint("subtask_id", "frame_id", "trial"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    subtask_id: Mapped[int] = mapped_column(ForeignKey("subtasks.id", ondelete="CASCADE"), index=True)
+    frame_id: Mapped[str] = mapped_column(String(200))
+    trial: Mapped[int] = mapped_column(Integer, default=0)
+    params: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the operator's concrete params
+    boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # float32 M×8
+    labels: Mapped[list[Any]] = mapped_column(default=list)
+    failure: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    relations: Mapped[list[Any]] = mapped_column(default=list)  # RelationOutcome.to_dict() each
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+class Finding(Base):
+    """A violation, crash, timeout or invalid output, with what it takes to replay it."""
+
+    __tablename__ = "findings"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
+    frame_result_id: Mapped[int] = mapped_column(ForeignKey("frame_results.id", ondelete="CASCADE"), index=True)
+    kind: Mapped[str] = mapped_column(String(40))  # relation name, or crash / timeout / invalid_output
+    cls: Mapped[str] = mapped_column(String(40), default="")
+    magnitude: Mapped[float | None] = mapped_column(Float, nullable=True)
+    message: Mapped[str] = mapped_column(Text, default="")
+    detail: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    replay: Mapped[dict[str, Any]] = mapped_column(default=dict)  # seed, operator spec, params, frame, fingerprint
