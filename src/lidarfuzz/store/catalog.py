@@ -1,0 +1,75 @@
+"""Registering data sets and systems under test in the store (what the CLI's ``datasets`` and
+``models`` commands and, later, the web app's pages call)."""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import func, select
+
+from lidarfuzz.store.models import Dataset, Model, Task
+from lidarfuzz.store.store import Store, StoreError
+
+
+def add_dataset(store: Store, name: str, path: str | PathLike[str], notes: str = "") -> Dataset:
+    """Open the data at ``path`` (any supported source; it is validated, never modified) and record it."""
+    from lidarfuzz.io.open import open_dataset
+
+    source = Path(path).resolve()
+    dataset = open_dataset(source)
+    frames = len(dataset.frame_ids())
+    if frames == 0:
+        raise StoreError(f"{source}: no frames to test")
+    with store.session() as s:
+        if s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
+            raise StoreError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
+        row = Dataset(name=name, path=str(source), format=dataset.format, frame_count=frames, notes=notes)
+        s.add(row)
+    return row
+
+
+def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None = None, notes: str = "") -> Model:
+    """Build the system a spec names (so a bad spec fails now, not mid-campaign) and record it
+    with its fingerprint."""
+    from lidarfuzz.suts.registry import create
+
+    system = create(spec, **(options or {}))
+    with store.session() as s:
+        if s.scalar(select(Model).where(Model.name == name)) is not None:
+            raise StoreError(f"a model called {name!r} exists already (lidarfuzz models list)")
+        row = Model(name=name, spec=spec, options=dict(options or {}), fingerprint=system.fingerprint(), notes=notes)
+        s.add(row)
+    return row
+
+
+def list_datasets(store: Store) -> list[Dataset]:
+    with store.session() as s:
+        return list(s.scalars(select(Dataset).order_by(Dataset.name)))
+
+
+def list_models(store: Store) -> list[Model]:
+    with store.session() as s:
+        return list(s.scalars(select(Model).order_by(Model.name)))
+
+
+def _remove(store: Store, table: type[Dataset] | type[Model], name: str, kind: str) -> None:
+    with store.session() as s:
+        row = s.scalar(select(table).where(table.name == name))
+        if row is None:
+            raise StoreError(f"no {kind} called {name!r}")
+        column = Task.dataset_id if table is Dataset else Task.model_id
+        used = s.scalar(select(func.count()).select_from(Task).where(column == row.id)) or 0
+        if used:
+            raise StoreError(f"{kind} {name!r} is used by {used} task(s); delete those first")
+        s.delete(row)
+
+
+def remove_dataset(store: Store, name: str) -> None:
+    """Forget a data set (its files are left alone)."""
+    _remove(store, Dataset, name, "data set")
+
+
+def remove_model(store: Store, name: str) -> None:
+    _remove(store, Model, name, "model")
