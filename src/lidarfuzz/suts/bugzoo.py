@@ -19,7 +19,6 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.classic.classify import Measurement
 from lidarfuzz.suts.classic.pipeline import ClassicPipeline
-from lidarfuzz.suts.classic.roi import roi_mask
 
 
 @dataclass(frozen=True)
@@ -139,13 +138,7 @@ class StaleRoiCache(BuggyPipeline):
 
     def roi_filter(self, scene: Scene, points: NDArray[np.float32]) -> NDArray[np.bool_]:
         cache: dict[str, RoiMap | None] = self.__dict__.setdefault("_roi_cache", {})
-        roi = cache.setdefault(scene.frame_id, scene.roi)
-        cfg = self.settings
-        keep = np.hypot(points[:, 0], points[:, 1]) <= cfg.max_range
-        if cfg.use_roi and roi is not None:
-            near = np.flatnonzero(keep)
-            keep[near] = roi_mask(points[near, :2], roi, cfg.roi_margin, cfg.roi_cell)
-        return keep
+        return super().roi_filter(scene.replace(roi=cache.setdefault(scene.frame_id, scene.roi)), points)
 
 
 class FixedGroundHeight(BuggyPipeline):
