@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 
 class LidarfuzzError(Exception):
@@ -67,3 +68,12 @@ class MissingDependencyError(LidarfuzzError, ImportError):
             f"{purpose} needs the '{package}' package; install it with "
             f"\"pip install 'lidarfuzz[{extra}]'\""
         )
+
+
+def validation_error(path: str | PathLike[str], exc: Any) -> DataFormatError:
+    """The first error of a pydantic ``ValidationError`` as a DataFormatError naming the key path
+    (``operators.1.severities.0``)."""
+    first = exc.errors()[0]
+    where = ".".join(str(part) for part in first["loc"]) or "<root>"
+    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    return DataFormatError(path, f"{first['msg']}{more}", field=where)

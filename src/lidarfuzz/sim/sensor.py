@@ -32,7 +32,7 @@ import yaml
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from lidarfuzz.errors import DataFormatError
+from lidarfuzz.errors import DataFormatError, validation_error
 
 
 class LidarSensor(BaseModel):
@@ -194,14 +194,6 @@ def _sensor_from_mapping(raw: dict[str, Any], source: Path | None) -> LidarSenso
         return LidarSensor.model_validate(base)
     except ValidationError as exc:
         raise validation_error(source or Path("<sensor>"), exc) from None
-
-
-def validation_error(path: Path, exc: ValidationError) -> DataFormatError:
-    """The first pydantic error as a DataFormatError naming the offending key path."""
-    first = exc.errors()[0]
-    where = ".".join(str(part) for part in first["loc"]) or "<root>"
-    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-    return DataFormatError(path, f"{first['msg']}{more}", field=where)
 
 
 def sensor_summary(sensor: LidarSensor) -> dict[str, Any]:

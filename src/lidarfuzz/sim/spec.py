@@ -28,10 +28,10 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from lidarfuzz.errors import DataFormatError
+from lidarfuzz.errors import DataFormatError, validation_error
 from lidarfuzz.sim.actors import ACTOR_CLASSES
 from lidarfuzz.sim.materials import MATERIALS
-from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor, validation_error
+from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor
 
 Point2 = tuple[float, float]
 

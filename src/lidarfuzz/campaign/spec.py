@@ -1,0 +1,120 @@
+"""A campaign, as a user writes it: what data, which system, which operators at which
+severities, which relations, which seed. YAML or JSON, validated by pydantic; an error names
+the file and the offending key (``operators.1.severities.0``).
+
+Example (``campaign.yaml``)::
+
+    name: fog-vs-classic
+    dataset: sim                # a registered data set, or a path
+    sut: classic                # a registered model, or a SUT spec
+    operators:
+      - name: fog
+        severities: [1, 3, 5]
+      - name: rotate_z          # the thesis's names work too (RAR)
+        config: {angle_range: [10, 20]}
+    relations: auto             # every relation that applies to each operator
+    seed: 0
+    frames: 50                  # the first 50 frames (all when left out)
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from lidarfuzz.errors import DataFormatError, validation_error
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class OperatorChoice(_Model):
+    """One operator: at the listed severities, or once with an explicit config."""
+
+    name: str = Field(description="operator name or alias (lidarfuzz operators)")
+    severities: list[int] = Field(default_factory=lambda: [1, 3, 5], description="severities 1–5")
+    config: dict[str, Any] | None = Field(default=None, description="config fields instead of severities")
+
+    @field_validator("name")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        from lidarfuzz.operators import get
+
+        try:
+            return get(name).name
+        except KeyError as exc:
+            raise ValueError(str(exc)) from None
+
+    @field_validator("severities")
+    @classmethod
+    def _severities(cls, values: list[int]) -> list[int]:
+        if not values:
+            raise ValueError("give at least one severity")
+        bad = [v for v in values if not 1 <= v <= 5]
+        if bad:
+            raise ValueError(f"severities are 1 to 5, got {bad}")
+        return sorted(set(values))
+
+    @model_validator(mode="after")
+    def _config_builds(self) -> OperatorChoice:
+        if self.config is not None:
+            from lidarfuzz.operators import get
+
+            get(self.name)(**self.config)  # a bad field raises here, named by pydantic
+        return self
+
+
+class CampaignSpec(_Model):
+    """What to run."""
+
+    name: str = ""
+    dataset: str = Field(description="registered data set name, or a path to data")
+    sut: str = Field(description="registered model name, or a SUT spec (lidarfuzz suts)")
+    operators: list[OperatorChoice] = Field(min_length=1)
+    relations: Literal["auto"] | list[str] = Field(default="auto", description="relation names, or auto")
+    seed: int = 0
+    trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
+    frames: int | None = Field(default=None, ge=1, description="only the first N frames")
+
+    @field_validator("relations")
+    @classmethod
+    def _relations(cls, value: Literal["auto"] | list[str]) -> Literal["auto"] | list[str]:
+        if value == "auto":
+            return value
+        from lidarfuzz.oracles.relations import get
+
+        try:
+            return [get(name).name for name in value]
+        except KeyError as exc:
+            raise ValueError(str(exc)) from None
+
+
+def parse_campaign(data: Any, source: str | PathLike[str] = "<campaign>") -> CampaignSpec:
+    """Validate a mapping as a campaign; errors name the offending key."""
+    if not isinstance(data, dict):
+        raise DataFormatError(source, "a campaign must be a mapping with keys dataset, sut, operators, …")
+    try:
+        return CampaignSpec.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error(source, exc) from None
+
+
+def load_campaign(path: str | PathLike[str]) -> CampaignSpec:
+    """Read a campaign file (YAML or JSON)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(path, f"cannot read the campaign file: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(exc, 'problem', exc)}", line=line) from None
+    return parse_campaign(data, path)
