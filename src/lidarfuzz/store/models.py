@@ -3,8 +3,10 @@ test), tasks, subtasks (operator × severity), per-frame results and findings.
 
 Everything a finding needs to be replayed is stored with it: the task's seed, the operator's
 spec and concrete params, the frame id, and the system's fingerprint. JSON columns hold
-specs, params, summaries and relation outcomes; detections are stored compactly as float32
-arrays (``[x, y, z, l, w, h, yaw, score]`` rows) with their labels.
+specs, params, summaries and relation outcomes; boxes (detections and the mutants' ground
+truth) are stored compactly as float32 arrays (:mod:`lidarfuzz.campaign.codec`) with their
+labels. ``sut_outputs`` caches what a system (by fingerprint) said about an input (by content
+digest), so unchanged inputs are never run twice.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import enum
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
-from sqlalchemy import JSON, DateTime, Enum, Float, ForeignKey, Integer, LargeBinary, String, Text, UniqueConstraint
+from sqlalchemy import JSON, Boolean, DateTime, Enum, Float, ForeignKey, Integer, LargeBinary, String, Text, UniqueConstraint
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 
@@ -80,6 +82,10 @@ class Task(Base):
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     summary: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    options: Mapped[dict[str, Any]] = mapped_column(default=dict)  # frame ids, trials, isolation, timeout, ...
+    error: Mapped[str] = mapped_column(Text, default="")
+    worker: Mapped[str] = mapped_column(String(200), default="")  # host:pid of the process running it
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
 
     dataset: Mapped[Dataset] = relationship()
     model: Mapped[Model] = relationship()
@@ -97,7 +103,9 @@ class Subtask(Base):
     task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
     operator_key: Mapped[str] = mapped_column(String(64))  # stable hash of the operator spec ("original" for none)
     operator: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the spec
-    severity: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str] = mapped_column(String(100), default="")  # the operator's name ("original" for none)
+    op_index: Mapped[int] = mapped_column(Integer, default=0)  # its place in the task (seeds its generator)
+    severity: Mapped[int] = mapped_column(Integer)  # 0: the originals, or an operator given an explicit config
     status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
     done: Mapped[int] = mapped_column(Integer, default=0)
     total: Mapped[int] = mapped_column(Integer, default=0)
@@ -117,8 +125,11 @@ class FrameResult(Base):
     frame_id: Mapped[str] = mapped_column(String(200))
     trial: Mapped[int] = mapped_column(Integer, default=0)
     params: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the operator's concrete params
-    boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # float32 M×8
+    boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the detections (codec)
     labels: Mapped[list[Any]] = mapped_column(default=list)
+    gt_boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the mutant's ground truth
+    gt_labels: Mapped[list[Any]] = mapped_column(default=list)
+    cached: Mapped[bool] = mapped_column(Boolean, default=False)  # the output came from sut_outputs
     failure: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     relations: Mapped[list[Any]] = mapped_column(default=list)  # RelationOutcome.to_dict() each
     seconds: Mapped[float] = mapped_column(Float, default=0.0)
@@ -133,9 +144,23 @@ class Finding(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
     frame_result_id: Mapped[int] = mapped_column(ForeignKey("frame_results.id", ondelete="CASCADE"), index=True)
-    kind: Mapped[str] = mapped_column(String(40))  # relation name, or crash / timeout / invalid_output
+    kind: Mapped[str] = mapped_column(String(40), index=True)  # relation name, or crash / timeout / invalid_output
     cls: Mapped[str] = mapped_column(String(40), default="")
     magnitude: Mapped[float | None] = mapped_column(Float, nullable=True)
     message: Mapped[str] = mapped_column(Text, default="")
     detail: Mapped[dict[str, Any]] = mapped_column(default=dict)
     replay: Mapped[dict[str, Any]] = mapped_column(default=dict)  # seed, operator spec, params, frame, fingerprint
+
+
+class SutOutput(Base):
+    """What a system (by fingerprint) returned for an input (by content digest)."""
+
+    __tablename__ = "sut_outputs"
+    __table_args__ = (UniqueConstraint("fingerprint", "digest"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    digest: Mapped[str] = mapped_column(String(64))
+    boxes: Mapped[bytes] = mapped_column(LargeBinary)
+    labels: Mapped[list[Any]] = mapped_column(default=list)
+    seconds: Mapped[float] = mapped_column(Float, default=0.0)

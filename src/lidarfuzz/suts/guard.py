@@ -58,12 +58,12 @@ def run_guarded(sut: SystemUnderTest[Any, Any], sample: Any) -> SutResult[Any]:
     return SutResult(output, None, elapsed)
 
 
-def _serve(spec: str, conn: Connection) -> None:
+def _serve(spec: str, conn: Connection, options: dict[str, Any] | None = None) -> None:
     """Worker process: build the SUT from its spec, then answer samples until told to stop."""
     from lidarfuzz.suts.registry import create
 
     try:
-        sut = create(spec)
+        sut = create(spec, **(options or {}))
         sut.load()
         conn.send(("ready", sut.name, sut.version, sut.fingerprint(), sut.classes))
     except Exception as exc:
@@ -90,10 +90,13 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
         spec: What :func:`lidarfuzz.suts.registry.create` builds in the worker.
         timeout: Seconds one sample may take; the worker is killed beyond it.
         start_timeout: Seconds the worker may take to import and load the SUT.
+        options: Keyword options for :func:`~lidarfuzz.suts.registry.create`.
     """
 
-    def __init__(self, spec: str, *, timeout: float = 60.0, start_timeout: float = 120.0) -> None:
+    def __init__(self, spec: str, *, timeout: float = 60.0, start_timeout: float = 120.0,
+                 options: dict[str, Any] | None = None) -> None:
         self.spec = spec
+        self.options = dict(options or {})
         self.timeout = timeout
         self.start_timeout = start_timeout
         self._process: multiprocessing.process.BaseProcess | None = None
@@ -118,7 +121,7 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
         return self._ensure_identity()[2]
 
     def config(self) -> dict[str, Any]:
-        return {"spec": self.spec, "timeout": self.timeout}
+        return {"spec": self.spec, "options": self.options, "timeout": self.timeout}
 
     def _ensure_identity(self) -> tuple[str, str, str, tuple[str, ...] | None]:
         if self._identity is None:
@@ -131,7 +134,7 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
             return
         ctx = multiprocessing.get_context("spawn")
         parent, child = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(self.spec, child), daemon=True, name=f"sut:{self.spec}")
+        process = ctx.Process(target=_serve, args=(self.spec, child, self.options), daemon=True, name=f"sut:{self.spec}")
         process.start()
         child.close()
         if not parent.poll(self.start_timeout):

@@ -1,0 +1,163 @@
+"""Where work units run: an executor takes units and yields their results as they finish.
+
+* :class:`InlineExecutor` runs them one by one in this process (tests, debugging, replays).
+* :class:`ProcessExecutor` runs them on a local pool of processes, each holding one
+  :class:`~lidarfuzz.campaign.work.Worker` (the system under test loaded once per process).
+  A system that kills its process (a segfault, an abort) breaks the pool: the pool is
+  rebuilt, the units that were in flight are re-run one at a time, and the one that kills
+  its process again is recorded as a crash of the system under test.
+
+The runner commits every result as it arrives, so an executor keeps nothing worth keeping:
+closing one (on cancel, Ctrl-C or kill) loses only units in flight, which a resume re-runs.
+A cluster backend (Ray) implements the same three methods.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+
+from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
+
+
+class Executor(ABC):
+    """Runs the work units of one task."""
+
+    @abstractmethod
+    def open(self, context: WorkContext) -> None:
+        """Prepare workers for a task."""
+
+    @abstractmethod
+    def run(self, units: Iterable[WorkUnit]) -> Iterator[UnitResult]:
+        """Results of ``units`` in the order they finish (units are pulled lazily)."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Stop the workers; units in flight are dropped."""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class InlineExecutor(Executor):
+    """Every unit in this process, in order."""
+
+    def __init__(self) -> None:
+        self._worker: Worker | None = None
+
+    def open(self, context: WorkContext) -> None:
+        self.close()
+        self._worker = Worker(context)
+
+    def run(self, units: Iterable[WorkUnit]) -> Iterator[UnitResult]:
+        if self._worker is None:
+            raise RuntimeError("open() the executor first")
+        for unit in units:
+            yield self._worker.run(unit)
+
+    def close(self) -> None:
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+
+
+_WORKER: Worker | None = None
+
+
+def _start(context: WorkContext) -> None:
+    global _WORKER
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")  # one core per worker: the pool is the parallelism
+    _WORKER = Worker(context)
+
+
+def _run(unit: WorkUnit) -> UnitResult:
+    assert _WORKER is not None, "worker not started"
+    return _WORKER.run(unit)
+
+
+def _crash(unit: WorkUnit) -> UnitResult:
+    message = "the system under test killed its worker process (e.g. a segmentation fault)"
+    return UnitResult(unit, failure={"kind": "crash", "message": message, "detail": ""})
+
+
+class ProcessExecutor(Executor):
+    """A local pool of ``workers`` processes (default: the CPU count)."""
+
+    def __init__(self, workers: int | None = None, window: int | None = None) -> None:
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self.window = window or 2 * self.workers
+        self._pool: ProcessPoolExecutor | None = None
+        self._context: WorkContext | None = None
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        assert self._context is not None
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_start, initargs=(self._context,))
+
+    def open(self, context: WorkContext) -> None:
+        self.close()
+        self._context = context
+        self._pool = self._new_pool()
+
+    def _restart(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        self._pool = self._new_pool()
+
+    def run(self, units: Iterable[WorkUnit]) -> Iterator[UnitResult]:
+        if self._pool is None:
+            raise RuntimeError("open() the executor first")
+        source = iter(units)
+        suspects: deque[WorkUnit] = deque()  # units in flight when the pool broke: re-run one at a time
+        in_flight: dict[Future[UnitResult], WorkUnit] = {}
+        exhausted = False
+        while True:
+            limit = 1 if suspects else self.window
+            while len(in_flight) < limit:
+                if suspects:
+                    unit: WorkUnit | None = suspects.popleft()
+                elif not exhausted:
+                    unit = next(source, None)
+                    exhausted = unit is None
+                else:
+                    unit = None
+                if unit is None:
+                    break
+                in_flight[self._pool.submit(_run, unit)] = unit
+            if not in_flight:
+                return
+            done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+            broken: list[WorkUnit] = []
+            for future in done:
+                unit = in_flight.pop(future)
+                try:
+                    yield future.result()
+                except BrokenProcessPool:
+                    broken.append(unit)
+            if broken:
+                lost = broken + list(in_flight.values())
+                in_flight.clear()
+                self._restart()
+                if len(lost) == 1 and limit == 1:
+                    yield _crash(lost[0])  # alone in the pool and killed it again: the culprit
+                else:
+                    suspects.extend(lost)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+def make_executor(workers: int | None = None, inline: bool = False) -> Executor:
+    """The process pool (default), or every unit in this process."""
+    return InlineExecutor() if inline else ProcessExecutor(workers)

@@ -1,0 +1,241 @@
+"""A task's numbers: per-subtask KITTI AP and relation figures, and the task's summary.
+
+:func:`evaluate_subtask` runs when a subtask completes (its AP against the mutants' own ground
+truth — boxes move with their objects — and its violation counts); :func:`summarise` runs when
+the task completes and builds the one JSON-able structure every report reads: the thesis's AP
+table, ΔAP per operator × severity, Robo3D's RR (and CE against a baseline task), violation
+rates per relation, operator, severity and class, the count form of MR1, and the findings.
+
+Detections are evaluated as KITTI results are: boxes outside the camera's view are left out,
+since labels exist only there. A frame where the system failed counts as one with no
+detections (every object missed).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+from sqlalchemy import func, select
+
+from lidarfuzz.campaign.codec import decode_boxes
+from lidarfuzz.campaign.tasks import ORIGINAL, get_task, subtask_label
+from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult, KittiFrame, evaluate_kitti
+from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
+from lidarfuzz.oracles.robustness import RelationRecord, count_form_rates, robustness_summary, violation_rates
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.store.models import Finding, FrameResult, Subtask
+from lidarfuzz.store.store import Store
+
+AP_METRICS: tuple[str, ...] = ("bbox", "bev", "3d")
+TOP_FINDINGS = 24
+
+
+def outcome_from_dict(data: Mapping[str, Any]) -> RelationOutcome:
+    violations = tuple(Violation(**{k: (math.nan if v is None and k in ("magnitude", "range_m") else v)
+                                    for k, v in item.items()}) for item in data.get("violations", []))
+    return RelationOutcome(data["relation"], bool(data["holds"]), violations, dict(data.get("checked", {})),
+                           dict(data.get("stats", {})), bool(data.get("applicable", True)))
+
+
+def in_view(detections: Boxes3D, calib: Any) -> Boxes3D:
+    if len(detections) == 0 or calib is None:
+        return detections
+    return detections.select(calib.in_view(detections.centers))
+
+
+def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any]) -> dict[str, Any]:
+    """Figures of one complete subtask from its frame results (rows of frame id, boxes, labels,
+    gt boxes, gt labels, failure, relations, seconds, cached)."""
+    frames, records = [], []
+    labelled = False
+    failures = cached = 0
+    seconds = 0.0
+    for frame_id, boxes, labels, gt_boxes, gt_labels, failure, relations, secs, was_cached in rows:
+        failures += int(failure is not None)
+        cached += int(bool(was_cached))
+        seconds += float(secs or 0.0)
+        for item in relations or []:
+            records.append(RelationRecord(item["relation"], "", 0, frame_id, outcome_from_dict(item)))
+        if failure is not None and failure.get("kind") == "operator_error":
+            continue  # no mutant: nothing to evaluate
+        gt = decode_boxes(gt_boxes, gt_labels)
+        labelled = labelled or len(gt) > 0
+        calib = calibration(frame_id)
+        detections = decode_boxes(boxes, labels) if failure is None else Boxes3D.empty()
+        frame = KittiFrame(gt, in_view(detections, calib), calib) if calib is not None else KittiFrame(
+            gt, detections)
+        frames.append(frame)
+    out: dict[str, Any] = {"frames": len(rows), "failures": failures, "cached": cached, "sut_seconds": seconds}
+    out["ap"] = evaluate_kitti(frames).to_dict() if labelled and frames else None
+    out["violations"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"))]
+    out["violations_per_object"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"),
+                                                                          per="object")]
+    out["violations_total"] = [r.to_dict() for r in violation_rates(records, by=("relation",))]
+    out["count_form"] = [r.to_dict() for r in count_form_rates(records, by=("severity",))]
+    return out
+
+
+def ap_result(data: Mapping[str, Any] | None) -> KittiEvalResult | None:
+    if not data:
+        return None
+    return KittiEvalResult(ap=data["ap"], overlaps=data["overlaps"], num_frames=data["num_frames"])
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    return value
+
+
+def _sum_rates(rows: Iterable[tuple[dict[str, Any], dict[str, Any]]], keys: Sequence[str]) -> list[dict[str, Any]]:
+    checked: dict[tuple[Any, ...], int] = defaultdict(int)
+    violated: dict[tuple[Any, ...], int] = defaultdict(int)
+    for context, rate in rows:
+        merged = {**rate, **context}
+        key = tuple(merged.get(k) for k in keys)
+        checked[key] += int(rate["checked"])
+        violated[key] += int(rate["violated"])
+    out = []
+    for key in sorted(checked, key=lambda k: tuple(str(v) for v in k)):
+        n = checked[key]
+        out.append({**dict(zip(keys, key, strict=True)), "checked": n, "violated": violated[key],
+                    "rate": violated[key] / n if n else None})
+    return out
+
+
+def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dict[str, Any]:
+    """The task's report data (JSON-able); ``baseline``: a task of another system on the same
+    campaign, for Robo3D's corruption error."""
+    from lidarfuzz.operators.registry import get as get_operator
+
+    task = get_task(store, task_id)
+    subtasks = []
+    clean: KittiEvalResult | None = None
+    corrupted: dict[tuple[str, int], KittiEvalResult] = {}
+    for sub in task.subtasks:
+        family = relation_kind = ""
+        if sub.name != ORIGINAL:
+            try:
+                cls = get_operator(sub.name)
+                family, relation_kind = cls.family, cls.relation.value
+            except Exception:  # an operator plugin no longer installed: the stored figures still stand
+                pass
+        results = sub.results or {}
+        entry = {"id": sub.id, "label": subtask_label(sub.name, sub.severity), "operator": sub.name,
+                 "family": family, "relation_kind": relation_kind, "severity": sub.severity,
+                 "config": sub.operator.get("config", {}), "status": sub.status.value, "done": sub.done,
+                 "total": sub.total, **{k: v for k, v in results.items() if k != "relation_specs"},
+                 "relations": [spec["name"] for spec in results.get("relation_specs", [])]}
+        subtasks.append(entry)
+        result = ap_result(results.get("ap"))
+        if sub.name == ORIGINAL:
+            clean = result
+        elif result is not None and sub.severity > 0:
+            corrupted[(sub.name, sub.severity)] = result
+
+    delta_rows = []
+    if clean is not None:
+        for entry in subtasks[1:]:
+            result = ap_result(entry.get("ap"))
+            if result is None:
+                continue
+            for metric in AP_METRICS:
+                for cls in [*result.ap[metric], "mAP"]:
+                    for difficulty in DIFFICULTIES:
+                        if cls == "mAP":
+                            c, m = clean.mean_ap(metric, difficulty), result.mean_ap(metric, difficulty)
+                        else:
+                            c, m = clean.get(metric, cls, difficulty), result.get(metric, cls, difficulty)
+                        delta_rows.append({"label": entry["label"], "operator": entry["operator"],
+                                           "severity": entry["severity"], "metric": metric, "class": cls,
+                                           "difficulty": difficulty, "clean": c, "corrupted": m, "delta": m - c})
+
+    robustness: dict[str, Any] = {}
+    if clean is not None and corrupted:
+        base_clean = base_corrupted = None
+        if baseline is not None:
+            other = summarise(store, baseline)
+            base_clean = ap_result(other["subtasks"][0].get("ap"))
+            base_corrupted = {(e["operator"], e["severity"]): ap_result(e["ap"]) for e in other["subtasks"][1:]
+                              if e.get("ap") and e["severity"] > 0}
+        for metric in AP_METRICS:
+            try:
+                summary = robustness_summary(clean, corrupted, baseline_clean=base_clean,
+                                             baseline_corrupted=base_corrupted, metric=metric)
+            except ValueError as exc:
+                robustness[metric] = {"error": str(exc)}
+                continue
+            robustness[metric] = summary.to_dict()
+
+    def rate_rows(field: str) -> Iterable[tuple[dict[str, Any], dict[str, Any]]]:
+        for entry in subtasks[1:]:
+            for rate in entry.get(field, []):
+                yield {"operator": entry["operator"], "severity": entry["severity"], "label": entry["label"]}, rate
+
+    violation = {
+        "relation": _sum_rates(rate_rows("violations_total"), ("relation",)),
+        "relation_operator": _sum_rates(rate_rows("violations_total"), ("relation", "operator")),
+        "relation_label": _sum_rates(rate_rows("violations_total"), ("relation", "label")),
+        "relation_class": _sum_rates(rate_rows("violations"), ("relation", "class")),
+        "relation_operator_class": _sum_rates(rate_rows("violations"), ("relation", "operator", "class")),
+        "relation_class_objects": _sum_rates(rate_rows("violations_per_object"), ("relation", "class")),
+        "count_form": _sum_rates(rate_rows("count_form"), ("label",)),
+    }
+
+    with store.session() as s:
+        kinds = dict(s.execute(select(Finding.kind, func.count()).where(Finding.task_id == task_id).group_by(
+            Finding.kind)).all())
+        top = top_findings(s, task_id)
+    timing = task.summary.get("run") if task.summary else None
+    return _clean({
+        "task": {"id": task.id, "name": task.name, "status": task.status.value,
+                 "dataset": {"name": task.dataset.name, "path": task.dataset.path, "format": task.dataset.format},
+                 "model": {"name": task.model.name, "spec": task.model.spec, "options": task.model.options,
+                           "fingerprint": task.model.fingerprint},
+                 "seed": task.seed, "trials": task.options.get("trials", 1),
+                 "frames": len(task.options.get("frame_ids", [])), "relations": task.relations,
+                 "created_at": task.created_at.isoformat() if task.created_at else None,
+                 "started_at": task.started_at.isoformat() if task.started_at else None,
+                 "finished_at": task.finished_at.isoformat() if task.finished_at else None,
+                 "done": task.done, "total": task.total, "baseline": baseline},
+        "classes": list(CLASSES),
+        "subtasks": subtasks,
+        "delta_ap": delta_rows,
+        "robustness": robustness,
+        "violations": violation,
+        "findings": {"total": sum(kinds.values()), "by_kind": kinds, "top": top},
+        "run": timing,
+    })
+
+
+def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[dict[str, Any]]:
+    """The most telling findings: failures first, then violations with the most objects,
+    at most three per (kind, operator) so one noisy operator does not fill the list."""
+    rows = session.execute(
+        select(Finding, FrameResult.frame_id, FrameResult.trial, Subtask.name, Subtask.severity).join(
+            FrameResult, Finding.frame_result_id == FrameResult.id).join(
+            Subtask, FrameResult.subtask_id == Subtask.id).where(Finding.task_id == task_id).order_by(
+            Finding.magnitude.desc().nulls_first(), Finding.id).limit(2000)).all()
+    chosen, per_group = [], Counter()
+    for finding, frame_id, trial, name, severity in rows:
+        group = (finding.kind, name)
+        if per_group[group] >= 3:
+            continue
+        per_group[group] += 1
+        chosen.append({"id": finding.id, "kind": finding.kind, "class": finding.cls, "magnitude": finding.magnitude,
+                       "message": finding.message, "operator": name, "severity": severity,
+                       "label": subtask_label(name, severity), "frame_id": frame_id, "trial": trial,
+                       "replay": f"lidarfuzz replay {finding.id}"})
+        if len(chosen) >= limit:
+            break
+    return chosen
+
+
+__all__ = ["ap_result", "evaluate_subtask", "summarise", "top_findings"]

@@ -1,0 +1,184 @@
+"""Tasks in the store: creating one from a campaign, listing, finding, cancelling, deleting.
+
+A task is planned entirely when it is created: its frames (ids fixed then, so a resume tests
+the same frames), one subtask for the originals and one per operator × severity (or per
+operator with an explicit config), each with the relations that apply to it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import select
+
+from lidarfuzz.campaign.spec import CampaignSpec
+from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
+from lidarfuzz.store.store import Store, StoreError
+
+ORIGINAL = "original"
+
+
+def operator_key(spec: dict[str, Any] | None) -> str:
+    """A stable key of an operator spec ("original" for none)."""
+    if spec is None:
+        return ORIGINAL
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:32]
+
+
+def subtask_label(name: str, severity: int) -> str:
+    """How reports name a subtask: ``fog@3``, ``fog (config)`` or ``original``."""
+    if name == ORIGINAL:
+        return ORIGINAL
+    return f"{name}@{severity}" if severity else f"{name} (config)"
+
+
+def relations_for(operator: Any, choice: str | list[str]) -> list[dict[str, Any]]:
+    """Relation specs to check for ``operator``: every applicable one for ``auto``, else the
+    chosen ones that apply to the operator's relation kind."""
+    from lidarfuzz.oracles.relations.registry import for_operator, get
+
+    if choice == "auto":
+        return [r.spec() for r in for_operator(operator.relation)]
+    chosen = [get(name)() for name in choice]
+    return [r.spec() for r in chosen if operator.relation in r.applies_to]
+
+
+def _dataset_row(s: Any, ref: str) -> Dataset:
+    row = s.scalar(select(Dataset).where(Dataset.name == ref))
+    if row is not None:
+        return row
+    path = Path(ref).expanduser()
+    if not path.exists():
+        raise StoreError(f"{ref}: neither a registered data set (lidarfuzz datasets list) nor a path")
+    from lidarfuzz.io.open import open_dataset
+
+    resolved = path.resolve()
+    row = s.scalar(select(Dataset).where(Dataset.path == str(resolved)))
+    if row is not None:
+        return row
+    dataset = open_dataset(resolved)
+    frames = len(dataset.frame_ids())
+    if frames == 0:
+        raise StoreError(f"{resolved}: no frames to test")
+    name = resolved.name
+    while s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
+        name = f"{resolved.name}-{hashlib.sha256(str(resolved).encode()).hexdigest()[:6]}"
+    row = Dataset(name=name, path=str(resolved), format=dataset.format, frame_count=frames,
+                  notes="registered by a campaign")
+    s.add(row)
+    s.flush()
+    return row
+
+
+def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
+    row = s.scalar(select(Model).where(Model.name == ref))
+    if row is not None:
+        if options:
+            raise StoreError(f"model {ref!r} is registered with its options; register another to change them")
+        return row
+    from lidarfuzz.suts.registry import create
+
+    system = create(ref, **options)
+    fingerprint = system.fingerprint()
+    for candidate in s.scalars(select(Model).where(Model.spec == ref)):
+        if candidate.fingerprint == fingerprint and candidate.options == options:
+            return candidate
+    name = ref if not options else f"{ref}#{fingerprint[:8]}"
+    while s.scalar(select(Model).where(Model.name == name)) is not None:
+        name = f"{ref}#{fingerprint[:8]}"
+        if s.scalar(select(Model).where(Model.name == name)) is not None:
+            name = f"{ref}#{fingerprint[:16]}"
+            break
+    row = Model(name=name, spec=ref, options=options, fingerprint=fingerprint, notes="registered by a campaign")
+    s.add(row)
+    s.flush()
+    return row
+
+
+def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None = None,
+                isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None) -> int:
+    """Plan ``spec`` as a new pending task; returns its id."""
+    from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.operators.registry import get
+
+    with store.session() as s:
+        dataset = _dataset_row(s, spec.dataset)
+        model = _model_row(s, spec.sut, dict(sut_options or {}))
+        frame_ids = list(open_dataset(dataset.path).frame_ids())
+        if spec.frames is not None:
+            frame_ids = frame_ids[: spec.frames]
+        plans: list[tuple[dict[str, Any] | None, str, int, int, list[dict[str, Any]]]] = [
+            (None, ORIGINAL, 0, -1, [])]
+        for index, choice in enumerate(spec.operators):
+            cls = get(choice.name)
+            if choice.config is not None:
+                op = cls(**choice.config)
+                plans.append((op.spec(), cls.name, 0, index, relations_for(op, spec.relations)))
+                continue
+            for severity in choice.severities:
+                op = cls.at_severity(severity)
+                plans.append((op.spec(), cls.name, severity, index, relations_for(op, spec.relations)))
+        keys = [operator_key(p[0]) for p in plans]
+        if len(set(keys)) != len(keys):
+            raise StoreError("the campaign lists the same operator configuration twice")
+        options = {"frame_ids": frame_ids, "trials": spec.trials, "isolate": isolate, "timeout": timeout,
+                   "save_mutants": save_mutants, "relations": spec.relations}
+        task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,
+                    operators=[c.model_dump(mode="json") for c in spec.operators],
+                    relations=spec.relations if isinstance(spec.relations, list) else ["auto"])
+        s.add(task)
+        total = 0
+        for (op_spec, name, severity, index, relations), key in zip(plans, keys, strict=True):
+            units = len(frame_ids) * (1 if op_spec is None else spec.trials)
+            total += units
+            task.subtasks.append(Subtask(operator_key=key, operator=op_spec or {}, name=name, op_index=index,
+                                         severity=severity, total=units,
+                                         results={"relation_specs": relations}))
+        task.total = total
+        s.flush()
+        return task.id
+
+
+def get_task(store: Store, task_id: int) -> Task:
+    with store.session() as s:
+        task = s.get(Task, task_id)
+        if task is None:
+            raise StoreError(f"no task {task_id} (lidarfuzz list)")
+        task.dataset, task.model, list(task.subtasks)  # noqa: B018 - load before the session closes
+        return task
+
+
+def list_tasks(store: Store, limit: int | None = None) -> list[Task]:
+    with store.session() as s:
+        query = select(Task).order_by(Task.id.desc())
+        if limit:
+            query = query.limit(limit)
+        tasks = list(s.scalars(query))
+        for task in tasks:
+            task.dataset, task.model  # noqa: B018
+        return tasks
+
+
+def cancel_task(store: Store, task_id: int) -> Status:
+    """Ask a task to stop: a running one stops at its next unit (what is done stays done)."""
+    with store.session() as s:
+        task = s.get(Task, task_id)
+        if task is None:
+            raise StoreError(f"no task {task_id} (lidarfuzz list)")
+        if task.status in (Status.DONE, Status.FAILED, Status.CANCELLED):
+            return task.status
+        task.status = Status.CANCELLED
+        return task.status
+
+
+def delete_task(store: Store, task_id: int) -> None:
+    with store.session() as s:
+        task = s.get(Task, task_id)
+        if task is None:
+            raise StoreError(f"no task {task_id}")
+        if task.status == Status.RUNNING:
+            raise StoreError(f"task {task_id} is running; cancel it first (lidarfuzz cancel {task_id})")
+        s.delete(task)

@@ -1,0 +1,251 @@
+"""One work unit: (subtask, frame, trial) → mutant, the system's output on it, the relations checked.
+
+A :class:`Worker` holds what every unit of a task needs — the data set, the system under test
+(loaded once), the relations — and turns a :class:`WorkUnit` into a :class:`UnitResult`. It
+never writes to the store: the runner, a single writer, commits results as they arrive, so
+any executor (inline, a process pool, later a cluster) can run workers.
+
+The SUT's outputs are cached by the system's fingerprint and an *input key*: the digest of
+the source frame's content (points, calibration, ROI, frame id, timestamp) for an original,
+and that digest with the operator's spec and concrete params for a mutant (params make a
+mutant exactly), so a unit whose input was seen before is not run again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
+from lidarfuzz.scene.scene import Scene
+
+
+@dataclass(frozen=True)
+class WorkContext:
+    """What every worker of a task needs (picklable)."""
+
+    dataset: str
+    sut_spec: str
+    sut_options: dict[str, Any]
+    fingerprint: str
+    store_url: str | None = None  # for cache look-ups; None: no cache
+    isolate: bool = False
+    timeout: float = 60.0
+    save_mutants: str | None = None  # a folder: each subtask's mutants as a KITTI data set
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    """One test: the originals when ``operator`` is None, else one mutant."""
+
+    subtask_id: int
+    frame_id: str
+    trial: int = 0
+    operator: dict[str, Any] | None = None
+    op_index: int = 0
+    seed: int = 0
+    subtask_name: str = "original"
+    relations: tuple[dict[str, Any], ...] = ()
+    source_boxes: bytes | None = None  # the system's output on the original, for the relations
+    source_labels: tuple[str, ...] = ()
+    source_failed: bool = False
+    params: dict[str, Any] | None = None  # exact params (a replay) instead of drawing them
+
+
+@dataclass
+class UnitResult:
+    unit: WorkUnit
+    params: dict[str, Any] = field(default_factory=dict)
+    boxes: bytes | None = None
+    labels: list[str] = field(default_factory=list)
+    gt_boxes: bytes | None = None
+    gt_labels: list[str] = field(default_factory=list)
+    failure: dict[str, str] | None = None
+    relations: list[dict[str, Any]] = field(default_factory=list)
+    seconds: float = 0.0  # the system's own time (0 when cached)
+    timings: dict[str, float] = field(default_factory=dict)  # load, mutate, detect, relations, save
+    cached: bool = False
+    input_key: str = ""
+
+    @property
+    def key(self) -> tuple[int, str, int]:
+        return self.unit.subtask_id, self.unit.frame_id, self.unit.trial
+
+
+def content_digest(scene: Scene) -> str:
+    """A digest of everything a system may read from a frame."""
+    h = hashlib.sha256()
+    data = np.ascontiguousarray(scene.points.data)
+    h.update(memoryview(data).cast("B"))
+    h.update(json.dumps(list(scene.points.channels)).encode())
+    if scene.calib is not None:
+        h.update(scene.calib.to_text().encode())
+    if scene.roi is not None:
+        h.update(json.dumps(scene.roi.to_geojson(), sort_keys=True).encode())
+    h.update(f"{scene.frame_id}|{scene.timestamp!r}".encode())
+    return h.hexdigest()
+
+
+def mutant_key(source_digest: str, operator: dict[str, Any], params: dict[str, Any]) -> str:
+    text = json.dumps({"source": source_digest, "operator": operator, "params": params}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+class Worker:
+    """Runs units of one task (see the module docstring)."""
+
+    def __init__(self, context: WorkContext) -> None:
+        from lidarfuzz.io.open import open_dataset
+
+        self.context = context
+        self.dataset = open_dataset(context.dataset)
+        self._digests: OrderedDict[str, str] = OrderedDict()
+        self._operators: dict[str, Any] = {}
+        self._relations: dict[str, Any] = {}
+        self._sut: Any = None
+        self._cache: Any = None
+        if context.store_url is not None:
+            from lidarfuzz.store.store import Store
+
+            self._cache = Store(context.store_url, migrate=False)
+
+    # -- lazily built parts -------------------------------------------------------------
+    @property
+    def sut(self) -> Any:
+        if self._sut is None:
+            if self.context.isolate:
+                from lidarfuzz.suts.guard import IsolatedSut
+
+                sut: Any = IsolatedSut(self.context.sut_spec, timeout=self.context.timeout,
+                                       options=self.context.sut_options)
+            else:
+                from lidarfuzz.suts.registry import create
+
+                sut = create(self.context.sut_spec, **self.context.sut_options)
+            sut.load()
+            self._sut = sut
+        return self._sut
+
+    def operator(self, spec: dict[str, Any]) -> Any:
+        key = json.dumps(spec, sort_keys=True)
+        if key not in self._operators:
+            from lidarfuzz.operators.registry import from_spec
+
+            self._operators[key] = from_spec(spec)
+        return self._operators[key]
+
+    def relation(self, spec: dict[str, Any]) -> Any:
+        key = json.dumps(spec, sort_keys=True)
+        if key not in self._relations:
+            from lidarfuzz.oracles.relations.registry import from_spec
+
+            self._relations[key] = from_spec(spec)
+        return self._relations[key]
+
+    def digest(self, scene: Scene) -> str:
+        found = self._digests.get(scene.frame_id)
+        if found is None:
+            found = content_digest(scene)
+            self._digests[scene.frame_id] = found
+            if len(self._digests) > 4096:
+                self._digests.popitem(last=False)
+        return found
+
+    def _cached(self, key: str) -> tuple[bytes, list[str]] | None:
+        if self._cache is None:
+            return None
+        from sqlalchemy import select
+
+        from lidarfuzz.store.models import SutOutput
+
+        with self._cache.session() as s:
+            row = s.execute(select(SutOutput.boxes, SutOutput.labels).where(
+                SutOutput.fingerprint == self.context.fingerprint, SutOutput.digest == key)).first()
+        return None if row is None else (row[0], list(row[1]))
+
+    # -- one unit ---------------------------------------------------------------------
+    def run(self, unit: WorkUnit) -> UnitResult:
+        from lidarfuzz.operators.base import generator
+        from lidarfuzz.suts.guard import run_guarded
+
+        timings: dict[str, float] = {}
+        result = UnitResult(unit)
+        t0 = time.perf_counter()
+        source = self.dataset.load(unit.frame_id)
+        timings["load"] = time.perf_counter() - t0
+        follow, operator, params = source, None, None
+        if unit.operator is not None:
+            t0 = time.perf_counter()
+            try:
+                operator = self.operator(unit.operator)
+                if unit.params is not None:
+                    params = operator.parse_params(unit.params)
+                    follow = operator.apply(source, params)
+                else:
+                    follow, params = operator(source, generator(unit.seed, unit.frame_id, unit.op_index, unit.trial))
+            except Exception as exc:  # an operator that fails on this frame is a finding, not a crash
+                result.failure = {"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
+                result.timings = timings
+                return result
+            result.params = params.model_dump(mode="json")
+            timings["mutate"] = time.perf_counter() - t0
+        gt_blob, gt_labels = encode_boxes(follow.boxes)
+        result.gt_boxes, result.gt_labels = gt_blob, gt_labels
+
+        t0 = time.perf_counter()
+        digest = self.digest(source)
+        key = digest if unit.operator is None else mutant_key(digest, unit.operator, result.params)
+        result.input_key = key
+        hit = self._cached(key)
+        timings["cache"] = time.perf_counter() - t0
+        output = None
+        if hit is not None:
+            result.boxes, result.labels = hit
+            result.cached = True
+            output = decode_boxes(*hit)
+        else:
+            t0 = time.perf_counter()
+            outcome = run_guarded(self.sut, follow)
+            timings["detect"] = time.perf_counter() - t0
+            result.seconds = outcome.seconds
+            if outcome.failure is not None:
+                result.failure = outcome.failure.to_dict()
+            else:
+                output = outcome.output
+                result.boxes, result.labels = encode_boxes(output)
+
+        if operator is not None and output is not None and unit.relations and not unit.source_failed:
+            from lidarfuzz.oracles.relations.base import Pair
+
+            t0 = time.perf_counter()
+            pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
+                        operator_relation=operator.relation, transform=operator.transform(params))
+            result.relations = [self.relation(spec)(pair).to_dict() for spec in unit.relations]
+            timings["relations"] = time.perf_counter() - t0
+        if self.context.save_mutants and operator is not None:
+            t0 = time.perf_counter()
+            self._save(unit, follow)
+            timings["save"] = time.perf_counter() - t0
+        result.timings = timings
+        return result
+
+    def _save(self, unit: WorkUnit, mutant: Scene) -> None:
+        from lidarfuzz.io.kitti import write_kitti_frame
+
+        root = Path(self.context.save_mutants or ".") / unit.subtask_name
+        frame_id = unit.frame_id if unit.trial == 0 else f"{unit.frame_id}_t{unit.trial}"
+        write_kitti_frame(root, mutant, frame_id, overwrite=True, durable=False, labelled_set=True)
+
+    def close(self) -> None:
+        if self._sut is not None:
+            self._sut.close()
+            self._sut = None
+        if self._cache is not None:
+            self._cache.close()
