@@ -187,6 +187,13 @@ def test_deeptest_tolerance_on_box_centres() -> None:
     assert DeepTestTolerance(**{"lambda": 10}).config.lambda_ == 10
 
 
+def test_deeptest_tolerance_when_the_follow_up_finds_nothing() -> None:
+    gt = boxes([(10, 0), (20, 0)])
+    src = boxes([(10.1, 0), (20.1, 0)], scores=[0.9, 0.9])
+    outcome = DeepTestTolerance()(pair(src, boxes([]), source=scene(gt), follow=scene(gt)))
+    assert outcome.applicable  # found a crash in a campaign: an empty follow-up output
+
+
 def test_deeptest_tolerance_on_scalar_outputs_and_the_epsilon_filter() -> None:
     src = scene().replace(metadata={"label": 0.1})
     out = DeepTestTolerance()(Pair(src, src, 0.12, 0.5, Relation.INVARIANT, reference={"mse_orig": 0.01}))

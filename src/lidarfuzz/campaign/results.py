@@ -64,7 +64,7 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any]) -> 
         gt = decode_boxes(gt_boxes, gt_labels)
         labelled = labelled or len(gt) > 0
         calib = calibration(frame_id)
-        detections = decode_boxes(boxes, labels) if failure is None else Boxes3D.empty()
+        detections = decode_boxes(boxes, labels) if boxes is not None else Boxes3D.empty()  # None: the SUT failed
         frame = KittiFrame(gt, in_view(detections, calib), calib) if calib is not None else KittiFrame(
             gt, detections)
         frames.append(frame)

@@ -227,7 +227,12 @@ class Worker:
             t0 = time.perf_counter()
             pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
                         operator_relation=operator.relation, transform=operator.transform(params))
-            result.relations = [self.relation(spec)(pair).to_dict() for spec in unit.relations]
+            for spec in unit.relations:
+                try:
+                    result.relations.append(self.relation(spec)(pair).to_dict())
+                except Exception as exc:  # a broken oracle is reported, and the campaign goes on
+                    result.failure = {"kind": "oracle_error", "detail": spec.get("name", ""),
+                                      "message": f"relation {spec.get('name')}: {type(exc).__name__}: {exc}"}
             timings["relations"] = time.perf_counter() - t0
         if self.context.save_mutants and operator is not None:
             t0 = time.perf_counter()

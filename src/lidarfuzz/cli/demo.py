@@ -1,40 +1,35 @@
 """``lidarfuzz demo``: the main job on the built-in default data.
 
-Until the operators and campaign engine land, the demo generates the simulator's
-world (a labelled log in KITTI layout, cached in the workspace and reused), inspects
-it, and carries its frames through every supported format and log type, reading
-each back and checking that nothing changed — the ground everything else stands on.
+It builds (or reuses) the simulator's world — independent labelled street scenes in KITTI
+layout, as KITTI's object benchmark has them — records it and the classic obstacle pipeline
+in the workspace's store, and runs a campaign: every operator family at severities 1, 3 and
+5, every relation that applies to each operator. It prints the thesis's AP table and the
+violation summary, writes the HTML report (with JSON, CSV and JUnit XML beside it) and says
+where. A second run reuses the world and, through the SUT output cache, every output.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import statistics
 import time
-import warnings
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
-
-from lidarfuzz.io import open_dataset, read_frame, write_frame
-from lidarfuzz.io.inspect import inspect_source
-from lidarfuzz.scene.scene import Scene
 
 DEFAULT_WORKSPACE = Path(os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace"))
-FRAME_SUFFIXES = (".bin", ".pcd", ".ply", ".las", ".laz", ".npy", ".npz")
-LOG_KINDS = (("ros1", "log.bag"), ("mcap", "log.mcap"), ("ros2", "log-ros2"))
+#: One operator per family, chosen to be quick and telling (lidarfuzz operators lists them all).
+DEMO_OPERATORS: tuple[str, ...] = ("gaussian_noise_addition", "uniform_point_deletion", "rotate_z",
+                                   "intensity_scaling", "fog", "beam_missing", "object_translate")
 
 
-def build_world(root: Path, frames: int, seed: int) -> tuple[Path, bool]:
-    """The simulator's world — a sequence of ``frames`` frames — under ``root``, generated on
-    first use and reused while complete; returns the folder and whether it was generated now."""
+def build_world(root: Path, frames: int, seed: int, *, sequence: bool = False) -> tuple[Path, bool]:
+    """The simulator's world — ``frames`` frames — under ``root``, generated on first use and
+    reused while complete; returns the folder and whether it was generated now."""
     from lidarfuzz.cli.app import console
     from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset, is_complete
 
-    config = GenerationConfig(frames=frames, seed=seed, sequence=True)
+    config = GenerationConfig(frames=frames, seed=seed, sequence=sequence)
     if is_complete(root, config):
         return root, False
     with console.status(f"generating the simulator's world ({frames} frames, seed {seed}) ..."):
@@ -42,82 +37,51 @@ def build_world(root: Path, frames: int, seed: int) -> tuple[Path, bool]:
     return root, True
 
 
-def _median_ms(fn: object, repeat: int = 5) -> float:
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()  # type: ignore[operator]
-        times.append((time.perf_counter() - start) * 1e3)
-    return statistics.median(times)
-
-
-def _same(a: Scene, b: Scene, channels_kept: int | None = None) -> bool:
-    if channels_kept is not None:
-        return bool((a.points.data[:, :channels_kept] == b.points.data[:, :channels_kept]).all())
-    return a.points == b.points
-
-
 def register(app: typer.Typer) -> None:
     @app.command()
     def demo(
-        workspace: Annotated[Path, typer.Option(help="Folder for the demo's data and outputs "
+        workspace: Annotated[Path, typer.Option(help="Folder for the demo's data, store and report "
                                                 "(env LIDARFUZZ_WORKSPACE).")] = DEFAULT_WORKSPACE,
-        frames: Annotated[int, typer.Option(min=2, max=1000, help="Frames in the simulated log.")] = 10,
-        seed: Annotated[int, typer.Option(help="Seed of the simulated world.")] = 0,
+        frames: Annotated[int, typer.Option(min=1, max=1000, help="Frames of the simulated world.")] = 40,
+        seed: Annotated[int, typer.Option(help="Seed of the world and of the campaign.")] = 0,
+        workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")] = None,
     ) -> None:
-        """Run the main job on the built-in data: simulate the world, inspect it, carry it through every format.
+        """Run the main job on the built-in data: the classic pipeline against every operator family.
 
-        Every frame format and log type is written, read back and compared with the original.
+        Simulates the world (first run only), runs originals and mutants (7 operators × severities
+        1, 3, 5) through the classic pipeline, checks every applicable metamorphic relation,
+        prints the AP table and the violation summary and writes the HTML report.
         """
+        from sqlalchemy import select
+
+        from lidarfuzz.campaign.spec import parse_campaign
+        from lidarfuzz.campaign.tasks import create_task
         from lidarfuzz.cli.app import console
-        from lidarfuzz.cli.info import render
+        from lidarfuzz.cli.campaign import execute
+        from lidarfuzz.store import Dataset, Model, Store
+        from lidarfuzz.store.catalog import add_dataset, add_model
 
         started = time.perf_counter()
-        dataset_dir, fresh = build_world(workspace / "datasets" / f"sim-world-s{seed}-n{frames}", frames, seed)
-        state = "generated now" if fresh else "cached from an earlier run"
-        console.rule(f"[bold]1. the simulator's world ({state}; KITTI layout, a log with timestamps and poses)")
-        report = inspect_source(dataset_dir)
-        render(report)
-
-        console.rule("[bold]2. every format: write, read back, compare")
-        out = workspace / "demo-formats"
-        if out.exists():
-            shutil.rmtree(out)
-        out.mkdir(parents=True)
-        source = open_dataset(dataset_dir)
-        first = source[0]
-        # Logs store time as integer nanoseconds: timestamps are compared to 1 ns.
-        table = Table("format", "file", "size", "read (ms)", "exact")
-        for suffix in FRAME_SUFFIXES:
-            path = out / f"{first.frame_id}{suffix}"
-            write_frame(path, first)
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")
-                back = read_frame(path)
-            ms = _median_ms(lambda p=path: read_frame(p))
-            exact = _same(first, back, 4 if suffix == ".bin" else None)
-            if suffix == ".npz":
-                exact = exact and back.boxes == first.boxes and back.calib == first.calib
-            table.add_row(suffix[1:], path.name, f"{path.stat().st_size / 1e6:.2f} MB", f"{ms:.2f}",
-                          "[green]yes[/]" if exact else "[red]NO[/]")
-        scenes = list(source)
-        for kind, name in LOG_KINDS:
-            from lidarfuzz.io.logs.bags import write_log
-
-            path = out / name
-            write_log(path, scenes, kind=kind)  # type: ignore[arg-type]
-            start = time.perf_counter()
-            back_scenes = list(open_dataset(path))
-            ms = (time.perf_counter() - start) * 1e3 / len(back_scenes)
-            exact = len(back_scenes) == len(scenes) and all(
-                _same(a, b) and abs((a.timestamp or 0.0) - (b.timestamp or 0.0)) <= 1e-9
-                for a, b in zip(scenes, back_scenes, strict=True)
-            )
-            size = sum(p.stat().st_size for p in path.rglob("*")) if path.is_dir() else path.stat().st_size
-            table.add_row(kind, f"{name} ({len(scenes)} frames)", f"{size / 1e6:.2f} MB", f"{ms:.2f}/frame",
-                          "[green]yes[/]" if exact else "[red]NO[/]")
-        console.print(table)
-        console.print(f"\nsimulated world: [bold]{dataset_dir}[/]\nconverted files: [bold]{out}[/]")
-        console.print("try: [cyan]lidarfuzz info " + str(out / "log.bag") + "[/]   "
-                      "[cyan]lidarfuzz convert " + str(dataset_dir) + " /tmp/sample.mcap[/]")
+        name = f"sim-world-s{seed}-n{frames}"
+        dataset_dir, fresh = build_world(workspace / "datasets" / name, frames, seed)
+        state = "generated now" if fresh else "reused from an earlier run"
+        console.rule(f"[bold]the simulator's world: {frames} labelled frames in KITTI layout ({state})")
+        store = Store(workspace)
+        with store.session() as s:
+            have_data = s.scalar(select(Dataset).where(Dataset.name == name)) is not None
+            have_model = s.scalar(select(Model).where(Model.name == "classic")) is not None
+        if not have_data:
+            add_dataset(store, name, dataset_dir, notes="the demo's simulated world")
+        if not have_model:
+            add_model(store, "classic", "classic", notes="the classic Apollo-style obstacle pipeline")
+        spec = parse_campaign({"name": "demo", "dataset": name, "sut": "classic", "seed": seed,
+                               "operators": [{"name": op, "severities": [1, 3, 5]} for op in DEMO_OPERATORS]})
+        task_id = create_task(store, spec)
+        console.rule(f"[bold]campaign: classic pipeline × {len(DEMO_OPERATORS)} operators × 3 severities")
+        code = execute(workspace, task_id, workers=workers, inline=False)
+        console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
+        console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
+                      f"[cyan]lidarfuzz replay FINDING --workspace {workspace}[/]   "
+                      f"[cyan]lidarfuzz run --help[/]")
         console.print(f"done in {time.perf_counter() - started:.1f} s")
+        raise typer.Exit(code)

@@ -285,6 +285,8 @@ def gt_correspondence(source_gt: Boxes3D, follow_gt: Boxes3D) -> NDArray[np.int6
 def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig) -> NDArray[np.int64]:
     """For each ground-truth box, the detection (score >= min_score) matched to it, or -1."""
     idx = _detected(dets, cfg.min_score)
+    if len(idx) == 0:  # nothing detected: every object unmatched
+        return np.full(len(gt), -1, dtype=np.int64)
     m = _match(dets.select(idx), gt, cfg)
     partner = m.partner_of_b(len(gt))
     return np.where(partner >= 0, idx[np.maximum(partner, 0)], -1)
