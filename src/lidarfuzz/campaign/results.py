@@ -20,7 +20,7 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from lidarfuzz.campaign.codec import decode_boxes
+from lidarfuzz.campaign.codec import decode_boxes, json_safe
 from lidarfuzz.campaign.tasks import ORIGINAL, get_task, subtask_label
 from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult, KittiFrame, evaluate_kitti
 from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
@@ -82,16 +82,6 @@ def ap_result(data: Mapping[str, Any] | None) -> KittiEvalResult | None:
     if not data:
         return None
     return KittiEvalResult(ap=data["ap"], overlaps=data["overlaps"], num_frames=data["num_frames"])
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
-        return None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    return value
 
 
 def _sum_rates(rows: Iterable[tuple[dict[str, Any], dict[str, Any]]], keys: Sequence[str]) -> list[dict[str, Any]]:
@@ -194,7 +184,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
             Finding.kind)).all())
         top = top_findings(s, task_id)
     timing = task.summary.get("run") if task.summary else None
-    return _clean({
+    return json_safe({
         "task": {"id": task.id, "name": task.name, "status": task.status.value,
                  "dataset": {"name": task.dataset.name, "path": task.dataset.path, "format": task.dataset.format},
                  "model": {"name": task.model.name, "spec": task.model.spec, "options": task.model.options,

@@ -26,6 +26,7 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
+from lidarfuzz.campaign.codec import json_safe
 from lidarfuzz.campaign.executor import Executor, ProcessExecutor
 from lidarfuzz.campaign.tasks import ORIGINAL, get_task, subtask_label
 from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
@@ -251,7 +252,7 @@ class _Run:
                 FrameResult.subtask_id == sub.id)))
             results = dict(row.results)
             results.update(evaluate_subtask(rows, self.calibration))
-            row.results = results
+            row.results = json_safe(results)
             row.status = Status.DONE
         self.stats.evaluate += time.perf_counter() - start
 
@@ -324,7 +325,7 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
         with store.session() as s:
             row = s.get(Task, task_id)
             assert row is not None
-            row.summary, row.status, row.finished_at = summary, Status.DONE, _now()
+            row.summary, row.status, row.finished_at = json_safe(summary), Status.DONE, _now()
     except Cancelled:
         status = Status.CANCELLED
         _set_status(store, task_id, Status.CANCELLED, "")

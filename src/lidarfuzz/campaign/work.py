@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
+from lidarfuzz.campaign.codec import decode_boxes, encode_boxes, json_safe
 from lidarfuzz.scene.scene import Scene
 
 
@@ -194,7 +194,7 @@ class Worker:
                 result.failure = {"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
                 result.timings = timings
                 return result
-            result.params = params.model_dump(mode="json")
+            result.params = json_safe(params.model_dump(mode="json"))
             timings["mutate"] = time.perf_counter() - t0
         gt_blob, gt_labels = encode_boxes(follow.boxes)
         result.gt_boxes, result.gt_labels = gt_blob, gt_labels
@@ -229,7 +229,7 @@ class Worker:
                         operator_relation=operator.relation, transform=operator.transform(params))
             for spec in unit.relations:
                 try:
-                    result.relations.append(self.relation(spec)(pair).to_dict())
+                    result.relations.append(json_safe(self.relation(spec)(pair).to_dict()))
                 except Exception as exc:  # a broken oracle is reported, and the campaign goes on
                     result.failure = {"kind": "oracle_error", "detail": spec.get("name", ""),
                                       "message": f"relation {spec.get('name')}: {type(exc).__name__}: {exc}"}

@@ -130,7 +130,7 @@ class FrameResult(Base):
     gt_boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the mutant's ground truth
     gt_labels: Mapped[list[Any]] = mapped_column(default=list)
     cached: Mapped[bool] = mapped_column(Boolean, default=False)  # the output came from sut_outputs
-    failure: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    failure: Mapped[dict[str, Any] | None] = mapped_column(JSON(none_as_null=True), nullable=True)  # SQL NULL: none
     relations: Mapped[list[Any]] = mapped_column(default=list)  # RelationOutcome.to_dict() each
     seconds: Mapped[float] = mapped_column(Float, default=0.0)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)

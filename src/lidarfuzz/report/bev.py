@@ -1,0 +1,302 @@
+"""Bird's-eye before/after pictures of a finding, rebuilt exactly from what the store recorded.
+
+The left panel is the original frame: its points, its ground truth and what the system
+detected on it; the right panel is the mutant — rebuilt from the operator's spec and the
+finding's concrete params, so no random number is drawn — with its ground truth and what
+the system detected on it. The objects the finding is about are drawn in red: a source
+detection or ground-truth object that the follow-up lost (thick, left) and where it was
+expected in the mutant (dashed, right; moved by the operator's transform when the operator
+has one), and follow-up detections nothing maps to (thick, right).
+
+x (forward) is drawn upwards and y (left) to the left, as a driver sees the road from above.
+
+Example:
+    >>> from lidarfuzz.store import Store
+    >>> png = finding_png(Store("workspace"), 6)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import select
+
+from lidarfuzz.campaign.codec import decode_boxes
+from lidarfuzz.campaign.tasks import ORIGINAL, subtask_label
+from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.report.charts import figure_png
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.geometry import box_corners, transform_boxes
+from lidarfuzz.scene.scene import Scene
+from lidarfuzz.store.models import Finding, FrameResult, Subtask
+from lidarfuzz.store.store import Store
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+X_RANGE: tuple[float, float] = (-10.0, 70.0)  # forward, metres
+Y_RANGE: tuple[float, float] = (-40.0, 40.0)  # left, metres
+MAX_POINTS = 30_000
+FAILURES = frozenset({"crash", "timeout", "invalid_output", "operator_error"})
+
+GT_COLOUR = "#1a9850"
+DETECTION_COLOUR = "#2b6cb0"
+HIGHLIGHT_COLOUR = "#d7191c"
+
+
+@dataclass(frozen=True)
+class FindingPair:
+    """Everything one finding's picture shows.
+
+    Attributes:
+        finding: id, kind, class, label, frame id, trial and message of the finding.
+        source: The original frame (its boxes are the ground truth).
+        mutant: The rebuilt mutant; None when the finding is about an original.
+        source_detections: The system's output on the original (empty when it failed there).
+        follow_detections: The system's output on the mutant; None when it failed.
+        lost_source: Indices of source detections the follow-up lost.
+        lost_gt: Indices of source ground-truth boxes the follow-up lost.
+        lost_gt_follow: The same objects' indices in the mutant's ground truth (-1: gone).
+        spurious: Indices of follow-up detections nothing maps to.
+        transform: The operator's 4×4 source → mutant map, when it has one.
+    """
+
+    finding: Mapping[str, Any]
+    source: Scene
+    mutant: Scene | None
+    source_detections: Boxes3D
+    follow_detections: Boxes3D | None
+    lost_source: tuple[int, ...] = ()
+    lost_gt: tuple[int, ...] = ()
+    lost_gt_follow: tuple[int, ...] = ()
+    spurious: tuple[int, ...] = ()
+    transform: NDArray[np.float64] | None = None
+
+
+def _indices(violations: Iterable[Mapping[str, Any]], key: str, size: int, object_level: bool = False) -> tuple[
+        int, ...]:
+    found = set()
+    for violation in violations:
+        index = violation.get(key)
+        # a frame-level violation (DeepTest's regression) indexes its own rows, not boxes
+        if object_level and not violation.get("cls"):
+            continue
+        if isinstance(index, int) and 0 <= index < size:
+            found.add(index)
+    return tuple(sorted(found))
+
+
+def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None = None) -> FindingPair:
+    """Rebuild finding ``finding_id``'s frames and outputs.
+
+    Args:
+        store: The campaign store.
+        finding_id: The finding.
+        datasets: Opened data sets by path, reused across calls (filled in here).
+
+    Raises:
+        LidarfuzzError: When the finding does not exist, or its frame cannot be loaded or
+            mutated again (e.g. the data set was moved).
+    """
+    from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.operators.registry import from_spec
+
+    with store.session() as s:
+        finding = s.get(Finding, finding_id)
+        if finding is None:
+            raise LidarfuzzError(f"no finding {finding_id} in the store")
+        row = s.get(FrameResult, finding.frame_result_id)
+        sub = s.get(Subtask, row.subtask_id) if row is not None else None
+        if row is None or sub is None:
+            raise LidarfuzzError(f"finding {finding_id}: its frame result is gone from the store")
+        original = s.scalar(select(FrameResult).join(Subtask).where(
+            Subtask.task_id == finding.task_id, Subtask.name == ORIGINAL, FrameResult.frame_id == row.frame_id,
+            FrameResult.trial == 0))
+        replay = dict(finding.replay)
+        info = {"id": finding.id, "kind": finding.kind, "class": finding.cls, "message": finding.message,
+                "label": subtask_label(sub.name, sub.severity), "frame_id": row.frame_id, "trial": row.trial}
+        violations = list(finding.detail.get("violations", []))
+        on_original = sub.name == ORIGINAL
+        follow_failed = row.failure is not None
+        follow_detections = None if follow_failed else decode_boxes(row.boxes, row.labels)
+        source_detections = Boxes3D.empty()
+        if original is not None and original.failure is None:
+            source_detections = decode_boxes(original.boxes, original.labels)
+
+    path = str(replay.get("dataset", ""))
+    datasets = {} if datasets is None else datasets
+    try:
+        if path not in datasets:
+            datasets[path] = open_dataset(path)
+        source = datasets[path].load(row.frame_id)
+    except Exception as exc:
+        raise LidarfuzzError(f"frame {row.frame_id} of {path or 'an unknown data set'} cannot be loaded "
+                             f"({type(exc).__name__}: {exc}); was the data set moved?") from exc
+    mutant, transform = None, None
+    if not on_original and replay.get("operator") is not None:
+        try:
+            op = from_spec(replay["operator"])
+            params = op.parse_params(replay.get("params") or {})
+            mutant = op.apply(source, params)
+            transform = op.transform(params)
+        except Exception as exc:
+            raise LidarfuzzError(f"the mutant of frame {row.frame_id} cannot be rebuilt "
+                                 f"({type(exc).__name__}: {exc})") from exc
+
+    lost_gt = _indices(violations, "gt_index", len(source.boxes), object_level=True)
+    lost_gt_follow: tuple[int, ...] = ()
+    if lost_gt and mutant is not None:
+        from lidarfuzz.oracles.relations.detection import gt_correspondence
+
+        corr = gt_correspondence(source.boxes, mutant.boxes)
+        lost_gt_follow = tuple(int(corr[g]) if corr is not None else -1 for g in lost_gt)
+    size = len(follow_detections) if follow_detections is not None else 0
+    return FindingPair(info, source, mutant, source_detections, follow_detections,
+                       lost_source=_indices(violations, "source_index", len(source_detections)),
+                       lost_gt=lost_gt, lost_gt_follow=lost_gt_follow,
+                       spurious=_indices(violations, "follow_index", size), transform=transform)
+
+
+# -- drawing ------------------------------------------------------------------------------
+def _ids(indices: Sequence[int]) -> NDArray[np.int64]:
+    return np.asarray(indices, dtype=np.int64)
+
+
+def _outlines(boxes: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Closed bird's-eye footprints with a heading tick, in plot coordinates (-y, x)."""
+    if len(boxes) == 0:
+        return []
+    corners = box_corners(boxes)[:, :4, :2]
+    lines = []
+    for footprint, centre in zip(corners, boxes[:, :2], strict=True):
+        front = (footprint[0] + footprint[1]) / 2
+        ring = np.vstack([footprint, footprint[:1], front[None], centre[None]])
+        lines.append(np.column_stack([-ring[:, 1], ring[:, 0]]))
+    return lines
+
+
+def _draw_boxes(ax: Any, boxes: Boxes3D | NDArray[np.float64], colour: str, width: float,
+                style: str = "solid") -> None:
+    from matplotlib.collections import LineCollection
+
+    array = boxes.as_array() if isinstance(boxes, Boxes3D) else np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
+    array = array[np.all(np.isfinite(array), axis=1)]
+    lines = _outlines(array)
+    if lines:
+        ax.add_collection(LineCollection(lines, colors=colour, linewidths=width, linestyles=style))
+
+
+def _draw_points(ax: Any, scene: Scene, max_points: int, seed: int) -> None:
+    xyz = np.asarray(scene.points.xyz, dtype=np.float64)
+    inside = ((xyz[:, 0] >= X_RANGE[0]) & (xyz[:, 0] <= X_RANGE[1]) & (xyz[:, 1] >= Y_RANGE[0])
+              & (xyz[:, 1] <= Y_RANGE[1]))
+    xyz = xyz[inside]
+    if len(xyz) > max_points:
+        # a fixed generator: the same finding always gives the same picture
+        xyz = xyz[np.random.default_rng(seed).choice(len(xyz), max_points, replace=False)]
+    if len(xyz):
+        # darker with height, so objects stand out from the road
+        z = np.clip(xyz[:, 2], -2.5, 1.5)
+        ax.scatter(-xyz[:, 1], xyz[:, 0], c=z, s=0.5, cmap="Greys", vmin=-3.2, vmax=1.5, linewidths=0,
+                   rasterized=True)
+
+
+def _frame_axes(ax: Any, title: str) -> None:
+    ax.set_xlim(-Y_RANGE[1], -Y_RANGE[0])
+    ax.set_ylim(*X_RANGE)
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("y (m, left ←)", fontsize=7)
+    ax.set_ylabel("x (m, forward)", fontsize=7)
+    ax.set_xticks([-40, -20, 0, 20, 40], ["40", "20", "0", "-20", "-40"])
+    ax.tick_params(labelsize=7)
+    ax.plot([0], [0], marker="^", color="black", markersize=5)
+
+
+def _note(ax: Any, text: str) -> None:
+    ax.text(0.5, 0.97, text, transform=ax.transAxes, ha="center", va="top", fontsize=8, color=HIGHLIGHT_COLOUR,
+            bbox={"facecolor": "white", "edgecolor": HIGHLIGHT_COLOUR, "boxstyle": "round,pad=0.3"})
+
+
+def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
+    """The before/after figure of ``pair`` (a matplotlib figure, no pyplot state)."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    fig = Figure(figsize=(9.0, 4.9), dpi=90, layout="constrained")
+    left, right = fig.subplots(1, 2)
+    seed = int(pair.finding.get("id", 0))
+    source, mutant = pair.source, pair.mutant
+
+    _draw_points(left, source, max_points, seed)
+    _draw_boxes(left, source.boxes, GT_COLOUR, 0.8)
+    _draw_boxes(left, pair.source_detections, DETECTION_COLOUR, 1.0)
+    _draw_boxes(left, source.boxes.select(_ids(pair.lost_gt)), HIGHLIGHT_COLOUR, 2.4)
+    _draw_boxes(left, pair.source_detections.select(_ids(pair.lost_source)), HIGHLIGHT_COLOUR, 2.4)
+    _frame_axes(left, f"original {pair.finding.get('frame_id', '')}: "
+                      f"{len(source.boxes)} objects, {len(pair.source_detections)} detections")
+    if pair.finding.get("label") == ORIGINAL and pair.finding.get("kind") in FAILURES:
+        _note(left, f"the system failed here ({pair.finding.get('kind')})")
+
+    shown = mutant if mutant is not None else source
+    _draw_points(right, shown, max_points, seed + 1)
+    _draw_boxes(right, shown.boxes, GT_COLOUR, 0.8)
+    follow = pair.follow_detections
+    if follow is not None:
+        _draw_boxes(right, follow, DETECTION_COLOUR, 1.0)
+        _draw_boxes(right, follow.select(_ids(pair.spurious)), HIGHLIGHT_COLOUR, 2.4)
+    expected = []
+    if pair.lost_source:
+        boxes = pair.source_detections.select(_ids(pair.lost_source)).as_array()
+        expected.append(boxes if pair.transform is None else transform_boxes(boxes, pair.transform))
+    if pair.lost_gt:
+        gone = [g for g, f in zip(pair.lost_gt, pair.lost_gt_follow, strict=True) if f < 0]
+        kept = [f for f in pair.lost_gt_follow if f >= 0]
+        if kept:
+            expected.append(shown.boxes.select(_ids(kept)).as_array())
+        if gone:
+            boxes = source.boxes.select(_ids(gone)).as_array()
+            expected.append(boxes if pair.transform is None else transform_boxes(boxes, pair.transform))
+    for boxes in expected:
+        _draw_boxes(right, boxes, HIGHLIGHT_COLOUR, 1.8, style="dashed")
+    count = "no output" if follow is None else f"{len(follow)} detections"
+    _frame_axes(right, f"{pair.finding.get('label', 'mutant')}: {len(shown.boxes)} objects, {count}")
+    if follow is None:
+        _note(right, f"the system failed here ({pair.finding.get('kind')}): no detections")
+
+    handles = [Line2D([], [], color=GT_COLOUR, lw=1.2, label="ground truth"),
+               Line2D([], [], color=DETECTION_COLOUR, lw=1.2, label="detection"),
+               Line2D([], [], color=HIGHLIGHT_COLOUR, lw=2.4, label="lost / unexplained"),
+               Line2D([], [], color=HIGHLIGHT_COLOUR, lw=1.8, ls="dashed", label="where it was expected")]
+    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
+    return fig
+
+
+def finding_png(store: Store, finding_id: int, *, max_points: int = MAX_POINTS,
+                datasets: dict[str, Any] | None = None) -> bytes:
+    """The before/after picture of finding ``finding_id`` as PNG bytes.
+
+    Raises:
+        LidarfuzzError: When the frame cannot be rebuilt (see :func:`load_pair`).
+    """
+    return figure_png(draw_pair(load_pair(store, finding_id, datasets=datasets), max_points=max_points))
+
+
+def finding_images(store: Store, finding_ids: Sequence[int], *, limit: int = 12,
+                   max_points: int = MAX_POINTS) -> dict[int, bytes | str]:
+    """Pictures of the first ``limit`` findings: PNG bytes, or a note saying why there is none."""
+    datasets: dict[str, Any] = {}
+    images: dict[int, bytes | str] = {}
+    for finding_id in list(finding_ids)[: max(0, limit)]:
+        try:
+            images[finding_id] = finding_png(store, finding_id, max_points=max_points, datasets=datasets)
+        except LidarfuzzError as exc:
+            images[finding_id] = f"No picture: {exc}"
+    return images
+
+
+__all__ = ["FindingPair", "draw_pair", "finding_images", "finding_png", "load_pair"]

@@ -1,0 +1,44 @@
+"""Systems under test for the engine's tests: the classic pipeline slowed down (to interrupt a
+run mid-way), and one that kills its own process on one frame (a segfault, as far as the pool
+can tell). Named by spec, e.g. ``tests.campaign.systems:SlowClassic``."""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.scene import Scene
+from lidarfuzz.suts.classic import ClassicPipeline
+
+
+class SlowClassic(ClassicPipeline):
+    name = "slow-classic"
+
+    def __init__(self, delay: float = 0.05, **fields: Any) -> None:
+        super().__init__(**fields)
+        self.delay = delay
+
+    def config(self) -> dict[str, Any]:
+        return {**super().config(), "delay": self.delay}
+
+    def detect(self, sample: Scene) -> Boxes3D:
+        time.sleep(self.delay)
+        return super().detect(sample)
+
+
+class DiesOnFrame(ClassicPipeline):
+    name = "dies-on-frame"
+
+    def __init__(self, frame: str = "000001", **fields: Any) -> None:
+        super().__init__(**fields)
+        self.frame = frame
+
+    def config(self) -> dict[str, Any]:
+        return {**super().config(), "frame": self.frame}
+
+    def detect(self, sample: Scene) -> Boxes3D:
+        if sample.frame_id == self.frame:
+            os._exit(139)  # kills the process, as a segfault would
+        return super().detect(sample)

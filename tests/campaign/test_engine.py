@@ -1,0 +1,185 @@
+"""The campaign engine: plan, run, commit, cache, cancel, resume, crash isolation."""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+
+from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
+from lidarfuzz.campaign.executor import InlineExecutor, ProcessExecutor
+from lidarfuzz.campaign.replay import replay_finding
+from lidarfuzz.campaign.results import summarise
+from lidarfuzz.campaign.runner import ProgressEvent, run_task
+from lidarfuzz.campaign.spec import parse_campaign
+from lidarfuzz.campaign.tasks import cancel_task, create_task, get_task
+from lidarfuzz.store import Finding, FrameResult, Status, Store, Subtask, Task
+
+OPERATORS = [{"name": "gaussian_noise_addition", "severities": [2, 5]}, {"name": "rotate_z", "severities": [3]}]
+
+
+def campaign(data: Path, sut: str = "classic", **extra: object):
+    return parse_campaign({"dataset": str(data), "sut": sut, "operators": OPERATORS, **extra})
+
+
+def digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for path in sorted(folder.rglob("*")):
+        if path.is_file():
+            h.update(path.name.encode() + path.read_bytes())
+    return h.hexdigest()
+
+
+def outputs(store: Store, task_id: int) -> dict[tuple[str, int, str, int], bytes | None]:
+    with store.session() as s:
+        rows = s.execute(select(Subtask.name, Subtask.severity, FrameResult.frame_id, FrameResult.trial,
+                                FrameResult.boxes).join(Subtask).where(Subtask.task_id == task_id))
+        return {(a, b, c, d): e for a, b, c, d, e in rows}
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request: pytest.FixtureRequest, tmp_path: Path):
+    target = tmp_path / "ws" if request.param == "sqlite" else request.getfixturevalue("fresh_postgres_url")
+    opened = Store(target)
+    yield opened
+    opened.close()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory, world: Path):
+    """One uninterrupted inline run: what every other way of running must reproduce."""
+    store = Store(tmp_path_factory.mktemp("reference"))
+    task_id = create_task(store, campaign(world))
+    run_task(store, task_id, executor=InlineExecutor())
+    return store, task_id
+
+
+def test_codec_round_trip(sample_scenes) -> None:
+    boxes = sample_scenes[0].boxes
+    back = decode_boxes(*encode_boxes(boxes))
+    assert back.allclose(boxes, atol=1e-4) and list(back.labels) == list(boxes.labels)
+    assert len(decode_boxes(None, [])) == 0
+
+
+def test_a_task_is_planned_and_run_to_the_end(store: Store, world: Path) -> None:
+    before = digest(world)
+    task_id = create_task(store, campaign(world))
+    task = get_task(store, task_id)
+    assert [(s.name, s.severity) for s in task.subtasks] == [
+        ("original", 0), ("gaussian_noise_addition", 2), ("gaussian_noise_addition", 5), ("rotate_z", 3)]
+    assert task.total == 4 * 3
+    events: list[ProgressEvent] = []
+    outcome = run_task(store, task_id, executor=InlineExecutor(), progress=events.append)
+    assert outcome.status == Status.DONE and outcome.stats.units == 12
+    assert [e.task_done for e in events] == list(range(1, 13))
+    task = get_task(store, task_id)
+    assert task.status == Status.DONE and task.done == task.total and task.finished_at is not None
+    assert all(s.status == Status.DONE and s.done == s.total and s.results["ap"] for s in task.subtasks)
+    with store.session() as s:
+        assert s.scalar(select(func.count()).select_from(FrameResult)) == 12
+        # rotate_z is equivariant: its subtask checked equivariance on every frame
+        rotated = next(r for r in s.scalars(select(FrameResult).join(Subtask).where(Subtask.name == "rotate_z")))
+        assert {o["relation"] for o in rotated.relations} >= {"equivariance"}
+        assert rotated.params and rotated.gt_boxes  # concrete params and the moved ground truth
+    summary = summarise(store, task_id)
+    assert summary["subtasks"][0]["label"] == "original" and summary["delta_ap"]
+    assert {r["relation"] for r in summary["violations"]["relation"]} >= {"equivariance", "preservation"}
+    assert digest(world) == before  # the original data set is never modified
+
+
+def test_results_do_not_depend_on_the_executor(reference, tmp_path: Path, world: Path) -> None:
+    ref_store, ref_id = reference
+    store = Store(tmp_path / "pool")
+    task_id = create_task(store, campaign(world))
+    run_task(store, task_id, executor=ProcessExecutor(2))
+    assert outputs(store, task_id) == outputs(ref_store, ref_id)
+
+
+def test_unchanged_inputs_come_from_the_cache(tmp_path: Path, world: Path) -> None:
+    store = Store(tmp_path / "ws")
+    first = create_task(store, campaign(world))
+    assert run_task(store, first, executor=InlineExecutor()).stats.cached == 0
+    second = create_task(store, campaign(world))
+    outcome = run_task(store, second, executor=InlineExecutor())
+    assert outcome.stats.cached == outcome.stats.units == 12 and outcome.stats.sut == 0
+    assert outputs(store, second) == outputs(store, first)
+    # another seed: originals cached, mutants new
+    third = create_task(store, campaign(world, seed=1))
+    assert run_task(store, third, executor=InlineExecutor()).stats.cached == 3
+
+
+def test_a_stopped_task_resumes_with_nothing_lost_or_counted_twice(store: Store, reference, world: Path) -> None:
+    task_id = create_task(store, campaign(world))
+    stop = threading.Event()
+
+    def halt_after_five(event: ProgressEvent) -> None:
+        if event.task_done == 5:
+            stop.set()
+
+    first = run_task(store, task_id, executor=InlineExecutor(), progress=halt_after_five, stop=stop)
+    assert first.status == Status.CANCELLED and get_task(store, task_id).done == 5
+    second = run_task(store, task_id, executor=InlineExecutor())
+    assert second.status == Status.DONE and second.stats.units == 7
+    task = get_task(store, task_id)
+    assert task.done == task.total == 12 and sum(s.done for s in task.subtasks) == 12
+    ref_store, ref_id = reference
+    assert outputs(store, task_id) == outputs(ref_store, ref_id)
+
+
+def test_cancel_from_outside_stops_a_running_task(tmp_path: Path, world: Path) -> None:
+    store = Store(tmp_path / "ws")
+    task_id = create_task(store, campaign(world, sut="tests.campaign.systems:SlowClassic"))
+
+    def cancel_when_started(event: ProgressEvent) -> None:
+        if event.task_done == 2:
+            cancel_task(store, task_id)  # what lidarfuzz cancel does from another process
+
+    outcome = run_task(store, task_id, executor=InlineExecutor(), progress=cancel_when_started)
+    assert outcome.status == Status.CANCELLED
+    assert 2 <= get_task(store, task_id).done < 12
+
+
+def test_a_system_that_kills_its_process_is_a_crash_of_that_frame_only(tmp_path: Path, world: Path) -> None:
+    store = Store(tmp_path / "ws")
+    task_id = create_task(store, campaign(world, sut="tests.campaign.systems:DiesOnFrame"))
+    outcome = run_task(store, task_id, executor=ProcessExecutor(2))
+    assert outcome.status == Status.DONE
+    with store.session() as s:
+        crashed = s.execute(select(FrameResult.frame_id).where(FrameResult.failure.is_not(None))).scalars().all()
+        kinds = s.scalars(select(Finding.kind)).all()
+    assert set(crashed) == {"000001"} and len(crashed) == 4  # the original and its three mutants
+    assert kinds.count("crash") == 4
+
+
+def test_a_finding_replays_exactly(reference) -> None:
+    store, task_id = reference
+    with store.session() as s:
+        finding = s.scalar(select(Finding).where(Finding.task_id == task_id, Finding.kind != "crash").order_by(
+            Finding.id))
+    assert finding is not None, "the reference campaign should find something"
+    replay = replay_finding(store, finding.id)
+    assert replay.same_system and replay.reproduced
+    assert replay.follow_now is not None and replay.follow_now.allclose(replay.follow_recorded, atol=1e-3)
+
+
+def test_a_bad_campaign_names_the_key(world: Path) -> None:
+    from lidarfuzz.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match=r"operators\.0\.severities"):
+        parse_campaign({"dataset": str(world), "sut": "classic", "operators": [{"name": "fog", "severities": [9]}]})
+
+
+def test_deleting_a_task_leaves_the_catalogue(tmp_path: Path, world: Path) -> None:
+    from lidarfuzz.campaign.tasks import delete_task
+
+    store = Store(tmp_path / "ws")
+    task_id = create_task(store, campaign(world))
+    run_task(store, task_id, executor=InlineExecutor())
+    delete_task(store, task_id)
+    with store.session() as s:
+        assert s.scalar(select(func.count()).select_from(Task)) == 0
+        assert s.scalar(select(func.count()).select_from(FrameResult)) == 0
+        assert s.scalar(select(func.count()).select_from(Finding)) == 0
