@@ -8,10 +8,9 @@ can see, and a frame's 30 boxes take under 2 kB.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
-
-import math
 
 import numpy as np
 

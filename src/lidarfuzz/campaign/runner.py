@@ -71,7 +71,7 @@ class RunOutcome:
     stats: RunStats
 
 
-class Cancelled(Exception):
+class CancelledError(Exception):
     """The task was cancelled while running."""
 
 
@@ -214,7 +214,7 @@ class _Run:
 
     def _check(self) -> None:
         if self.stop is not None and self.stop.is_set():
-            raise Cancelled
+            raise CancelledError
         now = time.monotonic()
         if now - self._last_check < CHECK_EVERY:
             return
@@ -222,7 +222,7 @@ class _Run:
         with self.store.session() as s:
             status = s.scalar(select(Task.status).where(Task.id == self.task.id))
             if status == Status.CANCELLED:
-                raise Cancelled
+                raise CancelledError
             s.execute(update(Task).where(Task.id == self.task.id).values(heartbeat_at=_now()))
 
     def consume(self, results: Iterator[UnitResult]) -> None:
@@ -326,7 +326,7 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
             row = s.get(Task, task_id)
             assert row is not None
             row.summary, row.status, row.finished_at = json_safe(summary), Status.DONE, _now()
-    except Cancelled:
+    except CancelledError:
         status = Status.CANCELLED
         _set_status(store, task_id, Status.CANCELLED, "")
     except KeyboardInterrupt:
@@ -354,4 +354,4 @@ def _set_status(store: Store, task_id: int, status: Status, error: str) -> None:
                 sub.status = Status.PENDING if status != Status.FAILED else sub.status
 
 
-__all__ = ["Cancelled", "ProgressEvent", "RunOutcome", "RunStats", "recount", "run_task"]
+__all__ = ["CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "recount", "run_task"]

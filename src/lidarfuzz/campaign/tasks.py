@@ -147,7 +147,7 @@ def get_task(store: Store, task_id: int) -> Task:
         task = s.get(Task, task_id)
         if task is None:
             raise StoreError(f"no task {task_id} (lidarfuzz list)")
-        task.dataset, task.model, list(task.subtasks)  # noqa: B018 - load before the session closes
+        task.dataset, task.model, list(task.subtasks)
         return task
 
 

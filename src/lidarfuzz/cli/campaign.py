@@ -52,7 +52,13 @@ def _age(moment: datetime | None) -> float | None:
     return (datetime.now(UTC) - moment).total_seconds()
 
 
-def execute(workspace: Path | str, task_id: int, *, workers: int | None, inline: bool, show_progress: bool = True,
+def reports_dir(workspace: str, task_id: int) -> Path:
+    """Where a task's report goes: under the workspace folder, or ./lidarfuzz-reports for a database URL."""
+    base = Path("lidarfuzz-reports") if "://" in workspace else Path(workspace) / "reports"
+    return base / f"task-{task_id}"
+
+
+def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, show_progress: bool = True,
             report: bool = True, gates: list[str] | None = None) -> int:
     """Run a task with progress bars, print its tables and write its report; returns an exit code."""
     from lidarfuzz.campaign.executor import make_executor
@@ -91,7 +97,7 @@ def execute(workspace: Path | str, task_id: int, *, workers: int | None, inline:
     print_summary(store, task_id)
     code = 0
     if report:
-        code = write_report(store, task_id, Path(str(workspace)) / "reports" / f"task-{task_id}", gates or [])
+        code = write_report(store, task_id, reports_dir(workspace, task_id), gates or [])
     return code
 
 
@@ -320,7 +326,7 @@ def register(app: typer.Typer) -> None:
         store = _store(workspace)
         if not quiet:
             print_summary(store, task)
-        target = out or Path(str(workspace)) / "reports" / f"task-{task}"
+        target = out or reports_dir(workspace, task)
         raise typer.Exit(write_report(store, task, target, gate or [], baseline))
 
     @app.command()

@@ -10,8 +10,9 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-WORKSPACE = Path(os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace"))
-WorkspaceOption = Annotated[Path, typer.Option(help="Workspace folder (its SQLite store) or a database URL "
+WORKSPACE = os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace")
+# A str, not a Path: a Path would fold the "//" of a database URL.
+WorkspaceOption = Annotated[str, typer.Option(help="Workspace folder (its SQLite store) or a database URL "
                                                     "(postgresql+psycopg://…); $LIDARFUZZ_WORKSPACE.")]
 
 

@@ -78,7 +78,7 @@ def register(app: typer.Typer) -> None:
                                "operators": [{"name": op, "severities": [1, 3, 5]} for op in DEMO_OPERATORS]})
         task_id = create_task(store, spec)
         console.rule(f"[bold]campaign: classic pipeline × {len(DEMO_OPERATORS)} operators × 3 severities")
-        code = execute(workspace, task_id, workers=workers, inline=False)
+        code = execute(str(workspace), task_id, workers=workers, inline=False)
         console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
         console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
                       f"[cyan]lidarfuzz replay FINDING --workspace {workspace}[/]   "

@@ -134,7 +134,8 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
             return
         ctx = multiprocessing.get_context("spawn")
         parent, child = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(self.spec, child, self.options), daemon=True, name=f"sut:{self.spec}")
+        process = ctx.Process(target=_serve, args=(self.spec, child, self.options), daemon=True,
+                              name=f"sut:{self.spec}")
         process.start()
         child.close()
         if not parent.poll(self.start_timeout):
