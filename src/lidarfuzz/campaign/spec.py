@@ -12,7 +12,8 @@ Example (``campaign.yaml``)::
         severities: [1, 3, 5]
       - name: rotate_z          # the thesis's names work too (RAR)
         config: {angle_range: [10, 20]}
-    relations: auto             # every relation that applies to each operator
+    relations: auto             # every relation that applies to each operator, or a list:
+                                #   [preservation, {name: invariance, config: {min_iou: 0.3}}]
     seed: 0
     frames: 50                  # the first 50 frames (all when left out)
 """
@@ -69,6 +70,24 @@ class OperatorChoice(_Model):
         return self
 
 
+class RelationChoice(_Model):
+    """A relation with a configuration (``lidarfuzz relations NAME`` lists its fields)."""
+
+    name: str
+    config: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _builds(self) -> RelationChoice:
+        from lidarfuzz.oracles.relations import get
+
+        try:
+            cls = get(self.name)
+        except KeyError as exc:
+            raise ValueError(str(exc)) from None
+        cls(**self.config)  # a bad field raises here, named by pydantic
+        return self.model_copy(update={"name": cls.name}) if cls.name != self.name else self
+
+
 class CampaignSpec(_Model):
     """What to run."""
 
@@ -76,20 +95,21 @@ class CampaignSpec(_Model):
     dataset: str = Field(description="registered data set name, or a path to data")
     sut: str = Field(description="registered model name, or a SUT spec (lidarfuzz suts)")
     operators: list[OperatorChoice] = Field(min_length=1)
-    relations: Literal["auto"] | list[str] = Field(default="auto", description="relation names, or auto")
+    relations: Literal["auto"] | list[str | RelationChoice] = Field(
+        default="auto", description="auto, or relation names and {name, config} entries")
     seed: int = 0
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only the first N frames")
 
     @field_validator("relations")
     @classmethod
-    def _relations(cls, value: Literal["auto"] | list[str]) -> Literal["auto"] | list[str]:
+    def _relations(cls, value: Literal["auto"] | list[str | RelationChoice]) -> Any:
         if value == "auto":
             return value
         from lidarfuzz.oracles.relations import get
 
         try:
-            return [get(name).name for name in value]
+            return [get(item).name if isinstance(item, str) else item for item in value]
         except KeyError as exc:
             raise ValueError(str(exc)) from None
 

@@ -35,14 +35,14 @@ def subtask_label(name: str, severity: int) -> str:
     return f"{name}@{severity}" if severity else f"{name} (config)"
 
 
-def relations_for(operator: Any, choice: str | list[str]) -> list[dict[str, Any]]:
+def relations_for(operator: Any, choice: Any) -> list[dict[str, Any]]:
     """Relation specs to check for ``operator``: every applicable one for ``auto``, else the
-    chosen ones that apply to the operator's relation kind."""
-    from lidarfuzz.oracles.relations.registry import for_operator, get
+    chosen ones (names or ``{name, config}``) that apply to the operator's relation kind."""
+    from lidarfuzz.oracles.relations.registry import for_operator, from_spec
 
     if choice == "auto":
         return [r.spec() for r in for_operator(operator.relation)]
-    chosen = [get(name)() for name in choice]
+    chosen = [from_spec(item if isinstance(item, str) else item.model_dump()) for item in choice]
     return [r.spec() for r in chosen if operator.relation in r.applies_to]
 
 
@@ -124,11 +124,13 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         keys = [operator_key(p[0]) for p in plans]
         if len(set(keys)) != len(keys):
             raise StoreError("the campaign lists the same operator configuration twice")
+        relations_json = spec.relations if spec.relations == "auto" else [
+            r if isinstance(r, str) else r.model_dump() for r in spec.relations]
         options = {"frame_ids": frame_ids, "trials": spec.trials, "isolate": isolate, "timeout": timeout,
-                   "save_mutants": save_mutants, "relations": spec.relations}
+                   "save_mutants": save_mutants, "relations": relations_json}
         task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,
                     operators=[c.model_dump(mode="json") for c in spec.operators],
-                    relations=spec.relations if isinstance(spec.relations, list) else ["auto"])
+                    relations=relations_json if isinstance(relations_json, list) else ["auto"])
         s.add(task)
         total = 0
         for (op_spec, name, severity, index, relations), key in zip(plans, keys, strict=True):
