@@ -190,10 +190,24 @@ def _draw_boxes(ax: Any, boxes: Boxes3D | NDArray[np.float64], colour: str, widt
         ax.add_collection(LineCollection(lines, colors=colour, linewidths=width, linestyles=style))
 
 
-def _draw_points(ax: Any, scene: Scene, max_points: int, seed: int) -> None:
+Limits = tuple[tuple[float, float], tuple[float, float]]
+
+
+def _limits(boxes: Sequence[NDArray[np.float64]], margin: float = 6.0) -> Limits:
+    """The default crop, grown to show every box the finding is about (e.g. one behind the car)."""
+    (x0, x1), (y0, y1) = X_RANGE, Y_RANGE
+    for array in boxes:
+        centres = array[np.all(np.isfinite(array), axis=1), :2]
+        if len(centres):
+            x0, x1 = min(x0, centres[:, 0].min() - margin), max(x1, centres[:, 0].max() + margin)
+            y0, y1 = min(y0, centres[:, 1].min() - margin), max(y1, centres[:, 1].max() + margin)
+    return (x0, x1), (y0, y1)
+
+
+def _draw_points(ax: Any, scene: Scene, max_points: int, seed: int, limits: Limits) -> None:
+    (x0, x1), (y0, y1) = limits
     xyz = np.asarray(scene.points.xyz, dtype=np.float64)
-    inside = ((xyz[:, 0] >= X_RANGE[0]) & (xyz[:, 0] <= X_RANGE[1]) & (xyz[:, 1] >= Y_RANGE[0])
-              & (xyz[:, 1] <= Y_RANGE[1]))
+    inside = (xyz[:, 0] >= x0) & (xyz[:, 0] <= x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] <= y1)
     xyz = xyz[inside]
     if len(xyz) > max_points:
         # a fixed generator: the same finding always gives the same picture
@@ -201,19 +215,22 @@ def _draw_points(ax: Any, scene: Scene, max_points: int, seed: int) -> None:
     if len(xyz):
         # darker with height, so objects stand out from the road
         z = np.clip(xyz[:, 2], -2.5, 1.5)
-        ax.scatter(-xyz[:, 1], xyz[:, 0], c=z, s=0.5, cmap="Greys", vmin=-3.2, vmax=1.5, linewidths=0,
+        ax.scatter(-xyz[:, 1], xyz[:, 0], c=z, s=0.8, cmap="Greys", vmin=-3.0, vmax=1.5, linewidths=0,
                    rasterized=True)
 
 
-def _frame_axes(ax: Any, title: str) -> None:
-    ax.set_xlim(-Y_RANGE[1], -Y_RANGE[0])
-    ax.set_ylim(*X_RANGE)
+def _frame_axes(ax: Any, title: str, limits: Limits) -> None:
+    from matplotlib.ticker import FuncFormatter
+
+    (x0, x1), (y0, y1) = limits
+    ax.set_xlim(-y1, -y0)
+    ax.set_ylim(x0, x1)
     ax.set_aspect("equal")
-    ax.set_title(title, fontsize=9)
-    ax.set_xlabel("y (m, left ←)", fontsize=7)
-    ax.set_ylabel("x (m, forward)", fontsize=7)
-    ax.set_xticks([-40, -20, 0, 20, 40], ["40", "20", "0", "-20", "-40"])
-    ax.tick_params(labelsize=7)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{0.0 - value:g}"))  # y grows to the left
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel("y (m, left ←)", fontsize=8)
+    ax.set_ylabel("x (m, forward)", fontsize=8)
+    ax.tick_params(labelsize=8)
     ax.plot([0], [0], marker="^", color="black", markersize=5)
 
 
@@ -227,32 +244,19 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    fig = Figure(figsize=(9.0, 4.9), dpi=90, layout="constrained")
+    fig = Figure(figsize=(12.0, 6.4), dpi=90, layout="constrained")
     left, right = fig.subplots(1, 2)
     seed = int(pair.finding.get("id", 0))
     source, mutant = pair.source, pair.mutant
 
-    _draw_points(left, source, max_points, seed)
-    _draw_boxes(left, source.boxes, GT_COLOUR, 0.8)
-    _draw_boxes(left, pair.source_detections, DETECTION_COLOUR, 1.0)
-    _draw_boxes(left, source.boxes.select(_ids(pair.lost_gt)), HIGHLIGHT_COLOUR, 2.4)
-    _draw_boxes(left, pair.source_detections.select(_ids(pair.lost_source)), HIGHLIGHT_COLOUR, 2.4)
-    _frame_axes(left, f"original {pair.finding.get('frame_id', '')}: "
-                      f"{len(source.boxes)} objects, {len(pair.source_detections)} detections")
-    if pair.finding.get("label") == ORIGINAL and pair.finding.get("kind") in FAILURES:
-        _note(left, f"the system failed here ({pair.finding.get('kind')})")
-
     shown = mutant if mutant is not None else source
-    _draw_points(right, shown, max_points, seed + 1)
-    _draw_boxes(right, shown.boxes, GT_COLOUR, 0.8)
     follow = pair.follow_detections
-    if follow is not None:
-        _draw_boxes(right, follow, DETECTION_COLOUR, 1.0)
-        _draw_boxes(right, follow.select(_ids(pair.spurious)), HIGHLIGHT_COLOUR, 2.4)
-    expected = []
-    if pair.lost_source:
-        boxes = pair.source_detections.select(_ids(pair.lost_source)).as_array()
-        expected.append(boxes if pair.transform is None else transform_boxes(boxes, pair.transform))
+    lost_source = pair.source_detections.select(_ids(pair.lost_source)).as_array()
+    lost_gt = source.boxes.select(_ids(pair.lost_gt)).as_array()
+    spurious = follow.select(_ids(pair.spurious)).as_array() if follow is not None else np.zeros((0, 7))
+    expected = []  # where the lost objects should be in the mutant
+    if len(lost_source):
+        expected.append(lost_source if pair.transform is None else transform_boxes(lost_source, pair.transform))
     if pair.lost_gt:
         gone = [g for g, f in zip(pair.lost_gt, pair.lost_gt_follow, strict=True) if f < 0]
         kept = [f for f in pair.lost_gt_follow if f >= 0]
@@ -261,10 +265,27 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
         if gone:
             boxes = source.boxes.select(_ids(gone)).as_array()
             expected.append(boxes if pair.transform is None else transform_boxes(boxes, pair.transform))
+    limits = _limits([lost_source, lost_gt, spurious, *expected])
+
+    _draw_points(left, source, max_points, seed, limits)
+    _draw_boxes(left, source.boxes, GT_COLOUR, 0.8)
+    _draw_boxes(left, pair.source_detections, DETECTION_COLOUR, 1.0)
+    _draw_boxes(left, lost_gt, HIGHLIGHT_COLOUR, 2.4)
+    _draw_boxes(left, lost_source, HIGHLIGHT_COLOUR, 2.4)
+    _frame_axes(left, f"original {pair.finding.get('frame_id', '')}: "
+                      f"{len(source.boxes)} objects, {len(pair.source_detections)} detections", limits)
+    if pair.finding.get("label") == ORIGINAL and pair.finding.get("kind") in FAILURES:
+        _note(left, f"the system failed here ({pair.finding.get('kind')})")
+
+    _draw_points(right, shown, max_points, seed + 1, limits)
+    _draw_boxes(right, shown.boxes, GT_COLOUR, 0.8)
+    if follow is not None:
+        _draw_boxes(right, follow, DETECTION_COLOUR, 1.0)
+        _draw_boxes(right, spurious, HIGHLIGHT_COLOUR, 2.4)
     for boxes in expected:
         _draw_boxes(right, boxes, HIGHLIGHT_COLOUR, 1.8, style="dashed")
     count = "no output" if follow is None else f"{len(follow)} detections"
-    _frame_axes(right, f"{pair.finding.get('label', 'mutant')}: {len(shown.boxes)} objects, {count}")
+    _frame_axes(right, f"{pair.finding.get('label', 'mutant')}: {len(shown.boxes)} objects, {count}", limits)
     if follow is None:
         _note(right, f"the system failed here ({pair.finding.get('kind')}): no detections")
 
@@ -272,7 +293,7 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
                Line2D([], [], color=DETECTION_COLOUR, lw=1.2, label="detection"),
                Line2D([], [], color=HIGHLIGHT_COLOUR, lw=2.4, label="lost / unexplained"),
                Line2D([], [], color=HIGHLIGHT_COLOUR, lw=1.8, ls="dashed", label="where it was expected")]
-    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
+    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=9, frameon=False)
     return fig
 
 

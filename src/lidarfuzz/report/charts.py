@@ -31,7 +31,8 @@ def figure_png(fig: Figure, colours: int = 128) -> bytes:
     except ImportError:  # matplotlib brings Pillow; without it the PNG is only bigger
         return buffer.getvalue()
     buffer.seek(0)
-    image = Image.open(buffer).convert("RGB").quantize(colors=colours, method=Image.Quantize.MEDIANCUT)
+    # octree keeps rare colours (thin coloured lines) that median cut merges into their neighbours
+    image = Image.open(buffer).convert("RGB").quantize(colors=colours, method=Image.Quantize.FASTOCTREE)
     out = io.BytesIO()
     image.save(out, format="PNG", optimize=True)
     return out.getvalue()
