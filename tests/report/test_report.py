@@ -316,3 +316,24 @@ def test_render_html_without_labels(summary: dict[str, Any]) -> None:
     assert len(pending) == 6 * len(summary["subtasks"])  # in each difficulty × interpolation table
     assert "No robustness figures" in html
     assert html.count(PNG) == 1  # only the violation chart has something to draw
+
+
+def test_report_of_a_system_that_crashes(campaign: tuple[Store, int, Path], tmp_path: Path) -> None:
+    store, _, data = campaign
+    task_id = create_task(store, parse_campaign({"dataset": str(data), "sut": "tests.report.systems:RaisesOnFrame",
+                                                 "operators": [{"name": "rotate_z", "severities": [3]}]}))
+    run_task(store, task_id, executor=InlineExecutor())
+    files = write_report(store, task_id, tmp_path, images=12)
+    summary = json.loads(files.json.read_text())
+    crashes = summary["findings"]["by_kind"]["crash"]
+    assert crashes == 2  # the original and its mutant
+    assert not files.passed and [r.name for r in files.failed] == ["failures>0"]
+    html = files.html.read_text()
+    assert re.search(rf'<td class="left">crash</td><td class="bad">{crashes}</td>', html)
+    # failures come first among the findings, and have pictures too
+    top = summary["findings"]["top"]
+    assert [f["kind"] for f in top[:crashes]] == ["crash"] * crashes
+    assert html.count(PNG) == len(charts(summary)) + min(12, len(top))
+    pair = load_pair(store, top[0]["id"])
+    assert (pair.mutant is None) == (top[0]["operator"] == "original")
+    assert pair.follow_detections is None

@@ -9,6 +9,8 @@ expected in the mutant (dashed, right; moved by the operator's transform when th
 has one), and follow-up detections nothing maps to (thick, right).
 
 x (forward) is drawn upwards and y (left) to the left, as a driver sees the road from above.
+The view covers x ∈ [-10, 70] m and y ∈ [-40, 40] m, grown to show every box the finding is
+about, with at most 30 000 points (a subsample fixed by the finding's id).
 
 Example:
     >>> from lidarfuzz.store import Store
@@ -41,7 +43,6 @@ if TYPE_CHECKING:
 X_RANGE: tuple[float, float] = (-10.0, 70.0)  # forward, metres
 Y_RANGE: tuple[float, float] = (-40.0, 40.0)  # left, metres
 MAX_POINTS = 30_000
-FAILURES = frozenset({"crash", "timeout", "invalid_output", "operator_error"})
 
 GT_COLOUR = "#1a9850"
 DETECTION_COLOUR = "#2b6cb0"
@@ -57,6 +58,7 @@ class FindingPair:
         source: The original frame (its boxes are the ground truth).
         mutant: The rebuilt mutant; None when the finding is about an original.
         source_detections: The system's output on the original (empty when it failed there).
+        source_failed: True when the system failed on the original.
         follow_detections: The system's output on the mutant; None when it failed.
         lost_source: Indices of source detections the follow-up lost.
         lost_gt: Indices of source ground-truth boxes the follow-up lost.
@@ -75,6 +77,7 @@ class FindingPair:
     lost_gt_follow: tuple[int, ...] = ()
     spurious: tuple[int, ...] = ()
     transform: NDArray[np.float64] | None = None
+    source_failed: bool = False
 
 
 def _indices(violations: Iterable[Mapping[str, Any]], key: str, size: int, object_level: bool = False) -> tuple[
@@ -124,7 +127,8 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         follow_failed = row.failure is not None
         follow_detections = None if follow_failed else decode_boxes(row.boxes, row.labels)
         source_detections = Boxes3D.empty()
-        if original is not None and original.failure is None:
+        source_failed = original is None or original.failure is not None
+        if not source_failed:
             source_detections = decode_boxes(original.boxes, original.labels)
 
     path = str(replay.get("dataset", ""))
@@ -158,7 +162,8 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
     return FindingPair(info, source, mutant, source_detections, follow_detections,
                        lost_source=_indices(violations, "source_index", len(source_detections)),
                        lost_gt=lost_gt, lost_gt_follow=lost_gt_follow,
-                       spurious=_indices(violations, "follow_index", size), transform=transform)
+                       spurious=_indices(violations, "follow_index", size), transform=transform,
+                       source_failed=source_failed)
 
 
 # -- drawing ------------------------------------------------------------------------------
@@ -272,10 +277,10 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
     _draw_boxes(left, pair.source_detections, DETECTION_COLOUR, 1.0)
     _draw_boxes(left, lost_gt, HIGHLIGHT_COLOUR, 2.4)
     _draw_boxes(left, lost_source, HIGHLIGHT_COLOUR, 2.4)
-    _frame_axes(left, f"original {pair.finding.get('frame_id', '')}: "
-                      f"{len(source.boxes)} objects, {len(pair.source_detections)} detections", limits)
-    if pair.finding.get("label") == ORIGINAL and pair.finding.get("kind") in FAILURES:
-        _note(left, f"the system failed here ({pair.finding.get('kind')})")
+    found = "no output" if pair.source_failed else f"{len(pair.source_detections)} detections"
+    _frame_axes(left, f"original {pair.finding.get('frame_id', '')}: {len(source.boxes)} objects, {found}", limits)
+    if pair.source_failed and mutant is not None:
+        _note(left, "the system failed on the original too: no detections")
 
     _draw_points(right, shown, max_points, seed + 1, limits)
     _draw_boxes(right, shown.boxes, GT_COLOUR, 0.8)

@@ -78,6 +78,7 @@ def ap_chart(summary: Mapping[str, Any], difficulty: str = "moderate", points: s
                 ax.axhline(values[0], color=METRIC_COLOURS[metric], lw=0.8, ls="--")
         ax.set_title(cls if cls != "mAP" else "mean over classes (mAP)", fontsize=10)
         ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
+        ax.set_xlim(-0.6, max(len(labels), 4) - 0.4)  # a few subtasks: bars of the usual width, not stretched
         ax.tick_params(axis="y", labelsize=8)
         ax.set_ylim(0, min(100.0, max(10.0, 10.0 * math.ceil(top * 1.15 / 10.0))))
         ax.grid(axis="y", lw=0.4, alpha=0.5)
