@@ -13,6 +13,7 @@ the store; the runner looks at it twice a second and stops, keeping what is done
 
 from __future__ import annotations
 
+import importlib
 import os
 import socket
 import threading
@@ -23,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import func, select, update
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.exc import IntegrityError
 
 from lidarfuzz.campaign.codec import json_safe
@@ -34,6 +35,7 @@ from lidarfuzz.store.models import Finding, FrameResult, Status, Subtask, SutOut
 from lidarfuzz.store.store import Store, StoreError
 
 CHECK_EVERY = 0.5  # seconds between looks at the task's status (cancel) and heartbeats
+BLOCK = 16  # frames per block (see _Run._units); a worker's scene cache holds one block
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,11 @@ class _Run:
         self.frame_ids: list[str] = list(options.get("frame_ids", []))
         self.trials = int(options.get("trials", 1))
         self._calibs: dict[str, Any] = {}
+        dialect = store.engine.dialect.name
+        if dialect not in ("sqlite", "postgresql"):
+            raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect}")
+        dialect_insert = importlib.import_module(f"sqlalchemy.dialects.{dialect}").insert
+        self._cache_insert: Any = dialect_insert(SutOutput).on_conflict_do_nothing()  # a concurrent twin: fine
         self._dataset: Any = None
 
     # -- units ------------------------------------------------------------------------
@@ -130,19 +137,27 @@ class _Run:
 
     def _units(self, subtasks: Iterable[Subtask], done: set[tuple[int, str, int]],
                sources: dict[str, tuple[bytes | None, tuple[str, ...], bool]]) -> Iterator[WorkUnit]:
-        for sub in subtasks:
-            is_original = sub.name == ORIGINAL
-            trials = 1 if is_original else self.trials
-            relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
-            for frame_id in self.frame_ids:
-                for trial in range(trials):
-                    if (sub.id, frame_id, trial) in done:
-                        continue
-                    blob, labels, failed = sources.get(frame_id, (None, (), True))
-                    yield WorkUnit(sub.id, frame_id, trial, None if is_original else sub.operator, sub.op_index,
-                                   self.task.seed, subtask_label(sub.name, sub.severity), relations,
-                                   None if is_original else blob, () if is_original else labels,
-                                   False if is_original else failed)
+        """Pending units, a block of frames at a time: every subtask runs over the block before
+        the next block starts, so workers load each frame about once (their scene cache holds
+        a block) while the subtasks still advance in turn."""
+        subtasks = list(subtasks)
+        for start in range(0, len(self.frame_ids), BLOCK):
+            block = self.frame_ids[start:start + BLOCK]
+            for sub in subtasks:
+                is_original = sub.name == ORIGINAL
+                trials = 1 if is_original else self.trials
+                relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
+                label = subtask_label(sub.name, sub.severity)
+                for frame_id in block:
+                    for trial in range(trials):
+                        if (sub.id, frame_id, trial) in done:
+                            continue
+                        if is_original:
+                            yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
+                            continue
+                        blob, labels, failed = sources.get(frame_id, (None, (), True))
+                        yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
+                                       relations, blob, labels, failed)
 
     # -- results ----------------------------------------------------------------------
     def _replay(self, result: UnitResult, relation: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -152,13 +167,14 @@ class _Run:
                 "params": result.params, "sut": unit.model.spec, "options": unit.model.options,
                 "fingerprint": unit.model.fingerprint, "relation": relation}
 
-    def _findings(self, result: UnitResult, frame_result_id: int) -> list[Finding]:
+    def _findings(self, result: UnitResult, frame_result_id: int) -> list[dict[str, Any]]:
+        """Rows of the findings table: a failure, and per violated relation one per class."""
         findings = []
         if result.failure is not None:
-            findings.append(Finding(task_id=self.task.id, frame_result_id=frame_result_id,
-                                    kind=result.failure["kind"], message=result.failure["message"],
-                                    detail={"detail": result.failure.get("detail", "")},
-                                    replay=self._replay(result)))
+            findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id, cls="", magnitude=None,
+                                 kind=result.failure["kind"], message=result.failure["message"],
+                                 detail={"detail": result.failure.get("detail", "")},
+                                 replay=self._replay(result)))
         specs = {spec["name"]: spec for spec in result.unit.relations}
         for outcome in result.relations:
             if outcome["holds"] or not outcome["violations"]:
@@ -169,34 +185,36 @@ class _Run:
             for cls, violations in sorted(by_class.items()):
                 first = violations[0]["message"]
                 more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
-                findings.append(Finding(task_id=self.task.id, frame_result_id=frame_result_id,
-                                        kind=outcome["relation"], cls=cls, magnitude=float(len(violations)),
-                                        message=first + more, detail={"violations": violations},
-                                        replay=self._replay(result, specs.get(outcome["relation"]))))
+                findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id,
+                                     kind=outcome["relation"], cls=cls, magnitude=float(len(violations)),
+                                     message=first + more, detail={"violations": violations},
+                                     replay=self._replay(result, specs.get(outcome["relation"]))))
         return findings
 
     def commit(self, result: UnitResult) -> bool:
-        """Store one result with its findings and counters; False when it was stored already."""
+        """Store one result with its findings and counters in one transaction (SQLAlchemy Core:
+        the ORM's unit of work costs more than the insert); False when it was stored already."""
         start = time.perf_counter()
         unit = result.unit
+        fingerprint = self.task.model.fingerprint
         try:
-            with self.store.session() as s:
-                row = FrameResult(subtask_id=unit.subtask_id, frame_id=unit.frame_id, trial=unit.trial,
-                                  params=result.params, boxes=result.boxes, labels=result.labels,
-                                  gt_boxes=result.gt_boxes, gt_labels=result.gt_labels, failure=result.failure,
-                                  relations=result.relations, seconds=result.seconds, cached=result.cached)
-                s.add(row)
-                s.flush()
-                s.add_all(self._findings(result, row.id))
+            with self.store.engine.begin() as connection:
+                row_id = connection.execute(insert(FrameResult).returning(FrameResult.id), {
+                    "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
+                    "params": result.params, "boxes": result.boxes, "labels": result.labels,
+                    "gt_boxes": result.gt_boxes, "gt_labels": result.gt_labels, "failure": result.failure,
+                    "relations": result.relations, "seconds": result.seconds, "cached": result.cached,
+                    "created_at": _now()}).scalar_one()
+                findings = self._findings(result, row_id)
+                if findings:
+                    connection.execute(insert(Finding), findings)
                 if result.boxes is not None and not result.cached and result.input_key:
-                    exists = s.scalar(select(SutOutput.id).where(
-                        SutOutput.fingerprint == self.task.model.fingerprint, SutOutput.digest == result.input_key))
-                    if exists is None:
-                        s.add(SutOutput(fingerprint=self.task.model.fingerprint, digest=result.input_key,
-                                        boxes=result.boxes, labels=result.labels, seconds=result.seconds))
-                s.execute(update(Subtask).where(Subtask.id == unit.subtask_id).values(
+                    connection.execute(self._cache_insert, {
+                        "fingerprint": fingerprint, "digest": result.input_key, "boxes": result.boxes,
+                        "labels": result.labels, "seconds": result.seconds})
+                connection.execute(update(Subtask).where(Subtask.id == unit.subtask_id).values(
                     done=Subtask.done + 1, status=Status.RUNNING))
-                s.execute(update(Task).where(Task.id == self.task.id).values(
+                connection.execute(update(Task).where(Task.id == self.task.id).values(
                     done=Task.done + 1, heartbeat_at=_now()))
         except IntegrityError:
             return False  # another run stored this unit first

@@ -98,6 +98,10 @@ def mutant_key(source_digest: str, operator: dict[str, Any], params: dict[str, A
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+#: Source frames a worker keeps (a runner's frame block; about 3 MB per 120k-point frame).
+SCENE_CACHE = 16
+
+
 class Worker:
     """Runs units of one task (see the module docstring)."""
 
@@ -107,10 +111,13 @@ class Worker:
         self.context = context
         self.dataset = open_dataset(context.dataset)
         self._digests: OrderedDict[str, str] = OrderedDict()
+        self._scenes: OrderedDict[str, Scene] = OrderedDict()  # the runner sends units frame block by block
         self._operators: dict[str, Any] = {}
         self._relations: dict[str, Any] = {}
         self._sut: Any = None
         self._cache: Any = None
+        self._lookup: Any = None
+        self._connection: Any = None
         if context.store_url is not None:
             from lidarfuzz.store.store import Store
 
@@ -149,6 +156,18 @@ class Worker:
             self._relations[key] = from_spec(spec)
         return self._relations[key]
 
+    def load(self, frame_id: str) -> Scene:
+        """A source frame, from a small cache (scenes are immutable; loading one costs milliseconds)."""
+        scene = self._scenes.get(frame_id)
+        if scene is None:
+            scene = self.dataset.load(frame_id)
+            self._scenes[frame_id] = scene
+            if len(self._scenes) > SCENE_CACHE:
+                self._scenes.popitem(last=False)
+        else:
+            self._scenes.move_to_end(frame_id)
+        return scene
+
     def digest(self, scene: Scene) -> str:
         found = self._digests.get(scene.frame_id)
         if found is None:
@@ -161,13 +180,16 @@ class Worker:
     def _cached(self, key: str) -> tuple[bytes, list[str]] | None:
         if self._cache is None:
             return None
-        from sqlalchemy import select
+        from sqlalchemy import bindparam, select
 
         from lidarfuzz.store.models import SutOutput
 
-        with self._cache.session() as s:
-            row = s.execute(select(SutOutput.boxes, SutOutput.labels).where(
-                SutOutput.fingerprint == self.context.fingerprint, SutOutput.digest == key)).first()
+        if self._lookup is None:
+            self._lookup = select(SutOutput.boxes, SutOutput.labels).where(
+                SutOutput.fingerprint == self.context.fingerprint, SutOutput.digest == bindparam("key"))
+            self._connection = self._cache.engine.connect()
+        row = self._connection.execute(self._lookup, {"key": key}).first()
+        self._connection.rollback()  # end the read transaction: never hold a snapshot open
         return None if row is None else (row[0], list(row[1]))
 
     # -- one unit ---------------------------------------------------------------------
@@ -178,7 +200,7 @@ class Worker:
         timings: dict[str, float] = {}
         result = UnitResult(unit)
         t0 = time.perf_counter()
-        source = self.dataset.load(unit.frame_id)
+        source = self.load(unit.frame_id)
         timings["load"] = time.perf_counter() - t0
         follow, operator, params = source, None, None
         if unit.operator is not None:
@@ -252,5 +274,8 @@ class Worker:
         if self._sut is not None:
             self._sut.close()
             self._sut = None
+        if self._connection is not None:
+            self._connection.close()
+            self._connection = None
         if self._cache is not None:
             self._cache.close()
