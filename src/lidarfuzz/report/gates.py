@@ -48,6 +48,7 @@ from lidarfuzz.errors import LidarfuzzError
 
 KINDS = ("ap_drop", "violations", "violation_rate", "failures")
 AP_METRICS = ("bbox", "bev", "3d")
+METRIC_NAMES = {"bbox": "bbox", "bev": "BEV", "3d": "3D"}
 CLASSES = ("Car", "Pedestrian", "Cyclist", "mAP")
 DIFFICULTIES = ("easy", "moderate", "hard")
 SUT_FAILURES = ("crash", "timeout", "invalid_output")
@@ -187,7 +188,8 @@ def _ap_drop(summary: Mapping[str, Any], gate: Gate) -> GateResult:
         if r["delta"] is None:
             continue
         drop = -float(r["delta"])
-        line = (f"{r['class']} {r['metric']} AP ({r['difficulty']}, R40) under {r['label']}: "
+        metric = METRIC_NAMES.get(r["metric"], r["metric"])
+        line = (f"{r['class']} {metric} AP ({r['difficulty']}, R40) under {r['label']}: "
                 f"{r['clean']:.1f} → {r['corrupted']:.1f} (drop {drop:.1f})")
         measured.append(line)
         if drop > gate.threshold:
@@ -271,7 +273,7 @@ def default_results(summary: Mapping[str, Any]) -> list[GateResult]:
     for entry in summary.get("subtasks", [])[1:]:
         rows = [r for r in summary.get("delta_ap", []) if r["label"] == entry["label"] and r["metric"] in AP_METRICS
                 and r["class"] == "mAP" and r["difficulty"] == "moderate"]
-        lines = tuple(f"{r['metric']} mAP (moderate, R40): {r['clean']:.1f} → {r['corrupted']:.1f} "
+        lines = tuple(f"{METRIC_NAMES[r['metric']]} mAP (moderate, R40): {r['clean']:.1f} → {r['corrupted']:.1f} "
                       f"({r['delta']:+.1f})" for r in rows if r["delta"] is not None)
         message = "; ".join(lines) if lines else "no AP (no labels, or not evaluated yet)"
         results.append(GateResult(f"ap {entry['label']}", "passed", message, group="ap", informational=True,

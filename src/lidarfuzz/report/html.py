@@ -193,8 +193,11 @@ def _robustness(summary: Mapping[str, Any]) -> dict[str, Any] | None:
                 "severities", []), "rr": {}, "ce": {}})
             entry["rr"][metric] = fmt_ratio(row.get("RR"))
             entry["ce"][metric] = fmt_ratio(row.get("CE"))
+    order = [s["operator"] for s in summary.get("subtasks", [])]
+    ranked = sorted(operators.values(), key=lambda e: order.index(e["operator"]) if e["operator"] in order
+                    else len(order))
     first = robustness[metrics[0][0]] if metrics else {}
-    return {"metrics": metrics, "with_ce": with_ce, "operators": list(operators.values()), "errors": errors,
+    return {"metrics": metrics, "with_ce": with_ce, "operators": ranked, "errors": errors,
             "clean": {m: fmt_ap(robustness[m].get("clean_ap")) for m, _ in metrics},
             "baseline_clean": {m: fmt_ap(robustness[m].get("baseline_clean_ap")) for m, _ in metrics},
             "mrr": {m: fmt_ratio(robustness[m].get("mRR")) for m, _ in metrics},
