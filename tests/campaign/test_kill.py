@@ -35,15 +35,19 @@ def outputs(store: Store, task_id: int) -> dict[tuple[str, int, str, int], bytes
         return {(a, b, c, d): e for a, b, c, d, e in rows}
 
 
-def cli(*args: str, **kwargs: object) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-c", CLI, *args], cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, env={**os.environ, "COLUMNS": "120"}, **kwargs)
+def cli(cwd: Path, *args: str, **kwargs: object) -> subprocess.Popen[str]:
+    """The CLI in ``cwd`` (reports of a database-URL workspace go to ./lidarfuzz-reports), with the
+    test systems importable."""
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return subprocess.Popen([sys.executable, "-c", CLI, *args], cwd=cwd, text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, env={**os.environ, "COLUMNS": "120", "PYTHONPATH": path},
+                            **kwargs)
 
 
 @pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
 def test_kill_9_then_resume(backend: str, tmp_path: Path, world: Path, request: pytest.FixtureRequest) -> None:
     workspace = str(tmp_path / "ws") if backend == "sqlite" else request.getfixturevalue("fresh_postgres_url")
-    run = cli("run", "--dataset", str(world), "--sut", "tests.campaign.systems:SlowClassic",
+    run = cli(tmp_path, "run", "--dataset", str(world), "--sut", "tests.campaign.systems:SlowClassic",
               "--option", "delay=0.15", *OPS, "--workers", "2", "--workspace", workspace, start_new_session=True)
     store = Store(workspace)
     deadline = time.monotonic() + 120
@@ -67,7 +71,7 @@ def test_kill_9_then_resume(backend: str, tmp_path: Path, world: Path, request: 
         stored = s.scalar(select(func.count()).select_from(FrameResult))
     assert stored == task.done == sum(sub.done for sub in task.subtasks)
 
-    resumed = cli("resume", "1", "--force", "--workers", "2", "--workspace", workspace)
+    resumed = cli(tmp_path, "resume", "1", "--force", "--workers", "2", "--workspace", workspace)
     log = resumed.communicate(timeout=300)[0]
     assert resumed.returncode == 0, log
     task = get_task(store, 1)
