@@ -123,8 +123,9 @@ def main() -> None:
     print(f"| campaign | {camp_wall:.2f} | {1000 * camp_wall / units:.1f} |")
     print(f"| of which SUT | {sut:.2f} | {1000 * sut / units:.1f} |")
     print(f"| of which AP evaluation (not in the baseline) | {evaluate:.2f} | {1000 * evaluate / units:.1f} |")
-    print(f"| of which store commits | {stages.get('store', 0.0):.2f} | {1000 * stages.get('store', 0.0) / units:.1f} |")
-    print(f"| of which cache look-ups | {stages.get('cache', 0.0):.2f} | {1000 * stages.get('cache', 0.0) / units:.1f} |")
+    for stage, what in (("store", "store commits"), ("cache", "cache look-ups")):
+        seconds = stages.get(stage, 0.0)
+        print(f"| of which {what} | {seconds:.2f} | {1000 * seconds / units:.1f} |")
     print(f"\nengine overhead: {overhead:.2f} s = {100 * overhead / sut:.1f} % of SUT time "
           f"(campaign − AP evaluation − bare loop; target ≤ 5 %)")
 
