@@ -62,6 +62,17 @@ def test_the_campaign_shows_the_seeded_bug(campaigns: tuple[Store, dict[str, int
     assert rate["classic"]["checked"] == rate["classic-bug-intensity-norm"]["checked"] == 3
 
 
+def test_the_report_shows_the_bug(campaigns: tuple[Store, dict[str, int]], tmp_path: Path) -> None:
+    from lidarfuzz.report import parse_gate, write_report
+
+    store, ids = campaigns
+    gate = [parse_gate("violations:preservation>0")]
+    buggy = write_report(store, ids["classic-bug-intensity-norm"], tmp_path / "bug", gates=gate, images=2)
+    html = Path(buggy.html).read_text(encoding="utf-8")
+    assert "preservation" in html and "lidarfuzz replay" in html
+    assert not buggy.passed  # a CI gate on MR1 fails for the buggy system
+
+
 def test_the_bug_replays(campaigns: tuple[Store, dict[str, int]]) -> None:
     store, ids = campaigns
     with store.session() as s:
