@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import func, insert, select, update
+from sqlalchemy import bindparam, func, insert, select, update
 from sqlalchemy.exc import IntegrityError
 
 from lidarfuzz.campaign.codec import json_safe
@@ -115,6 +115,14 @@ class _Run:
         self.frame_ids: list[str] = list(options.get("frame_ids", []))
         self.trials = int(options.get("trials", 1))
         self._calibs: dict[str, Any] = {}
+        self._connection = store.engine.connect()  # one for every commit: no pool check-out per result
+        # statements built once (building one costs more than running it)
+        self._insert_result = insert(FrameResult).returning(FrameResult.id)
+        self._insert_finding = insert(Finding)
+        self._bump_subtask = update(Subtask).where(Subtask.id == bindparam("subtask")).values(
+            done=Subtask.done + 1, status=Status.RUNNING)
+        self._bump_task = update(Task).where(Task.id == bindparam("task")).values(
+            done=Task.done + 1, heartbeat_at=bindparam("now"))
         dialect = store.engine.dialect.name
         if dialect not in ("sqlite", "postgresql"):
             raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect}")
@@ -136,28 +144,24 @@ class _Run:
             return {f: (b, tuple(labels), failure is not None) for f, b, labels, failure in rows}
 
     def _units(self, subtasks: Iterable[Subtask], done: set[tuple[int, str, int]],
-               sources: dict[str, tuple[bytes | None, tuple[str, ...], bool]]) -> Iterator[WorkUnit]:
-        """Pending units, a block of frames at a time: every subtask runs over the block before
-        the next block starts, so workers load each frame about once (their scene cache holds
-        a block) while the subtasks still advance in turn."""
-        subtasks = list(subtasks)
-        for start in range(0, len(self.frame_ids), BLOCK):
-            block = self.frame_ids[start:start + BLOCK]
-            for sub in subtasks:
-                is_original = sub.name == ORIGINAL
-                trials = 1 if is_original else self.trials
-                relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
-                label = subtask_label(sub.name, sub.severity)
-                for frame_id in block:
-                    for trial in range(trials):
-                        if (sub.id, frame_id, trial) in done:
-                            continue
-                        if is_original:
-                            yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
-                            continue
-                        blob, labels, failed = sources.get(frame_id, (None, (), True))
-                        yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
-                                       relations, blob, labels, failed)
+               sources: dict[str, tuple[bytes | None, tuple[str, ...], bool]],
+               block: list[str]) -> Iterator[WorkUnit]:
+        """Pending units of ``subtasks`` on a block of frames, subtask by subtask."""
+        for sub in subtasks:
+            is_original = sub.name == ORIGINAL
+            trials = 1 if is_original else self.trials
+            relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
+            label = subtask_label(sub.name, sub.severity)
+            for frame_id in block:
+                for trial in range(trials):
+                    if (sub.id, frame_id, trial) in done:
+                        continue
+                    if is_original:
+                        yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
+                        continue
+                    blob, labels, failed = sources.get(frame_id, (None, (), True))
+                    yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
+                                   relations, blob, labels, failed)
 
     # -- results ----------------------------------------------------------------------
     def _replay(self, result: UnitResult, relation: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -198,8 +202,9 @@ class _Run:
         unit = result.unit
         fingerprint = self.task.model.fingerprint
         try:
-            with self.store.engine.begin() as connection:
-                row_id = connection.execute(insert(FrameResult).returning(FrameResult.id), {
+            connection = self._connection
+            with connection.begin():
+                row_id = connection.execute(self._insert_result, {
                     "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
                     "params": result.params, "boxes": result.boxes, "labels": result.labels,
                     "gt_boxes": result.gt_boxes, "gt_labels": result.gt_labels, "failure": result.failure,
@@ -207,15 +212,13 @@ class _Run:
                     "created_at": _now()}).scalar_one()
                 findings = self._findings(result, row_id)
                 if findings:
-                    connection.execute(insert(Finding), findings)
+                    connection.execute(self._insert_finding, findings)
                 if result.boxes is not None and not result.cached and result.input_key:
                     connection.execute(self._cache_insert, {
                         "fingerprint": fingerprint, "digest": result.input_key, "boxes": result.boxes,
                         "labels": result.labels, "seconds": result.seconds})
-                connection.execute(update(Subtask).where(Subtask.id == unit.subtask_id).values(
-                    done=Subtask.done + 1, status=Status.RUNNING))
-                connection.execute(update(Task).where(Task.id == self.task.id).values(
-                    done=Task.done + 1, heartbeat_at=_now()))
+                connection.execute(self._bump_subtask, {"subtask": unit.subtask_id})
+                connection.execute(self._bump_task, {"task": self.task.id, "now": _now()})
         except IntegrityError:
             return False  # another run stored this unit first
         finally:
@@ -284,16 +287,22 @@ class _Run:
             self._calibs[frame_id] = load_calib(frame_id) if load_calib else self._dataset.load(frame_id).calib
         return self._calibs[frame_id]
 
+    def close(self) -> None:
+        self._connection.close()
+
     # -- the whole run ------------------------------------------------------------------
     def execute(self) -> None:
+        """A block of frames at a time: the block's originals (the sources of its relations), then
+        every subtask over the block. Workers keep a block of frames loaded, so each frame is
+        loaded about once per worker, and the subtasks still advance in turn."""
         subs = sorted(self.subtasks.values(), key=lambda x: (x.name != ORIGINAL, x.id))
         original = subs[0]
         done = self._finished_keys()
-        self.consume(self.executor.run(self._units([original], done, {})))
-        if original.status != Status.DONE and self.done[original.id] >= original.total:
-            self.finish(original)
-        sources = self._sources(original)
-        self.consume(self.executor.run(self._units(subs[1:], done, sources)))
+        for start in range(0, len(self.frame_ids), BLOCK):
+            block = self.frame_ids[start:start + BLOCK]
+            self.consume(self.executor.run(self._units([original], done, {}, block)))
+            sources = self._sources(original)
+            self.consume(self.executor.run(self._units(subs[1:], done, sources, block)))
         for sub in subs:
             if self.done[sub.id] >= sub.total:
                 self.finish(sub)
@@ -357,6 +366,7 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
         raise
     finally:
         executor.close()
+        run.close()
         run.stats.wall = time.perf_counter() - started
     return RunOutcome(task_id, status, run.stats)
 
