@@ -1,6 +1,7 @@
-"""Systems under test for the engine's tests: the classic pipeline slowed down (to interrupt a
-run mid-way), and one that kills its own process on one frame (a segfault, as far as the pool
-can tell). Named by spec, e.g. ``tests.campaign.systems:SlowClassic``."""
+"""Systems under test for the engine's and the report's tests: the classic pipeline slowed down
+(to interrupt a run mid-way), one that kills its own process on one frame (a segfault, as far
+as the pool can tell) and one that raises on one frame. Named by spec, e.g.
+``tests.campaign.systems:SlowClassic``."""
 
 from __future__ import annotations
 
@@ -28,8 +29,10 @@ class SlowClassic(ClassicPipeline):
         return super().detect(sample)
 
 
-class DiesOnFrame(ClassicPipeline):
-    name = "dies-on-frame"
+class FailsOnFrame(ClassicPipeline):
+    """The classic pipeline failing on one frame (how: :meth:`fail`)."""
+
+    name = "fails-on-frame"
 
     def __init__(self, frame: str = "000001", **fields: Any) -> None:
         super().__init__(**fields)
@@ -38,7 +41,26 @@ class DiesOnFrame(ClassicPipeline):
     def config(self) -> dict[str, Any]:
         return {**super().config(), "frame": self.frame}
 
+    def fail(self, sample: Scene) -> None:
+        raise NotImplementedError
+
     def detect(self, sample: Scene) -> Boxes3D:
         if sample.frame_id == self.frame:
-            os._exit(139)  # kills the process, as a segfault would
+            self.fail(sample)
         return super().detect(sample)
+
+
+class DiesOnFrame(FailsOnFrame):
+    name = "dies-on-frame"
+
+    def fail(self, sample: Scene) -> None:
+        os._exit(139)  # kills the process, as a segfault would
+
+
+class RaisesOnFrame(FailsOnFrame):
+    """A crash as the guard records it (an exception)."""
+
+    name = "raises-on-frame"
+
+    def fail(self, sample: Scene) -> None:
+        raise RuntimeError(f"cannot handle frame {sample.frame_id}")

@@ -320,7 +320,7 @@ def test_render_html_without_labels(summary: dict[str, Any]) -> None:
 
 def test_report_of_a_system_that_crashes(campaign: tuple[Store, int, Path], tmp_path: Path) -> None:
     store, _, data = campaign
-    task_id = create_task(store, parse_campaign({"dataset": str(data), "sut": "tests.report.systems:RaisesOnFrame",
+    task_id = create_task(store, parse_campaign({"dataset": str(data), "sut": "tests.campaign.systems:RaisesOnFrame",
                                                  "operators": [{"name": "rotate_z", "severities": [3]}]}))
     run_task(store, task_id, executor=InlineExecutor())
     files = write_report(store, task_id, tmp_path, images=12)

@@ -144,12 +144,18 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         return task.id
 
 
+def _task(session: Any, task_id: int) -> Task:
+    task = session.get(Task, task_id)
+    if task is None:
+        raise StoreError(f"no task {task_id} (lidarfuzz list)")
+    return task
+
+
 def get_task(store: Store, task_id: int) -> Task:
+    """A task with its data set, model and subtasks loaded."""
     with store.session() as s:
-        task = s.get(Task, task_id)
-        if task is None:
-            raise StoreError(f"no task {task_id} (lidarfuzz list)")
-        task.dataset, task.model, list(task.subtasks)
+        task = _task(s, task_id)
+        task.dataset, task.model, list(task.subtasks)  # loaded before the session closes
         return task
 
 
@@ -167,9 +173,7 @@ def list_tasks(store: Store, limit: int | None = None) -> list[Task]:
 def cancel_task(store: Store, task_id: int) -> Status:
     """Ask a task to stop: a running one stops at its next unit (what is done stays done)."""
     with store.session() as s:
-        task = s.get(Task, task_id)
-        if task is None:
-            raise StoreError(f"no task {task_id} (lidarfuzz list)")
+        task = _task(s, task_id)
         if task.status in (Status.DONE, Status.FAILED, Status.CANCELLED):
             return task.status
         task.status = Status.CANCELLED
@@ -178,9 +182,7 @@ def cancel_task(store: Store, task_id: int) -> Status:
 
 def delete_task(store: Store, task_id: int) -> None:
     with store.session() as s:
-        task = s.get(Task, task_id)
-        if task is None:
-            raise StoreError(f"no task {task_id}")
+        task = _task(s, task_id)
         if task.status == Status.RUNNING:
             raise StoreError(f"task {task_id} is running; cancel it first (lidarfuzz cancel {task_id})")
         s.delete(task)
