@@ -1,0 +1,213 @@
+"""Training PillarNet on a KITTI-layout data set (the simulator's, or a user's own).
+
+Reproducible: one seed drives the initial weights, the order of frames and every
+augmentation (random flip about the x axis, rotation about z, global scaling — points
+and boxes together), with PyTorch's deterministic algorithms on the CPU. On a GPU
+``scatter`` and ``index_add`` accumulate in an order that varies, so GPU runs agree with
+each other to rounding, not bit for bit.
+
+Frames are loaded once, in parallel, reduced to what the network sees (points in the
+camera's view, the boxes of the trained classes) and kept in memory (on the device when
+training on a GPU).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lidarfuzz.io.kitti import open_kitti
+from lidarfuzz.suts.learned.sut import import_torch
+
+FrameArrays = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyper-parameters of one training run (written to the weights' metadata)."""
+
+    epochs: int = 40
+    batch_size: int = 16
+    lr: float = 3e-3
+    weight_decay: float = 0.01
+    seed: int = 0
+    flip: bool = True
+    rotation: float = math.pi / 8
+    scale: tuple[float, float] = (0.95, 1.05)
+    grad_clip: float = 10.0
+
+
+_DATASET: Any = None
+_CLASSES: tuple[str, ...] = ()
+
+
+def _init_worker(root: str, classes: tuple[str, ...]) -> None:
+    global _DATASET, _CLASSES
+    _DATASET = open_kitti(root)
+    _CLASSES = classes
+
+
+def _frame_arrays(frame_id: str) -> FrameArrays:
+    scene = _DATASET.load(frame_id)
+    points = np.ascontiguousarray(scene.points.data[:, :4], dtype=np.float32)
+    if scene.calib is not None and len(points):
+        points = points[scene.calib.in_view(points[:, :3])]
+    boxes = scene.boxes
+    keep = np.isin(boxes.labels, _CLASSES) & boxes.has_geometry
+    geometry = boxes.as_array()[keep].astype(np.float32)
+    classes = np.asarray([_CLASSES.index(c) for c in boxes.labels[keep]], dtype=np.int64)
+    return points, geometry, classes
+
+
+def load_frames(root: Path, frame_ids: Sequence[str], classes: Sequence[str], workers: int = 2) -> list[FrameArrays]:
+    """(points in view N×4, boxes M×7, class indices M) of each frame, loaded in parallel."""
+    classes = tuple(classes)
+    if workers <= 1:
+        _init_worker(str(root), classes)
+        return [_frame_arrays(f) for f in frame_ids]
+    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(str(root), classes)) as pool:
+        return list(pool.map(_frame_arrays, frame_ids, chunksize=8))
+
+
+def split_ids(root: Path, split: str) -> list[str]:
+    path = root / "ImageSets" / f"{split}.txt"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no {split!r} split in this data set (ImageSets/{split}.txt)")
+    return path.read_text().split()
+
+
+def _augment(torch: Any, points: Any, boxes: Any, generator: Any, cfg: TrainConfig) -> tuple[Any, Any]:
+    """One frame's random flip, rotation and scaling; points and boxes (heading included) together."""
+    points, boxes = points.clone(), boxes.clone()
+    draws = torch.rand(3, generator=generator, device="cpu").tolist()
+    if cfg.flip and draws[0] < 0.5:
+        points[:, 1] = -points[:, 1]
+        boxes[:, 1] = -boxes[:, 1]
+        boxes[:, 6] = -boxes[:, 6]
+    angle = (2 * draws[1] - 1) * cfg.rotation
+    cos, sin = math.cos(angle), math.sin(angle)
+    rot = torch.tensor([[cos, -sin], [sin, cos]], dtype=points.dtype, device=points.device)
+    points[:, :2] = points[:, :2] @ rot.T
+    boxes[:, :2] = boxes[:, :2] @ rot.T
+    boxes[:, 6] = torch.remainder(boxes[:, 6] + angle + math.pi, 2 * math.pi) - math.pi
+    scale = cfg.scale[0] + draws[2] * (cfg.scale[1] - cfg.scale[0])
+    points[:, :3] *= scale
+    boxes[:, :6] *= scale
+    return points, boxes
+
+
+def train(
+    frames: list[FrameArrays],
+    *,
+    config: TrainConfig | None = None,
+    network_config: Any = None,
+    device: str = "auto",
+    log: Callable[[str], None] = print,
+    budget_seconds: float | None = None,
+    on_epoch: Callable[[Any, dict[str, Any]], None] | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """Train a fresh PillarNet on in-memory frames; returns (network in eval mode, history).
+
+    With ``budget_seconds`` the first epoch is timed and the number of epochs cut to what
+    fits (the learning-rate schedule follows); the history records the epochs run, so the
+    run can be repeated exactly with that number. ``on_epoch(net, row)`` is called after
+    every epoch (to keep a checkpoint).
+    """
+    torch = import_torch()
+    from lidarfuzz.suts.learned.network import PillarConfig, PillarNet, detection_loss
+
+    cfg = config or TrainConfig()
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    torch.manual_seed(cfg.seed)
+    if device == "cpu":
+        torch.use_deterministic_algorithms(True)
+    else:
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+        torch.backends.cudnn.benchmark = True
+    net = PillarNet(network_config or PillarConfig()).to(device)
+    data = [
+        (torch.from_numpy(p).to(device), torch.from_numpy(b).to(device), torch.from_numpy(c).to(device))
+        for p, b, c in frames
+    ]
+    steps_per_epoch = max(1, len(data) // cfg.batch_size)
+    plan = {"epochs": cfg.epochs}
+    optimiser = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+
+    def lr_factor(step: int) -> float:
+        # linear warm-up over the first 5 % of steps, then cosine decay to 1 % (revised with the plan)
+        total = max(1, steps_per_epoch * plan["epochs"])
+        warm = max(1, total // 20)
+        if step < warm:
+            return 0.1 + 0.9 * step / warm
+        progress = min(1.0, (step - warm) / max(1, total - warm))
+        return 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * progress))
+
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lr_factor)
+    generator = torch.Generator().manual_seed(cfg.seed)
+    history: dict[str, Any] = {"epochs": [], "device": device, "frames": len(data)}
+    start = time.perf_counter()
+    net.train()
+    epoch = 0
+    while epoch < plan["epochs"]:
+        order = torch.randperm(len(data), generator=generator).tolist()
+        sums = {"loss": 0.0, "heatmap": 0.0, "regression": 0.0}
+        for step in range(steps_per_epoch):
+            batch = [data[i] for i in order[step * cfg.batch_size:(step + 1) * cfg.batch_size]]
+            pts, bxs, cls, pidx, bidx = [], [], [], [], []
+            for b, (p, bx, c) in enumerate(batch):
+                p, bx = _augment(torch, p, bx, generator, cfg)
+                pts.append(p)
+                bxs.append(bx)
+                cls.append(c)
+                pidx.append(torch.full((len(p),), b, dtype=torch.long, device=device))
+                bidx.append(torch.full((len(bx),), b, dtype=torch.long, device=device))
+            heatmap, regression = net(torch.cat(pts), torch.cat(pidx), len(batch))
+            loss, parts = detection_loss(heatmap, regression, torch.cat(bxs), torch.cat(cls), torch.cat(bidx), net.config)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+            optimiser.step()
+            schedule.step()
+            sums["loss"] += float(loss.detach())
+            sums["heatmap"] += parts["heatmap"]
+            sums["regression"] += parts["regression"]
+        row = {k: v / steps_per_epoch for k, v in sums.items()}
+        row["epoch"] = epoch + 1
+        row["seconds"] = round(time.perf_counter() - start, 1)
+        history["epochs"].append(row)
+        if epoch == 0 and budget_seconds is not None:
+            fits = max(1, int(budget_seconds // max(row["seconds"], 1e-6)))
+            if fits < plan["epochs"]:
+                log(f"an epoch takes {row['seconds']:.0f} s: {fits} epochs fit in {budget_seconds:.0f} s")
+                plan["epochs"] = fits
+        log(f"epoch {epoch + 1}/{plan['epochs']}: loss {row['loss']:.3f} (heat map {row['heatmap']:.3f}, "
+            f"regression {row['regression']:.3f}), {row['seconds']:.0f} s")
+        if on_epoch is not None:
+            on_epoch(net, row)
+        epoch += 1
+    history["epochs_run"] = plan["epochs"]
+    history["seconds"] = round(time.perf_counter() - start, 1)
+    return net.cpu().eval(), history
+
+
+def save_weights(net: Any, path: Path, meta: dict[str, Any]) -> None:
+    """Weights, network configuration and metadata in one file readable with ``weights_only=True``."""
+    torch = import_torch()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+    payload = {"config": json.dumps(net.config.to_json()), "meta": json.dumps(meta), "state_dict": state}
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
