@@ -324,6 +324,10 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
     task = get_task(store, task_id)
     if task.status == Status.DONE:
         return RunOutcome(task_id, Status.DONE, RunStats())
+    if task.options.get("kind") in ("guided", "fuzz"):
+        from lidarfuzz.campaign.search import run_search_task
+
+        return run_search_task(store, task_id, progress=progress, stop=stop)
     with store.session() as s:
         row = s.get(Task, task_id)
         assert row is not None

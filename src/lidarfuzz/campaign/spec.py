@@ -94,12 +94,37 @@ class CampaignSpec(_Model):
     name: str = ""
     dataset: str = Field(description="registered data set name, or a path to data")
     sut: str = Field(description="registered model name, or a SUT spec (lidarfuzz suts)")
-    operators: list[OperatorChoice] = Field(min_length=1)
+    kind: Literal["mutation", "guided", "fuzz"] = Field(
+        default="mutation", description="mutation: operators × severities; guided / fuzz: coverage-guided search")
+    operators: list[OperatorChoice] = Field(
+        default_factory=list,
+        description="mutation: what to run; guided / fuzz: the operator pool (default pool if empty)")
+    search: dict[str, Any] = Field(
+        default_factory=dict, description="guided / fuzz: budget, criteria, guide, max_failed_tries, batch, ...")
     relations: Literal["auto"] | list[str | RelationChoice] = Field(
         default="auto", description="auto, or relation names and {name, config} entries")
     seed: int = 0
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only the first N frames")
+
+    @model_validator(mode="after")
+    def _kind(self) -> CampaignSpec:
+        if self.kind == "mutation" and not self.operators:
+            raise ValueError("operators: a mutation campaign needs at least one operator")
+        if self.kind != "mutation":
+            self.search_config()  # fail early on a bad search section
+        elif self.search:
+            raise ValueError("search: only guided and fuzz campaigns take a search section")
+        return self
+
+    def search_config(self) -> Any:
+        """The :class:`~lidarfuzz.search.algorithms.SearchConfig` of a guided / fuzz campaign."""
+        from lidarfuzz.search.algorithms import SearchConfig
+
+        values: dict[str, Any] = {**self.search, "kind": self.kind}
+        if self.operators:
+            values["operators"] = tuple(choice.name for choice in self.operators)
+        return SearchConfig.model_validate(values)
 
     @field_validator("relations")
     @classmethod

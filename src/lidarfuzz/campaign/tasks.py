@@ -112,7 +112,18 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
             frame_ids = frame_ids[: spec.frames]
         plans: list[tuple[dict[str, Any] | None, str, int, int, list[dict[str, Any]]]] = [
             (None, ORIGINAL, 0, -1, [])]
-        for index, choice in enumerate(spec.operators):
+        search = spec.search_config() if spec.kind != "mutation" else None
+        if search is not None:
+            # one subtask holds every generated test. Valid tests preserve labels, so the invariant
+            # relations apply; "auto" means Zhou & Sun's MR1 (an object found before is found after)
+            from lidarfuzz.oracles.relations.registry import from_spec as relation
+
+            choice = spec.relations
+            relation_specs = [relation("preservation").spec()] if choice == "auto" else relations_for(
+                get("gaussian_noise_addition")(), choice)
+            plans.append(({"name": search.kind, "search": search.model_dump(mode="json")}, search.kind, 0, 0,
+                          relation_specs))
+        for index, choice in enumerate([] if search is not None else spec.operators):
             cls = get(choice.name)
             if choice.config is not None:
                 op = cls(**choice.config)
@@ -127,7 +138,9 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         relations_json = spec.relations if spec.relations == "auto" else [
             r if isinstance(r, str) else r.model_dump() for r in spec.relations]
         options = {"frame_ids": frame_ids, "trials": spec.trials, "isolate": isolate, "timeout": timeout,
-                   "save_mutants": save_mutants, "relations": relations_json}
+                   "save_mutants": save_mutants, "relations": relations_json, "kind": spec.kind}
+        if search is not None:
+            options["search"] = search.model_dump(mode="json")
         task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,
                     operators=[c.model_dump(mode="json") for c in spec.operators],
                     relations=relations_json if isinstance(relations_json, list) else ["auto"])
@@ -135,6 +148,8 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         total = 0
         for (op_spec, name, severity, index, relations), key in zip(plans, keys, strict=True):
             units = len(frame_ids) * (1 if op_spec is None else spec.trials)
+            if search is not None and op_spec is not None:
+                units = search.budget
             total += units
             task.subtasks.append(Subtask(operator_key=key, operator=op_spec or {}, name=name, op_index=index,
                                          severity=severity, total=units,

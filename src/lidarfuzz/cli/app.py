@@ -40,9 +40,21 @@ def root(
 
 
 def _register() -> None:
-    from lidarfuzz.cli import campaign, catalog, convert, demo, evaluate, gen, info, operators, relations, suts
+    from lidarfuzz.cli import (
+        campaign,
+        catalog,
+        convert,
+        coverage,
+        demo,
+        evaluate,
+        gen,
+        info,
+        operators,
+        relations,
+        suts,
+    )
 
-    for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign):
+    for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign, coverage):
         module.register(app)
 
 

@@ -69,9 +69,12 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
 
     store = _store(workspace)
     task = get_task(store, task_id)
+    kind = task.options.get("kind", "mutation")
+    plan = (f"{len(task.subtasks) - 1} operator × severity subtasks" if kind == "mutation" else
+            f"{kind} search of {task.options['search']['budget']} tests from "
+            f"{len(task.options['frame_ids'])} seed frames")
     console.print(f"task [bold]{task_id}[/]: {escape(task.model.name)} on {escape(task.dataset.name)}, "
-                  f"{len(task.subtasks) - 1} operator × severity subtasks, {task.total} units "
-                  f"({task.done} done before)")
+                  f"{plan}, {task.total} units ({task.done} done before)")
     columns = (TextColumn("{task.description:<28}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
     with Progress(*columns, console=console, disable=not show_progress, transient=False) as bars:
@@ -172,6 +175,44 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
     console.print(f"findings: {data['findings']['total']} "
                   f"({', '.join(f'{k} {v}' for k, v in sorted(kinds.items())) or 'none'})"
                   + (f"; [red]system failures: {failures}[/]" if failures else ""))
+    print_search(store, task_id)
+
+
+def print_search(store: Any, task_id: int) -> None:
+    """A guided / fuzz task's coverage and search statistics."""
+    from lidarfuzz.campaign.tasks import get_task
+    from lidarfuzz.cli.app import console
+
+    task = get_task(store, task_id)
+    kind = task.options.get("kind", "mutation")
+    sub = next((s for s in task.subtasks if s.name == kind), None)
+    if sub is None or "search" not in sub.results:
+        return
+    info = sub.results["search"]
+    seeds = next((s for s in task.subtasks if s.name != kind), None)
+    table = Table(title=f"{kind} search: neuron coverage (task {task_id})")
+    table.add_column("criterion")
+    table.add_column("seeds alone", justify="right")
+    table.add_column("after the search", justify="right")
+    seed_cov: dict[str, float] = {}
+    if seeds is not None:
+        from sqlalchemy import select
+
+        from lidarfuzz.store.models import FrameResult
+
+        with store.session() as s:
+            last = s.scalars(select(FrameResult.params).where(FrameResult.subtask_id == seeds.id).order_by(
+                FrameResult.id.desc()).limit(1)).first()
+        seed_cov = (last or {}).get("coverage", {})
+    for name, value in info["coverage"].items():
+        show = (lambda v: f"{v:.0f} patterns") if name == "tknp" else (lambda v: f"{100 * v:.1f}%")
+        before = seed_cov.get(name)
+        table.add_row(name.upper(), "" if before is None else show(before), show(value))
+    console.print(table)
+    st = info["stats"]
+    console.print(f"tests {st['tests']}: accepted (new coverage) {st['accepted']}, invalid {st['invalid']}, "
+                  f"violating {st['violating']}; unique findings {st['findings']}"
+                  + (f" (minimising took {st['minimise_runs']} extra runs)" if st.get("minimise_runs") else ""))
 
 
 def register(app: typer.Typer) -> None:
@@ -197,9 +238,25 @@ def register(app: typer.Typer) -> None:
         workers: WorkersOption = None,
         inline: InlineOption = False,
         detach: Annotated[bool, typer.Option(help="Only create the task; run it with lidarfuzz resume.")] = False,
+        kind: Annotated[str, typer.Option(help="mutation (operators × severities), or a coverage-guided search: "
+                                                "guided (DeepTest's greedy search) or fuzz (DeepHunter-style loop); "
+                                                "with a search, --op names the operator pool (default pool if none).")
+                        ] = "mutation",
+        budget: Annotated[int | None, typer.Option(min=1, help="guided/fuzz: tests to generate (default 200).")] = None,
+        criteria: Annotated[str | None, typer.Option(
+            help="guided/fuzz: coverage criteria, e.g. nc:0.2,kmnc:10,nbc,snac,tknc:2,tknp:2 (the default).")] = None,
+        guide: Annotated[str | None, typer.Option(help="guided/fuzz: criterion whose increase accepts a test "
+                                                       "(default nc).")] = None,
+        search_option: Annotated[list[str] | None, typer.Option(
+            "--search", help="guided/fuzz: any search setting k=v, e.g. max_failed_tries=5, batch=4, keep_share=0.5 "
+                             "(repeatable).")] = None,
         workspace: WorkspaceOption = WORKSPACE,
     ) -> None:
-        """Create a campaign task and run it: originals and mutants through the SUT, AP, relations, report."""
+        """Create a campaign task and run it: originals and mutants through the SUT, AP, relations, report.
+
+        With --kind guided or fuzz the task is a coverage-guided search on a learned SUT (e.g. pillars):
+        generated tests, neuron coverage and deduplicated, minimised findings.
+        """
         from lidarfuzz.campaign.spec import load_campaign, parse_campaign
         from lidarfuzz.campaign.tasks import create_task
         from lidarfuzz.cli.app import console
@@ -210,11 +267,20 @@ def register(app: typer.Typer) -> None:
                 raise LidarfuzzError("give a campaign file or --dataset/--sut/--op, not both")
             spec = load_campaign(campaign)
         else:
-            missing = [flag for flag, value in (("--dataset", dataset), ("--sut", sut), ("--op", op)) if not value]
+            needed = (("--dataset", dataset), ("--sut", sut)) + ((("--op", op),) if kind == "mutation" else ())
+            missing = [flag for flag, value in needed if not value]
             if missing:
                 raise LidarfuzzError(f"missing {', '.join(missing)} (or give a campaign file); see lidarfuzz run -h")
             chosen: Any = "auto" if relations == "auto" else [r.strip() for r in relations.split(",") if r.strip()]
-            spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "operators": [parse_op(o) for o in op],
+            search: dict[str, Any] = dict(parse_assignments(search_option or []))
+            if budget is not None:
+                search["budget"] = budget
+            if criteria is not None:
+                search["criteria"] = [c.strip() for c in criteria.split(",") if c.strip()]
+            if guide is not None:
+                search["guide"] = guide
+            spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind,
+                                   "operators": [parse_op(o) for o in op or []], "search": search,
                                    "relations": chosen, "seed": seed, "trials": trials, "frames": frames},
                                   "command line")
         store = _store(workspace)

@@ -37,8 +37,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from lidarfuzz.operators.registry import available, get
 from lidarfuzz.search.evaluate import ChainStep, Evaluation, SearchEvaluator
 
-#: Operators of the default pool: label-preserving, so an object found before a test must be
-#: found after it (the relations' premise), one or more per family.
+#: Operators of the default pool, one or more per family; none moves the frame. Degrading ones
+#: are kept honest by the validity constraint (every object keeps ``keep_share`` of its points),
+#: so an object found before a valid test must be found after it (the relations' premise).
 DEFAULT_OPERATORS = (
     "gaussian_noise_addition", "uniform_noise_addition", "uniform_point_deletion", "random_region_point_deletion",
     "intensity_scaling", "region_intensity_scaling", "outside_roi_scatter", "gaussian_jitter", "beam_missing",
@@ -77,6 +78,10 @@ class SearchConfig(BaseModel):
             raise ValueError(f"unknown operator(s) {unknown}; see `lidarfuzz operators`")
         if not names:
             raise ValueError("the search needs at least one operator")
+        moving = [n for n in names if known[n].relation.value == "equivariant"]
+        if moving:
+            raise ValueError(f"operator(s) {moving} move the frame (equivariant); a search chains "
+                             "label-preserving operators only")
         return names
 
 

@@ -171,11 +171,6 @@ class SearchEvaluator:
             self._scenes.popitem(last=False)
         return scene, done
 
-    def relation_kind(self, chain: Sequence[ChainStep]) -> Relation:
-        order = [Relation.INVARIANT, Relation.EQUIVARIANT, Relation.DEGRADING]
-        kinds = [self.operator(step.spec).relation for step in chain]
-        return max(kinds, key=order.index) if kinds else Relation.INVARIANT
-
     def mutants(self, frame_id: str, chains: Sequence[Sequence[ChainStep]],
                 rngs: Sequence[np.random.Generator | None]) -> list[Evaluation]:
         """Tests of one seed frame, run through the SUT in one batch."""
@@ -206,10 +201,12 @@ class SearchEvaluator:
                 evaluation.valid = False
                 evaluation.validity = (f"{int(lost.sum())} object(s) kept less than {self.keep_share:.0%} "
                                        "of their points")
-            if evaluation.output is None or source.output is None:
+            if evaluation.output is None or source.output is None or not evaluation.valid:
                 continue
+            # a valid test kept every object's points: its label is the seed's (the search's premise,
+            # as DeepHunter's validity constraint), so the invariant relations are its oracle
             pair = Pair(source.scene, evaluation.scene, source.output, evaluation.output,
-                        operator_relation=self.relation_kind(evaluation.chain), transform=None)
+                        operator_relation=Relation.INVARIANT, transform=None)
             for relation in self.relations:
                 if pair.operator_relation in relation.applies_to:
                     evaluation.relations.append(relation(pair).to_dict())
