@@ -78,7 +78,7 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
             follow = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"], replay["operator"],
                                          replay["op_index"], replay["seed"], info["subtask"], relations,
                                          source.boxes, tuple(source.labels), source.failure is not None,
-                                         params=replay["params"]))
+                                         params=replay["params"], operator_relation=replay.get("operator_relation")))
             failure_now = follow.failure
             follow_now = decode_boxes(follow.boxes, follow.labels) if follow.failure is None else None
             outcomes = follow.relations

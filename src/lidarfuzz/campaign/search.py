@@ -36,6 +36,7 @@ from lidarfuzz.store.models import Finding, FrameResult, Status, Subtask, Task
 from lidarfuzz.store.store import Store
 
 KINDS = ("guided", "fuzz")
+#: Trials of minimised tests: MINIMISED × (1 + variant) + the test's number.
 MINIMISED = 1_000_000
 
 
@@ -106,7 +107,7 @@ class _SearchRun:
         return {"dataset": task.dataset.path, "frame_id": e.frame_id, "trial": record.index, "seed": task.seed,
                 "op_index": 0, "operator": e.spec if e.chain else None, "params": e.params if e.chain else {},
                 "sut": task.model.spec, "options": task.model.options, "fingerprint": task.model.fingerprint,
-                "relation": relation}
+                "relation": relation, "operator_relation": "invariant" if e.valid and e.chain else None}
 
     def commit(self, records: list[TestRecord]) -> None:
         specs = {spec["name"]: spec for spec in self.sub.results.get("relation_specs", [])}
@@ -116,7 +117,9 @@ class _SearchRun:
             for record in records:
                 e = record.evaluation
                 sub = self.original if record.role == "seed" else self.sub
-                trial = 0 if record.role == "seed" else record.index + (MINIMISED if record.role == "minimised" else 0)
+                trial = 0 if record.role == "seed" else record.index
+                if record.role == "minimised":
+                    trial = MINIMISED * (1 + record.variant) + record.index
                 boxes, labels = encode_boxes(e.output) if e.output is not None else (None, [])
                 gt_boxes, gt_labels = encode_boxes(e.scene.boxes) if e.scene is not None else (None, [])
                 row_id = self.connection.execute(insert(FrameResult).returning(FrameResult.id), {

@@ -57,6 +57,7 @@ class WorkUnit:
     source_labels: tuple[str, ...] = ()
     source_failed: bool = False
     params: dict[str, Any] | None = None  # exact params (a replay) instead of drawing them
+    operator_relation: str | None = None  # overrides the operator's own (a search's valid tests: invariant)
 
 
 @dataclass
@@ -244,11 +245,13 @@ class Worker:
                 result.boxes, result.labels = encode_boxes(output)
 
         if operator is not None and output is not None and unit.relations and not unit.source_failed:
+            from lidarfuzz.operators.base import Relation
             from lidarfuzz.oracles.relations.base import Pair
 
             t0 = time.perf_counter()
+            kind = Relation(unit.operator_relation) if unit.operator_relation else operator.relation
             pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
-                        operator_relation=operator.relation, transform=operator.transform(params))
+                        operator_relation=kind, transform=operator.transform(params))
             for spec in unit.relations:
                 try:
                     result.relations.append(json_safe(self.relation(spec)(pair).to_dict()))

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from lidarfuzz.operators.registry import available, get
 from lidarfuzz.search.evaluate import ChainStep, Evaluation, SearchEvaluator
@@ -69,6 +69,13 @@ class SearchConfig(BaseModel):
     minimise: bool = True
     minimise_budget: int = Field(12, ge=0, description="fuzz: SUT runs spent minimising one new finding")
 
+    @model_validator(mode="after")
+    def _guide_is_tracked(self) -> SearchConfig:
+        names = [c.split(":")[0].strip().lower() for c in self.criteria]
+        if self.guide not in names:
+            raise ValueError(f"guide {self.guide!r} must be one of the criteria {names}")
+        return self
+
     @field_validator("operators")
     @classmethod
     def _known(cls, names: tuple[str, ...]) -> tuple[str, ...]:
@@ -98,6 +105,7 @@ class TestRecord:
     coverage: dict[str, float] = field(default_factory=dict)
     severities: list[int] = field(default_factory=list)
     findings: list[dict[str, Any]] = field(default_factory=list)
+    variant: int = 0  # a test minimised for several signatures gives several minimised tests
 
     def params(self) -> dict[str, Any]:
         """The frame result's params: the chain (a ``sequence`` spec and its exact params) and the search's notes."""
@@ -236,6 +244,7 @@ class Search:
             if minimise and self.config.minimise and len(evaluation.chain) > 0:
                 target = self.minimise(evaluator, record, key)
                 if target is not record:
+                    target.variant = len(extra)
                     extra.append(target)
             self.known[text] = {"count": 1, "test": record.index}
             self.stats["findings"] += 1

@@ -229,7 +229,7 @@ def decode(
     A peak is a cell that equals the maximum of its 3×3 neighbourhood (CenterNet's
     max-pool suppression); rotated NMS on the boxes comes after (:func:`rotated_nms`).
     """
-    batch, n_classes, height, width = heatmap.shape
+    batch, _, height, width = heatmap.shape
     scores = torch.sigmoid(heatmap)
     peaks = scores == nn.functional.max_pool2d(scores, 3, stride=1, padding=1)
     scores = scores * peaks

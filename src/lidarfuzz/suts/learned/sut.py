@@ -53,7 +53,8 @@ class PillarsOptions(BaseModel):
 
     weights: str | None = Field(None, description="weights file (default: the built-in simulator-trained ones)")
     score_threshold: float = Field(0.1, ge=0.0, le=1.0, description="lowest score kept")
-    nms_iou: float = Field(0.1, ge=0.0, le=1.0, description="rotated BEV IoU above which a lower-scored box of the same class is dropped")
+    nms_iou: float = Field(0.1, ge=0.0, le=1.0,
+                           description="rotated BEV IoU above which a lower-scored box of the same class is dropped")
     top_k: int = Field(100, ge=1, description="heat-map peaks decoded per frame")
     fov_only: bool = Field(True, description="drop points outside the camera's field of view (when calibrated)")
     threads: int = Field(2, ge=1, description="CPU threads PyTorch may use")

@@ -174,7 +174,8 @@ def train(
                 pidx.append(torch.full((len(p),), b, dtype=torch.long, device=device))
                 bidx.append(torch.full((len(bx),), b, dtype=torch.long, device=device))
             heatmap, regression = net(torch.cat(pts), torch.cat(pidx), len(batch))
-            loss, parts = detection_loss(heatmap, regression, torch.cat(bxs), torch.cat(cls), torch.cat(bidx), net.config)
+            loss, parts = detection_loss(heatmap, regression, torch.cat(bxs), torch.cat(cls), torch.cat(bidx),
+                                         net.config)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
