@@ -31,9 +31,9 @@ import numpy as np
 from lidarfuzz.io.kitti import open_kitti
 from lidarfuzz.oracles.kitti_eval import KittiFrame, evaluate_kitti
 from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset, is_complete
+from lidarfuzz.suts.classic import ClassicPipeline
 from lidarfuzz.suts.learned.sut import DEFAULT_WEIGHTS, PillarsDetector, import_torch
 from lidarfuzz.suts.learned.training import TrainConfig, load_frames, save_weights, split_ids, train
-from lidarfuzz.suts.classic import ClassicPipeline
 
 CLASSES = ("Car", "Pedestrian", "Cyclist")
 
@@ -87,7 +87,7 @@ def main() -> None:
     start = time.perf_counter()
     frames = load_frames(args.train_data, split_ids(args.train_data, "train"), CLASSES, workers=args.workers)
     objects = np.bincount(np.concatenate([c for _, _, c in frames]), minlength=len(CLASSES))
-    print(f"loaded {len(frames)} frames ({dict(zip(CLASSES, objects.tolist()))} objects) "
+    print(f"loaded {len(frames)} frames ({dict(zip(CLASSES, objects.tolist(), strict=True))} objects) "
           f"in {time.perf_counter() - start:.0f} s", flush=True)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed)
     checkpoint = args.out.with_suffix(".partial.pt")
@@ -102,7 +102,7 @@ def main() -> None:
     checkpoint.unlink(missing_ok=True)
     meta = {
         "data": {"simulator_seed": args.train_seed, "frames": len(frames), "split": "train",
-                 "objects": dict(zip(CLASSES, objects.tolist()))},
+                 "objects": dict(zip(CLASSES, objects.tolist(), strict=True))},
         "train": {**config.__dict__, "device": history["device"], "seconds": history["seconds"],
                   "final_loss": history["epochs"][-1]["loss"] if history["epochs"] else None},
         "torch": torch.__version__,
