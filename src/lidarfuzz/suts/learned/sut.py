@@ -158,14 +158,16 @@ class PillarsDetector(SystemUnderTest[Scene, Boxes3D]):
 
         self.load()
         opts, cfg = self.options, self.net.config
+        device = next(self.net.parameters()).device  # CPU, unless a caller moved the network
+        points, index, size = self.batch_tensors(list(samples))
         with torch.inference_mode():
-            heatmap, regression = self.net(*self.batch_tensors(list(samples)))
+            heatmap, regression = self.net(points.to(device), index.to(device), size)
             decoded = decode(heatmap, regression, cfg, top_k=opts.top_k, score_threshold=opts.score_threshold)
         out = []
         for boxes_t, scores_t, classes_t in decoded:
-            boxes = apply_size_prior(boxes_t, classes_t, cfg).double().numpy()
-            scores = scores_t.double().numpy()
-            classes = classes_t.numpy()
+            boxes = apply_size_prior(boxes_t, classes_t, cfg).double().cpu().numpy()
+            scores = scores_t.double().cpu().numpy()
+            classes = classes_t.cpu().numpy()
             keep = []
             for c in np.unique(classes):
                 idx = np.flatnonzero(classes == c)

@@ -115,6 +115,7 @@ def train(
     log: Callable[[str], None] = print,
     budget_seconds: float | None = None,
     on_epoch: Callable[[Any, dict[str, Any]], None] | None = None,
+    initial: Any = None,
 ) -> tuple[Any, dict[str, Any]]:
     """Train a fresh PillarNet on in-memory frames; returns (network in eval mode, history).
 
@@ -136,7 +137,10 @@ def train(
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
         torch.backends.cudnn.benchmark = True
-    net = PillarNet(network_config or PillarConfig()).to(device)
+    net = PillarNet(network_config or PillarConfig())
+    if initial is not None:  # fine-tuning: start from these weights (a state dict)
+        net.load_state_dict(initial)
+    net = net.to(device)
     data = [
         (torch.from_numpy(p).to(device), torch.from_numpy(b).to(device), torch.from_numpy(c).to(device))
         for p, b, c in frames
