@@ -299,8 +299,8 @@ The form of DeepTest's Tables 7–8 for a detector: how many frames violate each
 and severity — MR1 (preservation: an object the detector found on the frame is still found, BEV IoU ≥ 0.5,
 score ≥ 0.5, inside the drivable-area ROI) for the invariant operators, and ground-truth recall (a labelled
 object found before is not lost) for all — on the first 40 frames of the seed-0 simulator set, `pillars` as SUT
-(task {task_id} in `{workspace.relative_to(ROOT)}`; `lidarfuzz report {task_id} --workspace {workspace.relative_to(ROOT)}`
-shows each finding with bird's-eye pictures).
+(task {task_id} in `{workspace.relative_to(ROOT)}`;
+`lidarfuzz report {task_id} --workspace {workspace.relative_to(ROOT)}` shows each finding with bird's-eye pictures).
 
 {chr(10).join(lines)}
 

@@ -138,12 +138,13 @@ def main() -> None:
 Regenerate: `python experiments/rq5_retrain.py --epochs {args.epochs} --workers 16` ({time.perf_counter() - start:.0f} s
 on {torch.cuda.get_device_name(0) if device == 'cuda' else 'the CPU'}; it renders its data first).
 
-The form of DeepTest's Table 9. Five weather and sensor operators of the search pool ({', '.join(FAILING)}), fixed before RQ4 ran, mutate half of the
-3,000 training frames (one operator each, random severity 1–5, labels moved with the points); the committed
-weights are fine-tuned for the same number of steps on the clean frames only (control) and on clean frames +
-mutants (retrained), lr 1e-3, seed 7. Scores: KITTI AP|R40 3D, moderate, Car / Pedestrian / Cyclist, on the
-clean val split (100 frames of seed 0) and on held-out mutants of those frames (each operator at severity 3,
-a seed not used in training).
+The form of DeepTest's Table 9. Five weather and sensor operators of the search pool
+({', '.join(FAILING)}), fixed before RQ4 ran, mutate half of the 3,000 training frames
+(one operator each, random severity 1–5, labels moved with the points); the committed weights
+are fine-tuned for the same number of steps on the clean frames only (control) and on clean
+frames + mutants (retrained), lr 1e-3, seed 7. Scores: KITTI AP|R40 3D, moderate, Car / Pedestrian /
+Cyclist, on the clean val split (100 frames of seed 0) and on held-out mutants of those frames (each
+operator at severity 3, a seed not used in training).
 
 {chr(10).join(lines)}
 
