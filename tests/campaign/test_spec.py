@@ -45,7 +45,7 @@ def test_a_campaign_file_is_read_and_normalised(tmp_path: Path) -> None:
         ({"operators": [{"name": "teleport"}]}, "operators.0.name", "unknown operator 'teleport'"),
         ({"operators": [{"name": "fog", "severities": [0, 9]}]}, "operators.0.severities", "1 to 5"),
         ({"operators": [{"name": "fog", "config": {"visibility": 3}}]}, "operators.0.visibility", "Extra inputs"),
-        ({"operators": []}, "operators", "at least 1"),
+        ({"operators": []}, "operators", "at least one operator"),
         ({"relations": ["nope"]}, "relations", "unknown relation 'nope'"),
         ({"seeds": 3}, "seeds", "Extra inputs"),
         ({"frames": 0}, "frames", "greater than or equal to 1"),
