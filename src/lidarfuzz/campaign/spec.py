@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from lidarfuzz.errors import DataFormatError, validation_error
 
@@ -97,7 +97,7 @@ class CampaignSpec(_Model):
     kind: Literal["mutation", "guided", "fuzz"] = Field(
         default="mutation", description="mutation: operators × severities; guided / fuzz: coverage-guided search")
     operators: list[OperatorChoice] = Field(
-        default_factory=list,
+        default_factory=list, validate_default=True,
         description="mutation: what to run; guided / fuzz: the operator pool (default pool if empty)")
     search: dict[str, Any] = Field(
         default_factory=dict, description="guided / fuzz: budget, criteria, guide, max_failed_tries, batch, ...")
@@ -107,10 +107,15 @@ class CampaignSpec(_Model):
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only the first N frames")
 
+    @field_validator("operators")
+    @classmethod
+    def _operators(cls, value: list[OperatorChoice], info: ValidationInfo) -> list[OperatorChoice]:
+        if info.data.get("kind", "mutation") == "mutation" and not value:
+            raise ValueError("a mutation campaign needs at least one operator")
+        return value
+
     @model_validator(mode="after")
     def _kind(self) -> CampaignSpec:
-        if self.kind == "mutation" and not self.operators:
-            raise ValueError("operators: a mutation campaign needs at least one operator")
         if self.kind != "mutation":
             self.search_config()  # fail early on a bad search section
         elif self.search:
