@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -418,3 +420,128 @@ def test_make_criterion_errors() -> None:
     # a CoverageError is a ValueError too
     with pytest.raises(ValueError):
         make_criterion("kmnc:0", KMNC_PROFILE)
+
+
+# -- vectorised update over several layers, validation, non-finite values ---------------------
+
+
+def test_update_in_order_across_layers_and_criteria() -> None:
+    tknc = TopKCoverage(k=1)
+    batch = values(a=[[1, 0], [1, 0], [0, 1]], b=[[0, 0, 1], [1, 0, 0], [0, 0, 1]])
+    # tops: input 0 → a0, b2 (both new); input 1 → a0 (seen), b0 (new); input 2 → a1 (new), b2 (seen)
+    assert tknc.gain(batch).tolist() == [2, 2, 2]  # alone, against the empty state
+    assert tknc.update(batch).tolist() == [True, True, True]
+    # items a0 a1 | b0 b1 b2 → all but b1 → 4 / 5
+    assert tknc.covered_items.tolist() == [True, True, True, False, True]
+    assert tknc.update(values(a=[[0, 1]], b=[[0, 2, 1]])).tolist() == [True]  # b1 at last
+    assert tknc.coverage() == 1.0
+
+
+def test_layers_must_agree_on_inputs_and_keep_their_widths() -> None:
+    with pytest.raises(CoverageError, match=r"layer 'b' has 1 rows but layer 'a' has 2.*reducer"):
+        NeuronCoverage().update(values(a=[[0, 1], [1, 0]], b=[[0, 1]]))
+    with pytest.raises(CoverageError, match=r"\(inputs, units\)"):
+        NeuronCoverage().update({"a": np.zeros(3)})
+    with pytest.raises(CoverageError, match="no neuron values"):
+        NeuronCoverage().update({})
+    nc = NeuronCoverage()
+    nc.update(values(a=[[0, 1]]))
+    with pytest.raises(CoverageError, match="layer 'a' had 2 neurons, now 3"):
+        nc.gain(values(a=[[0, 1, 2]]))
+    tknp = TopKPatterns(k=1)
+    tknp.update(values(a=[[0, 1]]))
+    with pytest.raises(CoverageError, match="widths changed"):
+        tknp.update(values(a=[[0, 1, 2]]))
+
+
+def test_profiled_criteria_check_the_profile_width() -> None:
+    # KMNC_PROFILE's layer "a" has 3 neurons; 2 values per input do not fit it
+    with pytest.raises(CoverageError, match="'a' has 2 neurons but its profile 3"):
+        KMultisectionCoverage(KMNC_PROFILE, k=4).update(values(a=[[1, 2]]))
+    with pytest.raises(CoverageError, match="not a NeuronProfile"):
+        NeuronBoundaryCoverage(object())
+
+
+def test_non_finite_values_cover_nothing() -> None:
+    nc = NeuronCoverage(threshold=0.4)
+    nc.update(values(a=[[0, np.nan, 10, np.inf]]))
+    # NaN and inf left out of min and max: range 0..10 → [0, -, 1, -] → only neuron 2
+    assert nc.covered_items.tolist() == [False, False, True, False]
+    kmnc = KMultisectionCoverage(KMNC_PROFILE, k=4)
+    assert kmnc.gain(values(a=[[np.nan, np.inf, 5]])).tolist() == [1]  # only neuron 2 (v = low = high)
+    nbc = NeuronBoundaryCoverage(CORNER_PROFILE)
+    assert nbc.gain(values(a=[[np.nan, np.nan]])).tolist() == [0]
+    tknc = TopKCoverage(k=1)
+    tknc.update(values(a=[[np.nan, -5, -7]]))  # NaN is never the top: -5 (index 1) is
+    assert tknc.covered_items.tolist() == [False, True, False]
+
+
+# -- parameters, states, copies -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("spec", ["nc:1.0", "nc:-0.1", "kmnc:2.5", "tknc:0", "tknp:-1", "nbc:-1", "snac:nan"])
+def test_bad_parameters_are_refused_naming_the_spec(spec: str) -> None:
+    with pytest.raises(CoverageError, match=spec.replace(".", r"\.")):
+        make_criterion(spec, CORNER_PROFILE)
+
+
+def test_make_criteria_options_strings_and_duplicates() -> None:
+    nc, kmnc, tknc = make_criteria(["nc", "kmnc", "tknc:3"], KMNC_PROFILE, nc=0.5, kmnc=4, tknc=1)
+    # options fill in specs without a value; an explicit value wins
+    assert (nc.threshold, kmnc.k, tknc.k) == (0.5, 4, 3)
+    assert [c.name for c in make_criteria("nc:0.1, tknp")] == ["nc", "tknp"]
+    with pytest.raises(CoverageError, match="unknown criterion option"):
+        make_criteria(["nc"], threshold=0.5)
+    with pytest.raises(CoverageError, match="'nc' is asked for twice"):
+        make_criteria(["nc:0.1", "nc:0.5"])
+    with pytest.raises(CoverageError, match=r"training-set profile.*build_profile"):
+        make_criteria(["nc", "snac"])
+
+
+def test_state_dict_names_its_criterion_and_parameters() -> None:
+    nc = NeuronCoverage(threshold=0.25)
+    nc.update(values(a=[[0, 1, 2, 3, 4]]))
+    state = nc.state_dict()
+    assert (state["name"], state["params"], state["sizes"]) == ("nc", {"threshold": 0.25}, [5])
+    with pytest.raises(CoverageError, match=r"recorded with \{'threshold': 0.25\}"):
+        NeuronCoverage(threshold=0.5).load_state_dict(state)
+    with pytest.raises(CoverageError, match="'nc' into 'tknc'"):
+        TopKCoverage().load_state_dict(state)
+    # an old state without sizes learns them from the next batch, and refuses a batch that does not fit
+    old = NeuronCoverage(threshold=0.25)
+    old.load_state_dict({"layers": ["a"], "covered": [True, False, False]})
+    with pytest.raises(CoverageError, match="3 items but these layers give 5"):
+        old.update(values(a=[[0, 1, 2, 3, 4]]))
+
+
+def test_kmnc_state_and_copy_share_the_profile() -> None:
+    kmnc = KMultisectionCoverage(KMNC_PROFILE, k=4)
+    kmnc.update(values(a=[[3, 8, 5]]))  # items 1, 7, 8 (see test_kmnc_sections)
+    twin = kmnc.copy()
+    assert twin.profile is kmnc.profile
+    twin.update(values(a=[[0, 0, 5]]))  # adds items 0 and 4
+    assert (twin.covered(), kmnc.covered()) == (5, 3)
+    again = KMultisectionCoverage(KMNC_PROFILE, k=4)
+    again.load_state_dict(json.loads(json.dumps({**kmnc.state_dict(), "covered": kmnc.covered_items.tolist()})))
+    assert np.flatnonzero(again.covered_items).tolist() == [1, 7, 8]
+    assert again.update(values(a=[[3, 8, 5]])).tolist() == [False]
+    tknp = TopKPatterns(k=1)
+    tknp.update(TKNP_BATCH)
+    copy = tknp.copy()
+    copy.update(values(a=[[0, 0, 1]], b=[[0, 1]]))
+    assert (copy.coverage(), tknp.coverage()) == (4.0, 3.0)
+
+
+def test_coverage_imports_without_torch() -> None:
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "import numpy as np, lidarfuzz.coverage as cov\n"
+        "assert cov.make_criterion('nc').update({'a': np.array([[0.0, 1.0]])}).tolist() == [True]\n"
+        "try:\n"
+        "    cov.neuron_values(object(), None)\n"
+        "except ImportError as exc:\n"
+        "    print(exc)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "pip install 'lidarfuzz[learned]'" in done.stdout

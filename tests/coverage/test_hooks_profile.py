@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,9 @@ from torch import nn  # noqa: E402
 from lidarfuzz.coverage import (  # noqa: E402
     ActivationRecorder,
     CoverageError,
+    CoverageTracker,
     NeuronProfile,
+    ProfileFileError,
     ProfileStore,
     build_profile,
     default_layers,
@@ -22,6 +26,7 @@ from lidarfuzz.coverage import (  # noqa: E402
     neuron_values,
 )
 from lidarfuzz.coverage.hooks import reduce_output  # noqa: E402
+from lidarfuzz.errors import DataFormatError  # noqa: E402
 
 pytestmark = pytest.mark.torch
 
@@ -259,7 +264,7 @@ def test_profile_by_hand() -> None:
     profile.update({"a": np.array([[5.0]])})
     layer = profile.layers["a"]
     # values 1, 3, 5: min 1, max 5, mean 3, population std sqrt((4 + 0 + 4) / 3) = sqrt(8 / 3)
-    assert int(layer["count"]) == 3
+    assert layer["count"].tolist() == [3]  # one count per neuron
     assert profile.inputs == 3
     np.testing.assert_allclose(layer["min"], [1.0])
     np.testing.assert_allclose(layer["max"], [5.0])
@@ -281,7 +286,7 @@ def test_profile_streams_uneven_batches() -> None:
     for name in ("a", "b"):
         everything = np.concatenate([batch[name] for batch in batches])
         layer = profile.layers[name]
-        assert int(layer["count"]) == 8
+        assert layer["count"].tolist() == [8] * everything.shape[1]
         np.testing.assert_allclose(layer["min"], everything.min(axis=0))
         np.testing.assert_allclose(layer["max"], everything.max(axis=0))
         np.testing.assert_allclose(layer["mean"], everything.mean(axis=0), rtol=1e-12)
@@ -384,3 +389,253 @@ def test_build_profile_on_the_tiny_net() -> None:
     kmnc = make_criterion("kmnc:2", profile)
     kmnc.update(neuron_values(net, torch.tensor(X[:1])))
     assert (kmnc.covered(), kmnc.total) == (5, 10)
+
+
+# -- more recorder behaviour --------------------------------------------------------------------
+
+
+def test_conv_kernel_2_channel_means_feed_nc() -> None:
+    conv = nn.Sequential(nn.Conv2d(1, 2, kernel_size=2), nn.ReLU())
+    with torch.no_grad():
+        conv[0].weight.copy_(torch.tensor([[[[1.0, 0.0], [0.0, 1.0]]], [[[0.0, -1.0], [1.0, 0.0]]]]))
+        conv[0].bias.copy_(torch.tensor([0.0, 2.0]))
+    x = torch.arange(9.0).reshape(1, 1, 3, 3)  # [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
+    got = neuron_values(conv, x)
+    # channel 0 = top-left + bottom-right: [[0 + 4, 1 + 5], [3 + 7, 4 + 8]] = [[4, 6], [10, 12]] → mean 8
+    # channel 1 = bottom-left − top-right + 2: [[3 − 1, 4 − 2], [6 − 4, 7 − 5]] + 2 = all 4 → mean 4
+    np.testing.assert_allclose(got["1"], [[8.0, 4.0]])
+    nc = make_criterion("nc:0.2")
+    nc.update(got)
+    # scaled [1, 0] → only channel 0 → 1 / 2
+    assert nc.covered_items.tolist() == [True, False]
+
+
+def test_unknown_layer_error_suggests_close_names() -> None:
+    net = nn.Sequential()
+    net.add_module("block", nn.Sequential(nn.Linear(2, 2), nn.ReLU()))
+    # a typo: the message suggests the near names and lists some real ones
+    with pytest.raises(ValueError, match=r"no layer\(s\) \['blok.1'\]; did you mean \[[^]]*'block.1'.*include"):
+        ActivationRecorder(net, ["blok.1"])
+    with pytest.raises(CoverageError, match="reducers for \\['zz'\\]"):
+        ActivationRecorder(net, ["block.1"], reducers={"zz": lambda out: out})
+
+
+class TupleOut(nn.Module):
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return x, x
+
+
+def test_non_tensor_output_and_bad_reducer_are_named() -> None:
+    model = nn.Sequential()
+    model.add_module("pair", TupleOut())
+    with pytest.raises(CoverageError, match="layer 'pair' returns tuple"):
+        neuron_values(model, torch.ones(1, 2), layers=["pair"])
+    net = tiny_net()
+    with pytest.raises(CoverageError, match=r"layer '1': the reducer must return \(inputs, units\)"):
+        neuron_values(net, torch.tensor(X), layers=["1"], reducers={"1": lambda out: out.sum()})
+    assert all_hooks_gone(net)
+
+
+def test_recorder_cannot_be_entered_twice() -> None:
+    net = tiny_net()
+    recorder = ActivationRecorder(net)
+    with recorder, pytest.raises(CoverageError, match="already recording"), recorder:
+        pass
+    assert all_hooks_gone(net)
+
+
+class PillarNet(nn.Module):
+    """Point-wise features (P, C) with a frame index per point, then a per-frame max."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lin = nn.Linear(1, 2)
+        self.act = nn.ReLU()
+        with torch.no_grad():
+            self.lin.weight.copy_(torch.tensor([[1.0], [-1.0]]))
+            self.lin.bias.zero_()
+        self.last_index = torch.zeros(0, dtype=torch.long)
+
+    def forward(self, batch: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+        points, index = batch
+        self.last_index = index
+        return self.act(self.lin(points))
+
+
+def test_reducer_for_a_layer_that_is_not_batch_first() -> None:
+    model = PillarNet()
+
+    def per_frame_mean(features: torch.Tensor) -> torch.Tensor:  # (P, C) → (frames, C)
+        index = model.last_index
+        sums = features.new_zeros(int(index.max()) + 1, features.shape[1]).index_add_(0, index, features)
+        return sums / torch.bincount(index).unsqueeze(1)
+
+    points = torch.tensor([[1.0], [3.0], [-2.0]])  # points 0 and 1 in frame 0, point 2 in frame 1
+    index = torch.tensor([0, 0, 1])
+    got = neuron_values(model, (points, index), layers=["act"], reducers={"act": per_frame_mean})
+    # features ReLU([p, −p]): [1, 0], [3, 0], [0, 2] → frame 0 mean [2, 0], frame 1 [0, 2]
+    np.testing.assert_allclose(got["act"], [[2.0, 0.0], [0.0, 2.0]])
+    # without the reducer the layer has one row per point: a criterion says what to do
+    raw = neuron_values(model, (points, index), layers=["lin", "act"],
+                        reducers={"lin": lambda f: f[:2]})  # 2 rows vs 3 rows
+    with pytest.raises(CoverageError, match="reducer"):
+        make_criterion("nc").update(raw)
+
+
+# -- fingerprints -------------------------------------------------------------------------------
+
+
+def test_module_fingerprint_is_a_fixed_function_of_class_and_weights() -> None:
+    # a golden value: the same in every process, on every machine, and in earlier versions
+    # (profiles shipped beside weights are found by it)
+    assert module_fingerprint(tiny_net()) == "f5439136179a9627"
+    half = tiny_net().to(torch.bfloat16)  # a dtype numpy lacks still hashes, to another value
+    assert module_fingerprint(half) == "b934044000ea02bb"
+
+
+class WithExtraState(nn.Module):
+    def __init__(self, tag: str) -> None:
+        super().__init__()
+        self.tag = tag
+
+    def get_extra_state(self) -> dict[str, str]:
+        return {"tag": self.tag}
+
+    def set_extra_state(self, state: dict[str, str]) -> None:
+        self.tag = state["tag"]
+
+
+def test_module_fingerprint_counts_extra_state_and_class() -> None:
+    assert module_fingerprint(WithExtraState("a")) == module_fingerprint(WithExtraState("a"))
+    assert module_fingerprint(WithExtraState("a")) != module_fingerprint(WithExtraState("b"))
+    # same (no) weights, another class → another fingerprint
+    assert module_fingerprint(nn.ReLU()) != module_fingerprint(nn.Tanh())
+
+
+# -- profiles: non-finite values, old files, corruption -------------------------------------------
+
+
+def test_profile_skips_non_finite_values_per_neuron() -> None:
+    profile = NeuronProfile()
+    profile.update({"a": np.array([[1.0, np.nan, np.nan], [3.0, 2.0, np.nan]])})
+    profile.update({"a": np.array([[np.inf, 4.0, np.nan]])})
+    layer = profile.layers["a"]
+    # neuron 0: 1, 3 → count 2, mean 2, std 1;  neuron 1: 2, 4 → count 2, mean 3, std 1;  neuron 2: nothing
+    assert layer["count"].tolist() == [2, 2, 0]
+    np.testing.assert_allclose(layer["mean"][:2], [2.0, 3.0])
+    np.testing.assert_allclose(layer["std"][:2], [1.0, 1.0])
+    np.testing.assert_allclose(layer["min"][:2], [1.0, 2.0])
+    np.testing.assert_allclose(layer["max"][:2], [3.0, 4.0])
+    assert np.isnan(layer["min"][2]) and np.isnan(layer["max"][2])
+    assert profile.inputs == 3
+    # a neuron without a profiled value covers no corner
+    assert make_criterion("nbc", profile).gain({"a": np.array([[0.0, 2.5, 1e9]])}).tolist() == [1]  # neuron 0 low
+    profile.update({"a": np.array([[2.0, 3.0, 5.0]])})
+    np.testing.assert_allclose(layer["min"], [1.0, 2.0, 5.0])
+    np.testing.assert_allclose(profile.layers["a"]["mean"], [2.0, 3.0, 5.0])
+
+
+def test_profile_of_the_first_format_loads(tmp_path) -> None:
+    # format 1 kept one count per layer
+    header = {"format": 1, "fingerprint": "f", "layers": ["a"], "inputs": 2}
+    path = tmp_path / "old.npz"
+    np.savez(path, __header__=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
+             **{"0.count": np.array(2), "0.min": np.array([1.0, 2.0]), "0.max": np.array([3.0, 6.0]),
+                "0.mean": np.array([2.0, 4.0]), "0.std": np.array([1.0, 2.0]), "0.m2": np.array([2.0, 8.0])})
+    loaded = NeuronProfile.load(path)
+    assert loaded.layers["a"]["count"].tolist() == [2, 2]
+    loaded.update({"a": np.array([[5.0, 4.0]])})
+    # neuron 0: 1, 3, 5 → mean 3, std sqrt(8 / 3);  neuron 1: 2, 6, 4 → mean 4, std sqrt(8 / 3)
+    np.testing.assert_allclose(loaded.layers["a"]["mean"], [3.0, 4.0])
+    np.testing.assert_allclose(loaded.layers["a"]["std"], [np.sqrt(8 / 3)] * 2)
+
+
+def test_profile_file_errors_name_the_file_and_what_is_wrong(tmp_path) -> None:
+    no_header = tmp_path / "no_header.npz"
+    np.savez(no_header, a=np.zeros(2))
+    header = {"format": 2, "fingerprint": "f", "layers": ["a"], "inputs": 1}
+    encoded = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    ragged = tmp_path / "ragged.npz"
+    np.savez(ragged, __header__=encoded, **{"0.count": np.ones(2), "0.min": np.zeros(2), "0.max": np.zeros(3),
+                                             "0.mean": np.zeros(2), "0.std": np.zeros(2), "0.m2": np.zeros(2)})
+    lacking = tmp_path / "lacking.npz"
+    np.savez(lacking, __header__=encoded, **{"0.min": np.zeros(2)})
+    future = tmp_path / "future.npz"
+    np.savez(future, __header__=np.frombuffer(json.dumps({**header, "format": 9}).encode(), dtype=np.uint8))
+    cases = {no_header: "no header", ragged: "unequal shapes", lacking: "are missing", future: "format 9"}
+    for path, what in cases.items():
+        with pytest.raises(ProfileFileError, match=what) as info:
+            NeuronProfile.load(path)
+        assert str(path) in str(info.value) and "lidarfuzz profile" in str(info.value)
+        # one class for every way a profile file is wrong: a DataFormatError and a CoverageError
+        assert isinstance(info.value, DataFormatError) and isinstance(info.value, CoverageError)
+
+
+def test_profile_store_default_folder_and_fingerprint_check(tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("LIDARFUZZ_CACHE", str(tmp_path / "cache"))
+    store = ProfileStore()
+    assert store.path_for("abc123") == tmp_path / "cache" / "profiles" / "abc123.npz"
+    with pytest.raises(CoverageError, match="not a model fingerprint"):
+        store.path_for("../escape")
+    assert store.get("abc123") is None
+
+
+def test_build_profile_fingerprints_the_model_by_default() -> None:
+    net = tiny_net()
+    assert build_profile(net, [torch.tensor(X)]).fingerprint == "f5439136179a9627"
+    with pytest.raises(CoverageError, match="no batch"):
+        build_profile(net, [])
+
+
+# -- CoverageTracker ----------------------------------------------------------------------------
+
+
+def test_tracker_probe_commit_observe() -> None:
+    net = tiny_net()
+    tracker = CoverageTracker(net, ["nc:0.5", "tknc:1", "tknp:1"])
+    assert tracker.names == ["nc", "tknc", "tknp"]
+    gains, got = tracker.probe(torch.tensor(X))
+    # nc (t = .5, strict): input 0: "1" [1, 2, 0] → [.5, 1, 0] → {1}, "3" [3, 0] → {0}: items 1 and 3 → 2;
+    #                      input 1: "1" [3, 0, 3] → {0, 2}, "3" [3, 3.5] → {1}: items 0, 2, 4 → 3
+    # tknc (k = 1): input 0 → "1" index 1, "3" index 0 → 2;  input 1 → [3, 0, 3] tie → index 0, "3" index 1 → 2
+    # tknp: patterns (1, 0) and (0, 1) → each new alone
+    assert {k: v.tolist() for k, v in gains.items()} == {"nc": [2, 3], "tknc": [2, 2], "tknp": [1, 1]}
+    assert tracker.summary() == {"nc": 0.0, "tknc": 0.0, "tknp": 0.0}  # probing changed nothing
+    np.testing.assert_array_equal(got["3"], RELU_3)
+    np.testing.assert_array_equal(tracker.last_output.numpy(), RELU_3)  # the forward's own output
+
+    flags = tracker.commit(got)
+    assert {k: v.tolist() for k, v in flags.items()} == {"nc": [True, True], "tknc": [True, True],
+                                                        "tknp": [True, True]}
+    # nc 5 / 5; tknc {1, 3, 0, 4} of 5 → 0.8; tknp 2 patterns
+    assert tracker.summary() == pytest.approx({"nc": 1.0, "tknc": 0.8, "tknp": 2.0})
+    # the first input again: nothing new anywhere
+    again = tracker.observe(torch.tensor(X[:1]))
+    assert {k: v.tolist() for k, v in again.items()} == {"nc": [False], "tknc": [False], "tknp": [False]}
+    assert all_hooks_gone(net)
+
+
+def test_tracker_state_copy_and_errors() -> None:
+    net = tiny_net()
+    tracker = CoverageTracker(net, [make_criterion("tknc:1"), "nc:0.5"])
+    tracker.observe(torch.tensor(X[:1]))
+    twin = tracker.copy()
+    twin.observe(torch.tensor(X[1:]))
+    assert (tracker.summary()["tknc"], twin.summary()["tknc"]) == pytest.approx((0.4, 0.8))
+
+    fresh = CoverageTracker(net, ["nc:0.5", "tknc:1"])
+    fresh.load_state_dict(twin.state_dict())
+    assert fresh.summary() == twin.summary()
+    assert fresh.observe(torch.tensor(X))["nc"].tolist() == [False, False]
+
+    with pytest.raises(CoverageError, match="holds criteria"):
+        CoverageTracker(net, ["nc:0.5"]).load_state_dict(twin.state_dict())
+    with pytest.raises(CoverageError, match="other layers"):
+        CoverageTracker(net, ["nc:0.5", "tknc:1"], layers=["1"]).load_state_dict(twin.state_dict())
+    with pytest.raises(CoverageError, match="'nc' is given twice"):
+        CoverageTracker(net, ["nc:0.5", make_criterion("nc")])
+    with pytest.raises(CoverageError, match="needs a training-set profile"):
+        CoverageTracker(net, ["kmnc"])
+    # a forward that never reaches the model's layers
+    with pytest.raises(CoverageError, match="reached none"):
+        CoverageTracker(net, ["nc"], forward=lambda batch: batch).observe(torch.tensor(X))
