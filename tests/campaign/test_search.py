@@ -17,7 +17,7 @@ from lidarfuzz.campaign.replay import replay_finding
 from lidarfuzz.campaign.runner import run_task
 from lidarfuzz.campaign.search import MINIMISED
 from lidarfuzz.campaign.spec import parse_campaign
-from lidarfuzz.campaign.tasks import create_task, get_task
+from lidarfuzz.campaign.tasks import create_task, get_task, list_tasks
 from lidarfuzz.cli.app import app
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.kitti import open_kitti
@@ -163,3 +163,6 @@ def test_cli_runs_a_guided_search(world: Path, tmp_path: Path) -> None:
                                  "classic", "--kind", "fuzz", "--budget", "2", "--criteria", "nc", "--inline"])
     assert result.exit_code != 0
     assert "torch.nn.Module" in str(result.exception)  # lidarfuzz's main prints it as one line, exit code 2
+    store = Store(tmp_path / "ws")  # refused before a task was made
+    assert [t.id for t in list_tasks(store)] == [1]
+    store.close()

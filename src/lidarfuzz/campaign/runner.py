@@ -85,13 +85,27 @@ def worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def recount(store: Store, task_id: int) -> None:
-    """Counters and subtask states from the results actually stored."""
+def mark_running(store: Store, task_id: int, *, below_trial: int | None = None) -> None:
+    """Claim a task for this process (status, worker, heartbeat, start time), then recount it."""
+    with store.session() as s:
+        row = s.get(Task, task_id)
+        assert row is not None
+        row.status, row.error, row.worker, row.heartbeat_at = Status.RUNNING, "", worker_name(), _now()
+        row.started_at = row.started_at or _now()
+        row.finished_at = None
+    recount(store, task_id, below_trial=below_trial)
+
+
+def recount(store: Store, task_id: int, *, below_trial: int | None = None) -> None:
+    """Counters and subtask states from the results actually stored (only trials below
+    ``below_trial`` count, when given: a search's minimised copies are extra rows)."""
     with store.session() as s:
         task = s.get(Task, task_id)
         assert task is not None
-        counts = dict(s.execute(select(FrameResult.subtask_id, func.count()).join(Subtask).where(
-            Subtask.task_id == task_id).group_by(FrameResult.subtask_id)).all())
+        query = select(FrameResult.subtask_id, func.count()).join(Subtask).where(Subtask.task_id == task_id)
+        if below_trial is not None:
+            query = query.where(FrameResult.trial < below_trial)
+        counts = dict(s.execute(query.group_by(FrameResult.subtask_id)).all())
         for sub in task.subtasks:
             sub.done = int(counts.get(sub.id, 0))
             if sub.done >= sub.total and sub.status != Status.DONE:
@@ -328,13 +342,7 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
         from lidarfuzz.campaign.search import run_search_task
 
         return run_search_task(store, task_id, progress=progress, stop=stop)
-    with store.session() as s:
-        row = s.get(Task, task_id)
-        assert row is not None
-        row.status, row.error, row.worker, row.heartbeat_at = Status.RUNNING, "", worker_name(), _now()
-        row.started_at = row.started_at or _now()
-        row.finished_at = None
-    recount(store, task_id)
+    mark_running(store, task_id)
     task = get_task(store, task_id)
     in_memory = store.url.startswith("sqlite://") and store.url in ("sqlite://", "sqlite:///:memory:")
     options = task.options
@@ -386,4 +394,4 @@ def _set_status(store: Store, task_id: int, status: Status, error: str) -> None:
                 sub.status = Status.PENDING if status != Status.FAILED else sub.status
 
 
-__all__ = ["CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "recount", "run_task"]
+__all__ = ["CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "mark_running", "recount", "run_task"]

@@ -27,7 +27,7 @@ from lidarfuzz.campaign.runner import (
     RunStats,
     _now,
     _set_status,
-    worker_name,
+    mark_running,
 )
 from lidarfuzz.campaign.tasks import ORIGINAL, get_task
 from lidarfuzz.errors import LidarfuzzError
@@ -219,17 +219,7 @@ def run_search_task(store: Store, task_id: int, *, progress: Callable[[ProgressE
     """Run (or resume) a ``guided`` or ``fuzz`` task to its budget."""
     from lidarfuzz.campaign.results import summarise
 
-    with store.session() as s:
-        row = s.get(Task, task_id)
-        assert row is not None
-        row.status, row.error, row.worker, row.heartbeat_at = Status.RUNNING, "", worker_name(), _now()
-        row.started_at = row.started_at or _now()
-        row.finished_at = None
-        # counters from what is stored (a crashed step committed nothing)
-        for sub in row.subtasks:
-            sub.done = int(s.scalar(select(func.count()).select_from(FrameResult).where(
-                FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)) or 0)
-        row.done = sum(sub.done for sub in row.subtasks)
+    mark_running(store, task_id, below_trial=MINIMISED)  # counts what is stored: a crashed step committed nothing
     task = get_task(store, task_id)
     started = time.perf_counter()
     status = Status.DONE

@@ -98,6 +98,17 @@ def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
     return row
 
 
+def _check_searchable(model: Model) -> None:
+    """A coverage-guided search hooks the SUT's ``torch.nn.Module``: refuse a SUT without one
+    now, not when the task runs (the weights are not loaded to find out)."""
+    from lidarfuzz.suts.registry import create
+
+    system = create(model.spec, **model.options)
+    if not hasattr(type(system), "module") and "module" not in vars(system):
+        raise StoreError(f"a coverage-guided search needs a SUT built on a torch.nn.Module exposed as `.module`; "
+                         f"model {model.name!r} ({type(system).__name__}) has none (e.g. --sut pillars)")
+
+
 def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None = None,
                 isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None) -> int:
     """Plan ``spec`` as a new pending task; returns its id."""
@@ -114,6 +125,7 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
             (None, ORIGINAL, 0, -1, [])]
         search = spec.search_config() if spec.kind != "mutation" else None
         if search is not None:
+            _check_searchable(model)
             # one subtask holds every generated test. Valid tests preserve labels, so the invariant
             # relations apply; "auto" means Zhou & Sun's MR1 (an object found before is found after)
             from lidarfuzz.oracles.relations.registry import from_spec as relation
