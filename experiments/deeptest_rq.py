@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import sys
 import time
 from pathlib import Path
@@ -56,11 +57,19 @@ def setup(relations: list[Any] | None = None) -> tuple[Any, Any, Any]:
     return sut, evaluator, coverage_profile(sut.module)
 
 
+#: Text after this heading is written by hand (a manual look at results) and kept when a page is regenerated.
+KEPT = "\n## Manual look"
+
+
 def write(name: str, title: str, body: str, command: str, seconds: float) -> None:
     DOCS.mkdir(parents=True, exist_ok=True)
     text = (f"# {title}\n\nRegenerate: `{command}` ({seconds:.0f} s on the 2-core CPU machine).\n\n"
             f"{body.strip()}\n")
-    (DOCS / f"{name}.md").write_text(text)
+    page = DOCS / f"{name}.md"
+    old = page.read_text() if page.exists() else ""
+    if KEPT in old:
+        text += old[old.index(KEPT):]
+    page.write_text(text)
     print(text)
 
 
@@ -285,7 +294,8 @@ def rq4(args: argparse.Namespace) -> None:
 
     run_task(store, task_id, executor=InlineExecutor())
     data = summarise(store, task_id)
-    lines = ["| operator@severity | MR1 preservation: frames violated / checked | GT recall: violated / checked |",
+    lines = ["| operator (severities 1, 3, 5 pooled) | MR1 preservation: frames violated / checked | "
+             "GT recall: violated / checked |",
              "|---|---:|---:|"]
     by = {(r["relation"], r["operator"]): r for r in data["violations"]["relation_operator"]}
     for op in sorted({r["operator"] for r in data["violations"]["relation_operator"]}):
@@ -306,18 +316,82 @@ object found before is not lost) for all — on the first 40 frames of the seed-
 
 Findings: {data['findings']['total']} ({', '.join(f'{k} {v}' for k, v in sorted(data['findings']['by_kind'].items()))}).
 
-See the "manual look" section below for false positives.
+The manual look at a sample of these findings, for false positives, is below (`python
+experiments/deeptest_rq.py rq4-review` recomputes its figures and pictures).
 """
     write("rq4", "RQ4: violations per relation and operator", body,
           "python experiments/deeptest_rq.py rq4", time.perf_counter() - start)
 
 
+def rq4_review(args: argparse.Namespace) -> None:
+    """The false-positive check of RQ4's findings: for every lost object, how many of its points
+    the mutant kept (a relation's premise is that the object is still there to be seen), plus
+    bird's-eye pictures of a seeded sample for the manual look."""
+    from lidarfuzz.report.bev import draw_pair, load_pair
+    from lidarfuzz.report.charts import figure_png
+    from lidarfuzz.scene.geometry import points_in_boxes
+    from lidarfuzz.store.models import Finding
+    from lidarfuzz.store.store import Store
+
+    workspace = ROOT / "bench-out" / "rq4-workspace"
+    store = Store(workspace)
+    with store.session() as s:
+        rows = [(f.id, f.kind, f.cls) for f in s.query(Finding).order_by(Finding.id)]
+    datasets: dict[str, Any] = {}
+    table = []
+    for finding_id, kind, cls in rows:
+        pair = load_pair(store, finding_id, datasets=datasets)
+        if pair.mutant is None:
+            continue
+        if pair.lost_gt:  # the labelled object, in the source and (moved with it) in the mutant
+            g, f = pair.lost_gt[0], pair.lost_gt_follow[0]
+            before_box = pair.source.boxes.as_array()[g:g + 1]
+            after_box = pair.mutant.boxes.as_array()[f:f + 1] if f >= 0 else None
+        elif pair.lost_source:  # the detection the follow-up lost (invariant operators move nothing)
+            before_box = after_box = pair.source_detections.as_array()[pair.lost_source[0]:pair.lost_source[0] + 1]
+        else:
+            continue
+        before = int(points_in_boxes(pair.source.points.xyz, before_box).sum())
+        after = 0 if after_box is None else int(points_in_boxes(pair.mutant.points.xyz, after_box).sum())
+        table.append({"id": finding_id, "kind": kind, "cls": cls, "label": pair.finding["label"],
+                      "range": float(np.hypot(*before_box[0, :2])), "before": before, "after": after})
+    kept = np.array([t["after"] / max(t["before"], 1) for t in table])
+    lines = ["| relation | findings | object kept ≥ 50 % of its points | kept < 10 % (the premise fails) |",
+             "|---|---:|---:|---:|"]
+    for kind in sorted({t["kind"] for t in table}):
+        mask = np.array([t["kind"] == kind for t in table])
+        lines.append(f"| {kind} | {int(mask.sum())} | {int((kept[mask] >= 0.5).sum())} | "
+                     f"{int((kept[mask] < 0.1).sum())} |")
+    by_op: dict[str, list[float]] = {}
+    for t, k in zip(table, kept, strict=True):
+        by_op.setdefault(t["label"].split("@")[0], []).append(k)
+    op_lines = ["| operator | findings | median share of the lost object's points kept |", "|---|---:|---:|"]
+    for op, values in sorted(by_op.items()):
+        op_lines.append(f"| {op} | {len(values)} | {100 * float(np.median(values)):.0f} % |")
+    rng = np.random.default_rng(args.seed)
+    sample = sorted(rng.choice(len(table), size=min(args.sample, len(table)), replace=False).tolist())
+    images = ROOT / "docs" / "experiments" / "images" / "rq4"
+    images.mkdir(parents=True, exist_ok=True)
+    sample_lines = ["| finding | relation | operator | class | range | points before → after |",
+                    "|---|---|---|---|---:|---:|"]
+    for i in sample:
+        t = table[i]
+        pair = load_pair(store, t["id"], datasets=datasets)
+        (images / f"finding-{t['id']}.png").write_bytes(figure_png(draw_pair(pair)))
+        sample_lines.append(f"| [{t['id']}](images/rq4/finding-{t['id']}.png) | {t['kind']} | {t['label']} | "
+                            f"{t['cls']} | {t['range']:.1f} m | {t['before']} → {t['after']} |")
+    print("\n".join(lines), "\n\n" + "\n".join(op_lines), "\n\n" + "\n".join(sample_lines))
+    (ROOT / "bench-out" / "rq4-review.json").write_text(json.dumps(table, indent=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("question", choices=["rq1", "rq2", "rq3", "rq4"])
+    parser.add_argument("question", choices=["rq1", "rq2", "rq3", "rq4", "rq4-review"])
     parser.add_argument("--frames", type=int, default=10, help="val frames used as seeds (rq1-rq3)")
+    parser.add_argument("--sample", type=int, default=12, help="findings drawn for the manual look (rq4-review)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of that sample")
     args = parser.parse_args()
-    {"rq1": rq1, "rq2": rq2, "rq3": rq3, "rq4": rq4}[args.question](args)
+    {"rq1": rq1, "rq2": rq2, "rq3": rq3, "rq4": rq4, "rq4-review": rq4_review}[args.question](args)
 
 
 if __name__ == "__main__":
