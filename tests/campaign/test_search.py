@@ -148,6 +148,10 @@ def test_search_spec_errors(world: Path) -> None:
     with pytest.raises(DataFormatError, match="search"):
         parse_campaign({"dataset": str(world), "sut": "pillars", "operators": [{"name": "fog"}],
                         "search": {"budget": 3}})
+    for criteria, message in ((["bogus"], "unknown coverage criterion 'bogus'"), (["nc:x"], "not a number"),
+                              (["nc", "nc:0.3"], "listed twice")):
+        with pytest.raises(DataFormatError, match=message):
+            parse_campaign({"dataset": str(world), "sut": "pillars", "kind": "fuzz", "search": {"criteria": criteria}})
 
 
 def test_cli_runs_a_guided_search(world: Path, tmp_path: Path) -> None:

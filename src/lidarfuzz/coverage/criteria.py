@@ -504,6 +504,25 @@ SPEC_PARAMETER: dict[str, tuple[str, float]] = {
 PROFILED = ("kmnc", "nbc", "snac")
 
 
+def parse_spec(spec: str) -> tuple[str, float | None]:
+    """``name[:value]`` → (the criterion's name, the value or None), checked without building it.
+
+    Raises:
+        CoverageError: Unknown name, or a value that is not a number.
+    """
+    name, _, arg = spec.strip().partition(":")
+    name = name.strip().lower()
+    if name not in CRITERIA:
+        raise CoverageError(f"unknown coverage criterion {name!r} in {spec!r}; choose from {', '.join(CRITERIA)}")
+    if not arg.strip():
+        return name, None
+    try:
+        return name, float(arg)
+    except ValueError:
+        parameter = SPEC_PARAMETER[name][0]
+        raise CoverageError(f"coverage criterion {spec!r}: {arg!r} is not a number (the {parameter})") from None
+
+
 def make_criterion(spec: str, profile: Any = None, default: float | None = None) -> Criterion:
     """A criterion from ``name[:value]``.
 
@@ -518,15 +537,8 @@ def make_criterion(spec: str, profile: Any = None, default: float | None = None)
     Raises:
         CoverageError: Unknown name, bad value, or a profiled criterion without a profile.
     """
-    name, _, arg = spec.strip().partition(":")
-    name = name.strip().lower()
-    if name not in CRITERIA:
-        raise CoverageError(f"unknown coverage criterion {name!r} in {spec!r}; choose from {', '.join(CRITERIA)}")
-    parameter, builtin = SPEC_PARAMETER[name]
-    try:
-        value = float(arg) if arg.strip() else (builtin if default is None else float(default))
-    except ValueError:
-        raise CoverageError(f"coverage criterion {spec!r}: {arg!r} is not a number (the {parameter})") from None
+    name, given = parse_spec(spec)
+    value = given if given is not None else (SPEC_PARAMETER[name][1] if default is None else float(default))
     try:
         if name == "nc":
             return NeuronCoverage(value)

@@ -69,6 +69,16 @@ class SearchConfig(BaseModel):
     minimise: bool = True
     minimise_budget: int = Field(12, ge=0, description="fuzz: SUT runs spent minimising one new finding")
 
+    @field_validator("criteria")
+    @classmethod
+    def _known_criteria(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        from lidarfuzz.coverage.criteria import parse_spec
+
+        names = [parse_spec(spec)[0] for spec in value]  # CoverageError is a ValueError: pydantic names the field
+        if len(set(names)) != len(names):
+            raise ValueError(f"a criterion is listed twice in {list(value)}")
+        return value
+
     @model_validator(mode="after")
     def _guide_is_tracked(self) -> SearchConfig:
         names = [c.split(":")[0].strip().lower() for c in self.criteria]
