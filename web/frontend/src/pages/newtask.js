@@ -1,0 +1,331 @@
+// The New task dialog: operators grouped by family (description, severity table, before/after
+// preview), severities or explicit parameters checked against the params schema, relations,
+// data set and model pickers, seed; the server's 422 errors are shown at the field they name.
+import { api, fetchBlob, listOf } from "../api.js";
+import { clear, go, h, notice } from "../dom.js";
+import { schemaFields } from "../schema.js";
+
+// Operators come as a list (each with its family), as {family: [...]} or as [{family, operators}].
+export function operatorsByFamily(reply) {
+  let flat = [];
+  const source = reply?.families ?? reply?.operators ?? reply;
+  if (Array.isArray(source)) {
+    for (const item of source) {
+      if (Array.isArray(item.operators)) flat.push(...item.operators.map((op) => ({ family: item.family ?? item.name, ...op })));
+      else flat.push(item);
+    }
+  } else if (source && typeof source === "object") {
+    for (const [family, ops] of Object.entries(source)) {
+      if (Array.isArray(ops)) flat.push(...ops.map((op) => ({ family, ...op })));
+    }
+  }
+  flat = flat.filter((op) => op && op.name);
+  const groups = new Map();
+  for (const op of flat) {
+    const family = op.family || "other";
+    if (!groups.has(family)) groups.set(family, []);
+    groups.get(family).push(op);
+  }
+  return groups;
+}
+
+function severityRows(op) {
+  const table = op.severities ?? op.severity_table ?? op.severity;
+  if (!table) return [];
+  const entries = Array.isArray(table) ? table.map((v, i) => [v?.severity ?? i + 1, v?.config ?? v]) : Object.entries(table);
+  return entries.map(([level, config]) => {
+    const text =
+      config && typeof config === "object"
+        ? Object.entries(config)
+            .map(([k, v]) => `${k} ${Array.isArray(v) ? v.join(" – ") : JSON.stringify(v)}`)
+            .join("; ")
+        : String(config);
+    return h("tr", {}, h("th", {}, String(level)), h("td", {}, text));
+  });
+}
+
+function firstParagraph(text) {
+  return String(text ?? "").split(/\n\s*\n/)[0].replace(/\s+/g, " ").trim();
+}
+
+function operatorRow(op, previews) {
+  const check = h("input", { type: "checkbox", class: "op-check", testid: `op-${op.name}`, value: op.name });
+  const severityChecks = [1, 2, 3, 4, 5].map((s) =>
+    h("label", { class: "sev" }, h("input", { type: "checkbox", value: s, checked: s % 2 === 1, testid: `op-${op.name}-sev-${s}` }), String(s)),
+  );
+  const modeSeverities = h("input", { type: "radio", name: `mode-${op.name}`, value: "severities", checked: true });
+  const modeConfig = h("input", { type: "radio", name: `mode-${op.name}`, value: "config" });
+  const fields = schemaFields(op.params_schema ?? op.config_schema ?? op.schema ?? op.params ?? {});
+  const configBox = h("div", { class: "config-fields", hidden: true }, fields.length ? fields.map((f) => f.element) : h("span", { class: "muted" }, "no parameters"));
+  const severityBox = h("span", { class: "severities" }, severityChecks);
+  const sync = () => {
+    configBox.hidden = !modeConfig.checked;
+    severityBox.hidden = modeConfig.checked;
+  };
+  modeSeverities.addEventListener("change", sync);
+  modeConfig.addEventListener("change", sync);
+
+  // preview: loaded when the details open, again when its severity changes
+  const previewSeverity = h("select", { testid: `preview-severity-${op.name}` }, [1, 2, 3, 4, 5].map((s) => h("option", { value: s, selected: s === 3 }, `severity ${s}`)));
+  const image = h("img", { class: "preview", alt: `${op.name} before and after`, testid: `preview-${op.name}` });
+  const previewMessage = h("span", { class: "muted" });
+  async function loadPreview() {
+    const key = `${op.name}@${previewSeverity.value}`;
+    previewMessage.textContent = "rendering the preview…";
+    try {
+      if (!previews.has(key)) {
+        const blob = await fetchBlob(`/api/operators/${encodeURIComponent(op.name)}/preview.png?severity=${previewSeverity.value}`);
+        previews.set(key, URL.createObjectURL(blob));
+      }
+      image.src = previews.get(key);
+      previewMessage.textContent = "";
+    } catch (exc) {
+      previewMessage.textContent = `no preview: ${exc.message}`;
+    }
+  }
+  previewSeverity.addEventListener("change", loadPreview);
+  const details = h(
+    "details",
+    { class: "op-details", ontoggle: (e) => e.target.open && !image.src && loadPreview() },
+    h("summary", {}, "description, severities, preview"),
+    h("p", { class: "op-doc" }, firstParagraph(op.description ?? op.doc)),
+    severityRows(op).length ? h("table", { class: "severity-table" }, severityRows(op)) : null,
+    h("div", { class: "preview-box" }, previewSeverity, previewMessage, image),
+  );
+  const aliases = (op.aliases ?? []).length ? ` (${op.aliases.join(", ")})` : "";
+  const relation = op.relation ?? op.relation_kind ?? "";
+  const row = h(
+    "div",
+    { class: "op-row", dataset: { operator: op.name } },
+    h(
+      "div",
+      { class: "op-head" },
+      h("label", { class: "op-name" }, check, ` ${op.name}`, h("span", { class: "muted" }, aliases)),
+      relation ? h("span", { class: `badge relation-${relation}` }, relation) : null,
+      h("span", { class: "op-summary muted" }, firstParagraph(op.description ?? op.doc).split(". ")[0]),
+    ),
+    h(
+      "div",
+      { class: "op-options" },
+      h("label", {}, modeSeverities, " severities "),
+      severityBox,
+      h("label", {}, modeConfig, " explicit parameters"),
+      configBox,
+    ),
+    details,
+  );
+  return {
+    op,
+    row,
+    checked: () => check.checked,
+    // {choice} or {error, element}
+    read() {
+      if (modeConfig.checked) {
+        const config = {};
+        for (const field of fields) {
+          const result = field.read();
+          if (result.error) return { error: result.error, element: field.element };
+          if (!field.isDefault(result.value)) config[field.name] = result.value;
+        }
+        return { choice: { name: op.name, config } };
+      }
+      const severities = severityChecks.map((l) => l.querySelector("input")).filter((i) => i.checked).map((i) => Number(i.value));
+      if (!severities.length) return { error: "pick at least one severity", element: severityBox };
+      return { choice: { name: op.name, severities } };
+    },
+    fieldElement(param) {
+      if (param === "severities") return severityBox;
+      return fields.find((f) => f.name === param)?.element;
+    },
+  };
+}
+
+function showFieldError(element, message) {
+  element.classList.add("invalid");
+  const error = h("div", { class: "field-error", testid: "field-error" }, message);
+  element.after(error);
+  return error;
+}
+
+export async function newTaskPage(root) {
+  root.append(h("div", { class: "page-head" }, h("h1", {}, "New task")), h("p", { class: "muted" }, "Loading the catalogue…"));
+  const [operators, relations, datasets, models] = await Promise.all([
+    api("/api/operators"),
+    api("/api/relations").catch(() => []),
+    api("/api/datasets"),
+    api("/api/models"),
+  ]);
+  clear(root);
+  const previews = new Map();
+
+  const name = h("input", { name: "name", placeholder: "optional", testid: "task-name" });
+  const dataset = h(
+    "select",
+    { name: "dataset", required: true, testid: "task-dataset" },
+    listOf(datasets, "datasets").map((d) => h("option", { value: d.name }, `${d.name}${d.frame_count ? ` (${d.frame_count} frames)` : ""}`)),
+  );
+  const sut = h(
+    "select",
+    { name: "sut", required: true, testid: "task-model" },
+    listOf(models, "models").map((m) => h("option", { value: m.name }, `${m.name} — ${m.spec ?? ""}`)),
+  );
+  const seed = h("input", { name: "seed", type: "number", value: 0, min: 0, step: 1, required: true, testid: "task-seed" });
+  const trials = h("input", { name: "trials", type: "number", value: 1, min: 1, max: 100, step: 1, testid: "task-trials" });
+  const frames = h("input", { name: "frames", type: "number", min: 1, step: 1, placeholder: "all", testid: "task-frames" });
+  const kind = h("select", { name: "kind", testid: "task-kind" }, ["mutation", "guided", "fuzz"].map((k) => h("option", { value: k }, k)));
+  const search = h("textarea", { rows: 2, placeholder: '{"budget": 50, "criteria": ["nc:0.2"]}', hidden: true });
+  kind.addEventListener("change", () => (search.hidden = kind.value === "mutation"));
+
+  const rows = [];
+  const families = h("div", { class: "families", testid: "operators" });
+  for (const [family, ops] of operatorsByFamily(operators)) {
+    const group = h("fieldset", { class: "family", dataset: { family } }, h("legend", {}, family));
+    for (const op of ops) {
+      const row = operatorRow(op, previews);
+      rows.push(row);
+      group.append(row.row);
+    }
+    families.append(group);
+  }
+
+  const relationList = listOf(relations, "relations");
+  const auto = h("input", { type: "radio", name: "relations", value: "auto", checked: true, testid: "relations-auto" });
+  const choose = h("input", { type: "radio", name: "relations", value: "choose", testid: "relations-choose" });
+  const relationChecks = relationList.map((r) => ({
+    name: r.name,
+    input: h("input", { type: "checkbox", value: r.name, testid: `relation-${r.name}` }),
+    r,
+  }));
+  const relationBox = h(
+    "div",
+    { class: "relations", hidden: true },
+    relationChecks.map(({ name: n, input, r }) =>
+      h("label", { class: "relation", title: r.description ?? "" }, input, ` ${n}`, h("span", { class: "muted" }, ` ${firstParagraph(r.description).split(". ")[0]}`)),
+    ),
+  );
+  auto.addEventListener("change", () => (relationBox.hidden = true));
+  choose.addEventListener("change", () => (relationBox.hidden = false));
+  const relationsField = h("div", { class: "relations-field" }, h("label", {}, auto, " auto (every relation that applies to each operator)"), h("label", {}, choose, " choose"), relationBox);
+
+  const message = h("div", { testid: "task-message" });
+  const submit = h("button", { type: "submit", class: "primary", testid: "task-submit" }, "Create task");
+  const topFields = { name, dataset, sut, seed, trials, frames, kind, relations: relationsField, search };
+
+  const form = h(
+    "form",
+    { class: "new-task", testid: "new-task-form", novalidate: true },
+    h(
+      "div",
+      { class: "card form grid" },
+      h("label", {}, "Name ", name),
+      h("label", {}, "Data set ", dataset),
+      h("label", {}, "Model ", sut),
+      h("label", {}, "Seed ", seed),
+      h("label", {}, "Trials ", trials),
+      h("label", {}, "Frames ", frames),
+      h("label", {}, "Kind ", kind),
+      search,
+    ),
+    h("h2", {}, "Operators"),
+    families,
+    h("h2", {}, "Relations"),
+    relationsField,
+    message,
+    h("div", { class: "form-actions" }, submit, h("a", { class: "button", href: "#/tasks" }, "Cancel")),
+  );
+
+  function clearErrors() {
+    for (const el of form.querySelectorAll(".field-error")) el.remove();
+    for (const el of form.querySelectorAll(".invalid")) el.classList.remove("invalid");
+    clear(message);
+  }
+
+  // A server problem → the element it names: "operators.1.severities", "dataset", "seed", …
+  function elementFor(problem, chosen) {
+    const path = problem.field ?? "";
+    const text = `${path} ${problem.message}`;
+    const match = /operators\.(\d+)(?:\.(?:config\.)?([A-Za-z_]\w*))?/.exec(text);
+    if (match) {
+      const row = chosen[Number(match[1])];
+      if (row) return (match[2] && row.fieldElement(match[2])) || row.row.querySelector(".op-options");
+    }
+    for (const [key, element] of Object.entries(topFields)) {
+      if (path === key || path.startsWith(`${key}.`) || new RegExp(`(^|\\s)${key}(\\.\\w+)*:`).test(text)) {
+        return element.closest("label") ?? element;
+      }
+    }
+    return null;
+  }
+
+  form.addEventListener("submit", async (event) => {
+    event.preventDefault();
+    clearErrors();
+    const chosen = rows.filter((r) => r.checked());
+    const body = { dataset: dataset.value, sut: sut.value, kind: kind.value };
+    if (name.value.trim()) body.name = name.value.trim();
+    let ok = true;
+    const fail = (element, text) => {
+      showFieldError(element, text);
+      ok = false;
+    };
+    for (const [key, input] of [["seed", seed], ["trials", trials], ["frames", frames]]) {
+      if (input.value.trim() === "") {
+        if (key === "seed") fail(input.closest("label"), "seed: a whole number is required");
+        continue;
+      }
+      const value = Number(input.value);
+      const min = Number(input.min);
+      if (!Number.isInteger(value) || value < min || (input.max && value > Number(input.max))) {
+        fail(input.closest("label"), `${key}: a whole number${input.max ? ` from ${min} to ${input.max}` : ` ≥ ${min}`}`);
+      } else body[key] = value;
+    }
+    if (!dataset.value) fail(dataset.closest("label"), "register or upload a data set first");
+    if (!sut.value) fail(sut.closest("label"), "register a model first");
+    body.operators = [];
+    for (const row of chosen) {
+      const result = row.read();
+      if (result.error) fail(result.element, `${row.op.name}: ${result.error}`);
+      else body.operators.push(result.choice);
+    }
+    if (kind.value === "mutation" && !chosen.length) fail(families, "pick at least one operator");
+    if (choose.checked) {
+      const picked = relationChecks.filter((r) => r.input.checked).map((r) => r.name);
+      if (!picked.length) fail(relationsField, "pick at least one relation, or auto");
+      body.relations = picked;
+    } else body.relations = "auto";
+    if (kind.value !== "mutation" && search.value.trim()) {
+      try {
+        body.search = JSON.parse(search.value);
+      } catch {
+        fail(search, "search: not valid JSON");
+      }
+    }
+    if (!ok) {
+      message.append(notice("error", "Fix the marked fields."));
+      form.querySelector(".invalid")?.scrollIntoView({ block: "center" });
+      return;
+    }
+    submit.disabled = true;
+    try {
+      const reply = await api("/api/tasks", { method: "POST", body });
+      go(`/tasks/${reply.id}`);
+    } catch (exc) {
+      const unplaced = [];
+      for (const problem of exc.problems.length ? exc.problems : [{ message: exc.message }]) {
+        const element = elementFor(problem, chosen);
+        if (element) showFieldError(element, problem.field && !problem.message.includes(problem.field) ? `${problem.field}: ${problem.message}` : problem.message);
+        else unplaced.push(problem);
+      }
+      message.append(notice("error", `The server refused the task (${exc.status}).`, unplaced, "task-error"));
+      form.querySelector(".invalid")?.scrollIntoView({ block: "center" });
+    } finally {
+      submit.disabled = false;
+    }
+  });
+
+  root.append(h("div", { class: "page-head" }, h("h1", {}, "New task")), form);
+  return () => {
+    for (const url of previews.values()) URL.revokeObjectURL(url);
+  };
+}
+

@@ -1,0 +1,225 @@
+// Task detail: status, live progress (server-sent events) overall and per subtask with the operator
+// running now, the AP-per-operator chart, the subtask table, stop / delete, report and findings.
+import { api, nameOf, subscribe } from "../api.js";
+import { apChart, apValue, classesOf } from "../chart.js";
+import { clear, formatNumber, formatTime, go, h, notice, progressBar, statusBadge } from "../dom.js";
+import { operatorCount } from "./tasks.js";
+
+const FINISHED = new Set(["done", "failed", "cancelled", "completed", "succeeded", "error"]);
+
+export function subtaskLabel(s) {
+  if (!s) return "";
+  if (typeof s === "string") return s;
+  if (s.label) return s.label;
+  const name = s.name ?? s.operator ?? "";
+  return s.severity ? `${name}@${s.severity}` : name;
+}
+
+function normalise(reply) {
+  const task = { ...(reply?.task ?? reply) };
+  task.subtasks = reply?.subtasks ?? task.subtasks ?? [];
+  task.running = reply?.running ?? reply?.running_subtask ?? task.running ?? task.running_subtask ?? null;
+  task.error = reply?.error ?? task.error ?? "";
+  return task;
+}
+
+export async function taskDetailPage(root, id) {
+  let task = normalise(await api(`/api/tasks/${id}`));
+  const view = { cls: "Car", difficulty: "moderate", points: "R40" };
+
+  const head = h("div", { class: "page-head" });
+  const facts = h("dl", { class: "facts", testid: "task-facts" });
+  const overall = h("div", { class: "overall" });
+  const running = h("div", { class: "running", testid: "running-now" });
+  const message = h("div");
+  const chartBox = h("div", { testid: "ap-chart-box" });
+  const tableBody = h("tbody", { testid: "subtasks-body" });
+  const live = h("span", { class: "live muted", testid: "live" });
+
+  const clsSelect = h("select", { testid: "chart-class" });
+  const diffSelect = h("select", { testid: "chart-difficulty" }, ["easy", "moderate", "hard"].map((d) => h("option", { value: d, selected: d === view.difficulty }, d)));
+  const pointsSelect = h("select", { testid: "chart-points" }, ["R40", "R11"].map((p) => h("option", { value: p }, `AP|${p}`)));
+  for (const [select, key] of [[clsSelect, "cls"], [diffSelect, "difficulty"], [pointsSelect, "points"]]) {
+    select.addEventListener("change", () => {
+      view[key] = select.value;
+      renderResults();
+    });
+  }
+
+  function renderHead() {
+    clear(head).append(
+      h("h1", {}, `Task #${task.id ?? id}`, task.name ? h("span", { class: "muted" }, ` ${task.name}`) : null),
+      statusBadge(task.status),
+      h("span", { class: "spacer" }),
+      live,
+      h("a", { class: "button", href: `#/tasks/${id}/findings`, testid: "findings-link" }, "Findings"),
+      h("a", { class: "button", href: `#/tasks/${id}/report`, testid: "report-link" }, "Report"),
+      h("button", { testid: "stop-task", disabled: FINISHED.has(String(task.status)), onclick: stop }, "Stop"),
+      h("button", { class: "danger", testid: "delete-task", onclick: remove }, "Delete"),
+    );
+    clear(facts).append(
+      ...[
+        ["Data set", nameOf(task.dataset)],
+        ["SUT", nameOf(task.model ?? task.sut)],
+        ["Kind", task.kind ?? "mutation"],
+        ["Operators", operatorCount(task)],
+        ["Seed", task.seed ?? "—"],
+        ["Created", formatTime(task.created_at)],
+        ["Started", formatTime(task.started_at)],
+        ["Finished", formatTime(task.finished_at)],
+      ].flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]),
+    );
+    clear(overall).append(h("span", { class: "label" }, "Overall"), progressBar(task.done ?? 0, task.total ?? 0, "overall-progress"));
+    const now = task.running;
+    const nowSubtask = now ?? task.subtasks.find((s) => String(s.status) === "running");
+    clear(running);
+    if (nowSubtask && !FINISHED.has(String(task.status))) {
+      running.append(
+        h("span", { class: "label" }, "Running now"),
+        h("strong", { testid: "running-operator" }, subtaskLabel(nowSubtask)),
+        typeof nowSubtask === "object" && nowSubtask.total ? progressBar(nowSubtask.done ?? 0, nowSubtask.total, "running-progress") : null,
+      );
+    }
+    clear(message);
+    if (task.error) message.append(notice("error", task.error));
+  }
+
+  function renderResults() {
+    const subtasks = task.subtasks;
+    const classes = classesOf(subtasks);
+    const options = classes.length ? [...classes, "mAP"] : ["Car", "Pedestrian", "Cyclist", "mAP"];
+    if (!options.includes(view.cls)) view.cls = options[0];
+    clear(clsSelect).append(...options.map((c) => h("option", { value: c, selected: c === view.cls }, c)));
+    clear(chartBox);
+    const withAp = subtasks.filter((s) => apValue(s, "bbox", view.cls, view.difficulty, view.points) !== null || apValue(s, "3d", view.cls, view.difficulty, view.points) !== null);
+    if (withAp.length) chartBox.append(apChart(subtasks, { ...view, width: chartBox.clientWidth - 20 }));
+    else chartBox.append(h("p", { class: "muted" }, "AP appears here as subtasks finish."));
+    clear(tableBody);
+    for (const s of subtasks) {
+      tableBody.append(
+        h(
+          "tr",
+          { testid: "subtask-row", dataset: { label: subtaskLabel(s), status: s.status } },
+          h("td", {}, subtaskLabel(s)),
+          h("td", {}, statusBadge(s.status)),
+          h("td", { class: "progress-cell" }, progressBar(s.done ?? 0, s.total ?? 0, "subtask-progress")),
+          ...["bbox", "bev", "3d"].map((m) => h("td", { class: "num" }, formatNumber(apValue(s, m, view.cls, view.difficulty, view.points)))),
+        ),
+      );
+    }
+  }
+
+  async function refresh() {
+    try {
+      task = normalise(await api(`/api/tasks/${id}`));
+    } catch (exc) {
+      clear(message).append(notice("error", exc.message));
+      return;
+    }
+    renderHead();
+    renderResults();
+  }
+
+  async function stop() {
+    try {
+      await api(`/api/tasks/${id}/stop`, { method: "POST" });
+    } catch (exc) {
+      clear(message).append(notice("error", exc.message));
+    }
+    refresh();
+  }
+
+  async function remove() {
+    if (!window.confirm(`Delete task #${id} and all its results?`)) return;
+    try {
+      await api(`/api/tasks/${id}`, { method: "DELETE" });
+      go("/tasks");
+    } catch (exc) {
+      clear(message).append(notice("error", exc.message));
+    }
+  }
+
+  // Merge one progress event (task counters, status, subtask counters, the running subtask).
+  let refreshing = null;
+  function onProgress(event) {
+    if (!event || typeof event !== "object") return;
+    const previous = String(task.status);
+    const update = event.task ?? event;
+    for (const key of ["status", "done", "total", "started_at", "finished_at", "error"]) {
+      if (update[key] !== undefined) task[key] = update[key];
+    }
+    if (event.running !== undefined || event.running_subtask !== undefined) task.running = event.running ?? event.running_subtask;
+    let newSubtask = false;
+    for (const sub of event.subtasks ?? []) {
+      const mine = task.subtasks.find((s) => (sub.id !== undefined && s.id === sub.id) || subtaskLabel(s) === subtaskLabel(sub));
+      if (mine) {
+        const finishedNow = String(sub.status) !== String(mine.status) && FINISHED.has(String(sub.status));
+        Object.assign(mine, sub);
+        newSubtask ||= finishedNow;
+      } else newSubtask = true;
+    }
+    live.textContent = `live · ${new Date().toLocaleTimeString()}`;
+    renderHead();
+    const ended = FINISHED.has(String(task.status)) && !FINISHED.has(previous);
+    if (newSubtask || ended) {
+      // AP of a finished subtask, or the final figures: the full record has them
+      refreshing ??= refresh().finally(() => (refreshing = null));
+    } else renderResults();
+    if (FINISHED.has(String(task.status))) closeStream();
+  }
+
+  let source = null;
+  let poll = null;
+  function closeStream() {
+    source?.close();
+    source = null;
+    live.textContent = FINISHED.has(String(task.status)) ? "" : live.textContent;
+  }
+  if (!FINISHED.has(String(task.status))) {
+    source = subscribe(`/api/tasks/${id}/events`, {
+      progress: onProgress,
+      message: onProgress,
+      end: () => {
+        closeStream();
+        refresh();
+      },
+      error: () => {
+        // the stream ended (the task finished) or the connection broke: poll until it finishes
+        closeStream();
+        if (!poll) {
+          poll = setInterval(async () => {
+            await refresh();
+            if (FINISHED.has(String(task.status))) {
+              clearInterval(poll);
+              poll = null;
+            }
+          }, 2000);
+        }
+      },
+    });
+  }
+
+  root.append(
+    head,
+    message,
+    facts,
+    overall,
+    running,
+    h("h2", {}, "AP per operator"),
+    h("div", { class: "toolbar" }, h("label", {}, "Class ", clsSelect), h("label", {}, "Difficulty ", diffSelect), h("label", {}, "Points ", pointsSelect)),
+    chartBox,
+    h("h2", {}, "Subtasks"),
+    h(
+      "table",
+      { class: "table", testid: "subtasks-table" },
+      h("thead", {}, h("tr", {}, ["Subtask", "Status", "Progress", "AP bbox", "AP BEV", "AP 3D"].map((t) => h("th", {}, t)))),
+      tableBody,
+    ),
+  );
+  renderHead();
+  renderResults();
+  return () => {
+    closeStream();
+    if (poll) clearInterval(poll);
+  };
+}
