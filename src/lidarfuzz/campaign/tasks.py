@@ -9,16 +9,21 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import socket
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
+from sqlalchemy.orm import defer, joinedload
 
 from lidarfuzz.campaign.spec import CampaignSpec
 from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store, StoreError
 
 ORIGINAL = "original"
+STALE_AFTER = 30.0  # seconds without a heartbeat before a "running" task is taken as dead
 
 
 def operator_key(spec: dict[str, Any] | None) -> str:
@@ -186,15 +191,70 @@ def get_task(store: Store, task_id: int) -> Task:
         return task
 
 
-def list_tasks(store: Store, limit: int | None = None) -> list[Task]:
+def list_tasks(store: Store, limit: int | None = None, *, offset: int = 0,
+               status: Status | str | None = None) -> list[Task]:
+    """Tasks, newest first, with their data set and model loaded (the summary is not: it can be
+    large, and a listing does not show it).
+
+    Args:
+        store: The campaign store.
+        limit: At most this many (all when None or 0).
+        offset: Skip the newest ``offset`` first (pages).
+        status: Only tasks in this state.
+    """
     with store.session() as s:
-        query = select(Task).order_by(Task.id.desc())
+        query = select(Task).options(defer(Task.summary), joinedload(Task.dataset), joinedload(Task.model))
+        if status is not None:
+            query = query.where(Task.status == Status(status))
+        query = query.order_by(Task.id.desc()).offset(offset or None)
         if limit:
             query = query.limit(limit)
-        tasks = list(s.scalars(query))
-        for task in tasks:
-            task.dataset, task.model  # noqa: B018
-        return tasks
+        return list(s.scalars(query))
+
+
+def count_tasks(store: Store, status: Status | str | None = None) -> int:
+    """How many tasks there are (in ``status``, when given)."""
+    with store.session() as s:
+        query = select(func.count()).select_from(Task)
+        if status is not None:
+            query = query.where(Task.status == Status(status))
+        return int(s.scalar(query) or 0)
+
+
+def heartbeat_age(task: Task) -> float | None:
+    """Seconds since the process running ``task`` last reported (None: it never did)."""
+    moment = task.heartbeat_at
+    if moment is None:
+        return None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=UTC)
+    return (datetime.now(UTC) - moment).total_seconds()
+
+
+def _process_gone(worker: str) -> bool:
+    """True when ``worker`` (``host:pid``) names a process of this host that no longer exists."""
+    host, _, pid = worker.rpartition(":")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # exists, owned by someone else
+        return False
+    return False
+
+
+def looks_alive(task: Task, stale_after: float = STALE_AFTER) -> bool:
+    """Whether a process seems to be running ``task`` now: it is marked running, its worker
+    reported within ``stale_after`` seconds, and (on this host) that process still exists.
+    ``lidarfuzz resume`` and the web app's workers resume only tasks that do not look alive."""
+    if task.status != Status.RUNNING:
+        return False
+    age = heartbeat_age(task)
+    if age is None or age >= stale_after:
+        return False
+    return not _process_gone(task.worker)
 
 
 def cancel_task(store: Store, task_id: int) -> Status:

@@ -20,8 +20,6 @@ from rich.table import Table
 from lidarfuzz.cli.catalog import WORKSPACE, WorkspaceOption, _store
 from lidarfuzz.errors import LidarfuzzError
 
-STALE_AFTER = 30.0  # seconds without a heartbeat before a "running" task is taken as dead
-
 WorkersOption = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
 InlineOption = Annotated[bool, typer.Option(help="Run every unit in this process (no pool; for debugging).")]
 
@@ -300,7 +298,7 @@ def register(app: typer.Typer) -> None:
         workspace: WorkspaceOption = WORKSPACE,
     ) -> None:
         """Finish an interrupted, cancelled or failed task: only units without a result run."""
-        from lidarfuzz.campaign.tasks import get_task
+        from lidarfuzz.campaign.tasks import get_task, heartbeat_age, looks_alive
         from lidarfuzz.cli.app import console
         from lidarfuzz.store.models import Status
 
@@ -308,8 +306,8 @@ def register(app: typer.Typer) -> None:
         if row.status == Status.DONE:
             console.print(f"task {task} is done already (lidarfuzz report {task})")
             return
-        age = _age(row.heartbeat_at)
-        if row.status == Status.RUNNING and age is not None and age < STALE_AFTER and not force:
+        age = heartbeat_age(row) or 0.0
+        if looks_alive(row) and not force:
             raise LidarfuzzError(f"task {task} looks alive: {row.worker} reported {age:.0f} s ago "
                                  f"(--force to resume anyway)")
         raise typer.Exit(execute(workspace, task, workers=workers, inline=inline))

@@ -44,6 +44,24 @@ def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None
     return row
 
 
+def get_dataset(store: Store, name: str) -> Dataset:
+    """The data set recorded as ``name``."""
+    with store.session() as s:
+        row = s.scalar(select(Dataset).where(Dataset.name == name))
+        if row is None:
+            raise StoreError(f"no data set called {name!r} (lidarfuzz datasets list)")
+        return row
+
+
+def get_model(store: Store, name: str) -> Model:
+    """The system under test recorded as ``name``."""
+    with store.session() as s:
+        row = s.scalar(select(Model).where(Model.name == name))
+        if row is None:
+            raise StoreError(f"no model called {name!r} (lidarfuzz models list)")
+        return row
+
+
 def list_datasets(store: Store) -> list[Dataset]:
     with store.session() as s:
         return list(s.scalars(select(Dataset).order_by(Dataset.name)))
