@@ -51,10 +51,12 @@ def _register() -> None:
         info,
         operators,
         relations,
+        serve,
         suts,
     )
 
-    for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign, coverage):
+    for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign, coverage,
+                   serve):
         module.register(app)
 
 

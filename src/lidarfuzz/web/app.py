@@ -1,0 +1,194 @@
+"""The FastAPI application: :func:`create_app` wires the store, the task workers, the security
+rules, the API routes, the offline OpenAPI docs and the built front end together.
+
+Example:
+    >>> app = create_app("lidarfuzz-workspace", workers=1)  # doctest: +SKIP
+    >>> import uvicorn; uvicorn.run(app, host="127.0.0.1", port=8000)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections import OrderedDict
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse
+from fastapi.staticfiles import StaticFiles
+
+from lidarfuzz import __version__
+from lidarfuzz.errors import DataFormatError, LidarfuzzError
+from lidarfuzz.store.store import Store, StoreError
+from lidarfuzz.web.security import Limits, RequestGuard, token_dependency
+from lidarfuzz.web.workers import TaskWorkers
+
+STATIC = Path(__file__).with_name("static")
+SWAGGER = "/static/vendor/swagger-ui"
+log = logging.getLogger("lidarfuzz.web")
+
+
+def files_root(workspace: str) -> Path:
+    """Where the app keeps uploads, reports and caches: the workspace folder, or
+    ``./lidarfuzz-web`` next to a database URL."""
+    return Path("lidarfuzz-web") if "://" in workspace else Path(workspace)
+
+
+@dataclass
+class WebContext:
+    """What every route needs, one per app (``request.app.state.web``)."""
+
+    workspace: str
+    store: Store
+    files: Path
+    limits: Limits
+    token: str | None
+    workers: TaskWorkers
+    processes: int | None
+    _datasets: OrderedDict[str, Any] = field(default_factory=OrderedDict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _locks: dict[str, threading.Lock] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def uploads(self) -> Path:
+        return self.files / "uploads"
+
+    @property
+    def reports(self) -> Path:
+        return self.files / "reports"
+
+    @property
+    def cache(self) -> Path:
+        return self.files / "cache" / "web"
+
+    def lock(self, key: str) -> threading.Lock:
+        """A lock per key (one report written at a time per task, one preview per operator...)."""
+        with self._lock:
+            return self._locks.setdefault(key, threading.Lock())
+
+    def dataset(self, path: str) -> Any:
+        """The data set at ``path``, opened once and kept (the 8 most recent)."""
+        from lidarfuzz.io.open import open_dataset
+
+        with self._lock:
+            if path in self._datasets:
+                self._datasets.move_to_end(path)
+                return self._datasets[path]
+        opened = open_dataset(path)
+        with self._lock:
+            self._datasets[path] = opened
+            while len(self._datasets) > 8:
+                self._datasets.popitem(last=False)
+        return opened
+
+    def forget_dataset(self, path: str) -> None:
+        with self._lock:
+            self._datasets.pop(path, None)
+
+
+def web(request: Request) -> WebContext:
+    """The app's :class:`WebContext` (a FastAPI dependency)."""
+    return request.app.state.web  # type: ignore[no-any-return]
+
+
+def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | None = None, workers: int = 1,
+               processes: int | None = None, inline: bool = False, limits: Limits | None = None,
+               files: str | Path | None = None, loopback_only: bool | None = None) -> FastAPI:
+    """The lidarfuzz web application on the store of ``workspace``.
+
+    Args:
+        workspace: A workspace folder (its SQLite store) or a database URL.
+        token: When set, every ``/api`` call must carry it (``Authorization: Bearer``, or
+            ``?token=`` for server-sent events and binary downloads).
+        workers: Tasks run at once by background threads (0: tasks are queued, never run).
+        processes: Worker processes of each running task (None: the CPU count), as ``lidarfuzz
+            run --workers``.
+        inline: Run tasks' units in the worker thread instead of a process pool (tests).
+        limits: Upload and request size limits.
+        files: Where uploads, reports and caches go (default: the workspace folder, or
+            ``./lidarfuzz-web`` for a database URL).
+        loopback_only: Answer only requests addressed to 127.0.0.1/localhost (default: when
+            there is no token).
+    """
+    workspace = str(workspace)
+    store = Store(workspace)
+    root = Path(files) if files is not None else files_root(workspace)
+    context = WebContext(workspace=workspace, store=store, files=root, limits=limits or Limits(), token=token,
+                         workers=TaskWorkers(store, threads=workers, processes=processes, inline=inline),
+                         processes=processes)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        context.workers.start()
+        try:
+            yield
+        finally:
+            context.workers.close()
+            from lidarfuzz.web.jobs import jobs_of
+
+            jobs_of(context).close()
+            store.close()
+
+    app = FastAPI(title="lidarfuzz", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None,
+                  description="Mutation-based and metamorphic testing of LiDAR perception software: the web API. "
+                              "Every call drives the same campaign engine as the lidarfuzz CLI.")
+    app.state.web = context
+    app.add_middleware(RequestGuard, limits=context.limits,  # type: ignore[arg-type]
+                       loopback_only=token is None if loopback_only is None else loopback_only)
+    _errors(app)
+
+    from lidarfuzz.web.routes import catalogue, datasets, findings, frames, models, reports, tasks
+
+    api = [Depends(token_dependency(token))]
+    for module in (tasks, reports, findings, frames, datasets, models, catalogue):
+        app.include_router(module.router, prefix="/api", dependencies=api)
+
+    @app.get("/api/health", tags=["health"], dependencies=api)
+    def health() -> dict[str, Any]:
+        """Version, workspace, whether a token is required, and the workers."""
+        return {"version": __version__, "workspace": workspace, "token_required": token is not None,
+                "workers": context.workers.threads, "processes": processes}
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json", title="lidarfuzz API",
+                                   swagger_js_url=f"{SWAGGER}/swagger-ui-bundle.js",
+                                   swagger_css_url=f"{SWAGGER}/swagger-ui.css", swagger_favicon_url="data:,")
+
+    @app.get("/", include_in_schema=False, response_model=None)
+    def index() -> FileResponse | PlainTextResponse:
+        page = STATIC / "index.html"
+        if not page.is_file():
+            return PlainTextResponse("the lidarfuzz front end is not built: cd web/frontend && npm ci && npm run build "
+                                     "(the API is up: /docs)", status_code=503)
+        return FileResponse(page, headers={"Cache-Control": "no-cache"})
+
+    app.mount("/static", StaticFiles(directory=STATIC, check_dir=False), name="static")
+    return app
+
+
+def _errors(app: FastAPI) -> None:
+    """The engine's errors as HTTP answers: bad data 422, a state conflict 409, the rest 422."""
+
+    @app.exception_handler(DataFormatError)
+    async def data_error(_request: Request, exc: DataFormatError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=422)
+
+    @app.exception_handler(StoreError)
+    async def store_error(_request: Request, exc: StoreError) -> JSONResponse:
+        text = str(exc)
+        code = 404 if text.startswith("no ") else 409
+        return JSONResponse({"detail": text}, status_code=code)
+
+    @app.exception_handler(LidarfuzzError)
+    async def lidarfuzz_error(_request: Request, exc: LidarfuzzError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=422)
+
+
+__all__ = ["WebContext", "create_app", "files_root", "web"]

@@ -1,0 +1,97 @@
+"""``/api/operators`` (by family, with severity tables and params schemas), operator previews,
+``/api/relations`` and ``/api/suts`` — what ``lidarfuzz operators``, ``relations`` and ``suts`` print."""
+
+from __future__ import annotations
+
+import inspect
+from functools import cache
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Response, status
+from starlette.concurrency import run_in_threadpool
+
+from lidarfuzz.web.app import WebContext, web
+
+router = APIRouter(tags=["catalogue"])
+Web = Annotated[WebContext, Depends(web)]
+
+
+def _doc(obj: Any) -> tuple[str, str]:
+    text = inspect.getdoc(obj) or ""
+    first = text.split("\n\n", 1)[0].replace("\n", " ").strip()
+    return first, text
+
+
+@cache
+def operator_catalogue() -> list[dict[str, Any]]:
+    """Every registered operator grouped by family (families and names sorted)."""
+    from lidarfuzz.operators import available
+    from lidarfuzz.operators.catalogue import severity_rows
+
+    families: dict[str, list[dict[str, Any]]] = {}
+    for name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+        description, doc = _doc(cls)
+        severities = sorted(cls.SEVERITIES)
+        families.setdefault(cls.family, []).append({
+            "name": name, "aliases": list(cls.aliases), "family": cls.family, "relation": cls.relation.value,
+            "targets": sorted(t.value for t in cls.targets), "description": description, "doc": doc,
+            "severities": severities,
+            "severity_configs": {str(s): cls.at_severity(s).config.model_dump(mode="json") for s in severities},
+            "severity_table": [{"field": field, "description": text, "values": values}
+                               for field, text, values in severity_rows(cls)],
+            "params_schema": cls.ConfigModel.model_json_schema(),
+            "preview": f"/api/operators/{name}/preview.png"})
+    return [{"family": family, "operators": ops} for family, ops in families.items()]
+
+
+@router.get("/operators")
+def operators(ctx: Web) -> dict[str, Any]:
+    """The mutation operators by family: name, aliases, description, relation, targets, the
+    severity table (config per severity 1-5, and a row per field for severities 0-5) and the
+    JSON schema of the config a campaign may give instead of severities."""
+    return {"families": operator_catalogue()}
+
+
+@router.get("/operators/{name}/preview.png", response_class=Response,
+            responses={200: {"content": {"image/png": {}}, "description": "before | after, from above"}})
+async def operator_preview(ctx: Web, name: str, severity: Annotated[int, Query(ge=0, le=5)] = 3,
+                           seed: Annotated[int, Query(ge=0, le=2**31)] = 0) -> Response:
+    """A bird's-eye picture of a built-in simulator frame before and after the operator at
+    ``severity`` (drawn once, then cached)."""
+    from lidarfuzz.operators import get
+    from lidarfuzz.web.previews import preview_png
+
+    try:
+        cls = get(name)
+    except KeyError as exc:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc).strip("'\"")) from None
+    if severity and severity not in cls.SEVERITIES:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"severity: {cls.name} has severities {', '.join(map(str, sorted(cls.SEVERITIES)))}")
+    png = await run_in_threadpool(preview_png, ctx.cache, cls.name, severity, seed, ctx.lock(f"preview-{cls.name}"))
+    return Response(png, media_type="image/png", headers={"Cache-Control": "public, max-age=86400"})
+
+
+@router.get("/relations")
+def relations(ctx: Web) -> dict[str, Any]:
+    """The metamorphic relations: name, description, the operator relations (invariant,
+    equivariant, degrading) each applies to, and its config's JSON schema."""
+    from lidarfuzz.oracles.relations import available
+
+    items = []
+    for name, cls in sorted(available().items()):
+        items.append({"name": name, "description": cls.description, "doc": _doc(cls)[1],
+                      "applies_to": sorted(r.value for r in cls.applies_to),
+                      "params_schema": cls.ConfigModel.model_json_schema()})
+    return {"items": items}
+
+
+@router.get("/suts")
+def suts(ctx: Web) -> dict[str, Any]:
+    """The built-in and plugin systems under test (``lidarfuzz suts``), for the model form."""
+    from lidarfuzz.suts.registry import available
+
+    return {"items": [{"name": name, "description": _doc(cls)[0], "version": cls.version}
+                      for name, cls in sorted(available().items())],
+            "forms": ["NAME", "NAME?key=value", "module:callable (installed plugins)", "onnx file (upload)",
+                      "open3d checkpoint (upload)"]}

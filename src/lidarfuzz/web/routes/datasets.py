@@ -1,0 +1,245 @@
+"""``/api/datasets``: list, upload (validated by ``inspect_source``), generate with the simulator, forget.
+
+Uploads are stored under ``<workspace>/uploads/<generated id>/`` and never executed:
+
+* one ``.zip`` — a KITTI layout (or a folder of frames, or a ROS2 bag folder), extracted after
+  every member is checked (:func:`lidarfuzz.web.security.extract_zip`);
+* point-cloud files, with KITTI label and calibration files for ``.bin`` frames (sorted into
+  ``velodyne/``, ``label_2/`` and ``calib/`` by content) — or frames of any format alone;
+* one ROS1 bag or MCAP file.
+
+Before it is recorded the data is inspected as ``lidarfuzz info`` does; any error makes the
+upload a 422 that lists every problem with its file (relative to the upload) and line.
+"""
+
+from __future__ import annotations
+
+import shutil
+import uuid
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.store.catalog import add_dataset, get_dataset, list_datasets, remove_dataset
+from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.events import iso
+from lidarfuzz.web.jobs import jobs_of
+from lidarfuzz.web.security import check_name, extract_zip, remove_tree, safe_component, within
+
+router = APIRouter(tags=["datasets"])
+Web = Annotated[WebContext, Depends(web)]
+
+FRAME_SUFFIXES = (".bin", ".pcd", ".ply", ".las", ".laz", ".npy", ".npz")
+LOG_SUFFIXES = (".bag", ".mcap")
+UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
+    "type": "object", "required": ["name", "files"],
+    "properties": {"name": {"type": "string", "description": "a name for the data set"},
+                   "notes": {"type": "string"},
+                   "files": {"type": "array", "items": {"type": "string", "format": "binary"},
+                             "description": "one .zip; or frames (+ KITTI label and calib files); or one "
+                                            ".bag / .mcap"}}}}}}}
+
+
+def dataset_row(row: Any, uploads: Path) -> dict[str, Any]:
+    return {"name": row.name, "status": "ready", "format": row.format, "frame_count": row.frame_count,
+            "path": row.path, "notes": row.notes, "added_at": iso(row.added_at),
+            "uploaded": within(Path(row.path), uploads)}
+
+
+@router.get("/datasets")
+def datasets_list(ctx: Web) -> dict[str, Any]:
+    """Recorded data sets, and those the simulator is rendering (``status`` generating / failed)."""
+    rows = [dataset_row(row, ctx.uploads) for row in list_datasets(ctx.store)]
+    names = {r["name"] for r in rows}
+    rows += [job.as_dict() for job in jobs_of(ctx).jobs() if job.name not in names]
+    return {"items": sorted(rows, key=lambda r: r["name"])}
+
+
+def _name_free(ctx: WebContext, name: str) -> None:
+    check_name(name, "name")
+    job = jobs_of(ctx).get(name)
+    if job is not None or name in {d.name for d in list_datasets(ctx.store)}:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"name: a data set called {name!r} exists already")
+
+
+# -- upload ----------------------------------------------------------------------------------
+async def _save(upload: UploadFile, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with target.open("xb") as out:
+        while chunk := await upload.read(1 << 20):
+            out.write(chunk)
+
+
+def _is_calib(path: Path) -> bool:
+    head = path.read_bytes()[:4096].decode("utf-8", "replace")
+    return "Tr_velo_to_cam" in head or head.lstrip().startswith(("P0:", "P2:", "R0_rect:"))
+
+
+async def _store_files(ctx: WebContext, files: list[UploadFile], folder: Path) -> tuple[Path, list[str]]:
+    """Write the uploaded files into ``folder`` in a layout lidarfuzz opens; returns its root and
+    the original file names."""
+    names = [Path(f.filename or "file").name for f in files]
+    suffixes = [Path(n).suffix.lower() for n in names]
+    if len(files) == 1 and suffixes[0] == ".zip":
+        archive = folder / "upload.zip"
+        await _save(files[0], archive)
+        root = folder / "data"
+        root.mkdir()
+        await run_in_threadpool(extract_zip, archive, root, ctx.limits)
+        archive.unlink()
+        entries = [p for p in root.iterdir()]
+        if len(entries) == 1 and entries[0].is_dir():
+            root = entries[0]  # the zip of a folder
+        return root, names
+    if len(files) == 1 and suffixes[0] in LOG_SUFFIXES:
+        target = folder / f"log{suffixes[0]}"
+        await _save(files[0], target)
+        return target, names
+    unknown = [n for n, s in zip(names, suffixes, strict=True) if s not in (*FRAME_SUFFIXES, ".txt")]
+    if unknown:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{unknown[0]}: unsupported file type; upload one .zip (KITTI layout), point-cloud files "
+                            f"({', '.join(FRAME_SUFFIXES)}) with KITTI label/calib .txt files, or one .bag / .mcap")
+    frames = [s for s in suffixes if s in FRAME_SUFFIXES]
+    if not frames:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "files: no point-cloud file among them")
+    kitti = all(s == ".bin" for s in frames)
+    if not kitti and ".txt" in suffixes:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "files: label files go with .bin frames (KITTI layout); for other formats upload the "
+                            "frames alone, .npz scenes (they hold their boxes), or a zip in KITTI layout")
+    root = folder / "data"
+    seen: set[Path] = set()
+    for upload, name, suffix in zip(files, names, suffixes, strict=True):
+        stem = safe_component(Path(name).stem)
+        staged = folder / "staging" / uuid.uuid4().hex
+        await _save(upload, staged)
+        if not kitti:
+            target = root / f"{stem}{suffix}"
+        elif suffix == ".bin":
+            target = root / "velodyne" / f"{stem}.bin"
+        else:
+            target = root / ("calib" if _is_calib(staged) else "label_2") / f"{stem}.txt"
+        if target in seen:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"{name}: a second file for {target.relative_to(root)}")
+        seen.add(target)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staged.rename(target)
+    shutil.rmtree(folder / "staging", ignore_errors=True)
+    return root, names
+
+
+def _relative(text: str, root: Path) -> str:
+    for base in (root, root.resolve()):
+        text = text.replace(f"{base}/", "").replace(str(base), ".")
+    return text
+
+
+def _inspect(root: Path, base: Path) -> tuple[list[dict[str, Any]], Any]:
+    from lidarfuzz.io.inspect import inspect_source
+
+    try:
+        report = inspect_source(root)
+    except DataFormatError as exc:
+        return [{"severity": "error", "file": _relative(str(exc.path), base), "line": exc.line,
+                 "message": _relative(exc.message, base)}], None
+    problems = [{"severity": p.severity, "file": _relative(p.path, base), "line": p.line,
+                 "message": _relative(p.message, base)} for p in report.problems]
+    if report.frames == 0:
+        problems.append({"severity": "error", "file": ".", "line": None, "message": "no frames to test"})
+    return problems, report
+
+
+def _problem_line(problem: dict[str, Any]) -> str:
+    where = problem["file"] + (f":{problem['line']}" if problem["line"] is not None else "")
+    return f"{where}: {problem['message']}"
+
+
+@router.post("/datasets/upload", status_code=status.HTTP_201_CREATED, openapi_extra=UPLOAD_FORM,
+             responses={422: {"description": "every problem found, each naming its file and line"}})
+async def datasets_upload(ctx: Web, request: Request) -> Any:
+    """Upload a data set (multipart: ``name``, ``files``); validated, then recorded. A 422 has
+    ``detail`` (one ``file:line: message`` per line) and ``problems`` (the same as objects)."""
+    form = await request.form(max_files=100_000, max_fields=20)
+    name = str(form.get("name") or "")
+    _name_free(ctx, name)
+    files = [f for f in form.getlist("files") + form.getlist("file") if isinstance(f, UploadFile)]
+    if not files:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "files: no file uploaded")
+    folder = ctx.uploads / uuid.uuid4().hex
+    folder.mkdir(parents=True)
+    try:
+        root, names = await _store_files(ctx, files, folder)
+        base = root if root.is_dir() else root.parent
+        problems, report = await run_in_threadpool(_inspect, root, base)
+        errors = [p for p in problems if p["severity"] == "error"]
+        if errors:
+            remove_tree(folder, ctx.uploads)
+            return JSONResponse({"detail": "\n".join(_problem_line(p) for p in errors), "problems": errors},
+                                status_code=422)
+        notes = str(form.get("notes") or "") or f"uploaded: {', '.join(names[:5])}" + (
+            f" and {len(names) - 5} more" if len(names) > 5 else "")
+        row = await run_in_threadpool(add_dataset, ctx.store, name, root, notes)
+    except BaseException:
+        remove_tree(folder, ctx.uploads)
+        raise
+    finally:
+        await form.close()
+    out = dataset_row(row, ctx.uploads)
+    out["warnings"] = [_problem_line(p) for p in problems if p["severity"] != "error"]
+    out["frames_inspected"] = report.inspected if report is not None else 0
+    return out
+
+
+# -- generate --------------------------------------------------------------------------------
+class GenerateRequest(BaseModel):
+    """What ``lidarfuzz gen`` renders: independent procedural scenes."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(description="a name for the data set")
+    frames: int = Field(default=10, ge=1, le=10_000, description="number of frames")
+    seed: int = Field(default=0, ge=0, description="the same seed gives the same bytes")
+    kind: Literal["urban", "suburban"] | None = Field(default=None, description="scene kind (default: a mix)")
+    sensor: str | None = Field(default=None, description="a sensor preset (default HDL-64E)")
+
+
+@router.post("/datasets/generate", status_code=status.HTTP_202_ACCEPTED)
+def datasets_generate(ctx: Web, body: GenerateRequest) -> dict[str, Any]:
+    """Render a labelled data set with the simulator in the background; it is listed as
+    ``generating`` (done/total frames) until it is recorded."""
+    from lidarfuzz.sim.sensor import preset_names
+
+    _name_free(ctx, body.name)
+    if body.sensor is not None and body.sensor not in preset_names():
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"sensor: {body.sensor!r} is not a preset ({', '.join(preset_names())})")
+    job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor)
+    return job.as_dict()
+
+
+@router.delete("/datasets/{name}", status_code=status.HTTP_204_NO_CONTENT)
+def datasets_delete(ctx: Web, name: str) -> None:
+    """Forget a data set; files the app stored (under ``uploads/``) are removed, others stay."""
+    jobs = jobs_of(ctx)
+    job = jobs.get(name)
+    if job is not None:
+        if job.status == "generating":
+            raise HTTPException(status.HTTP_409_CONFLICT, f"data set {name!r} is being generated; wait for it")
+        jobs.dismiss(name)
+        remove_tree(job.path, ctx.uploads)
+        return
+    row = get_dataset(ctx.store, name)
+    remove_dataset(ctx.store, name)
+    ctx.forget_dataset(row.path)
+    path = Path(row.path)
+    if within(path, ctx.uploads):
+        top = ctx.uploads.resolve() / path.resolve().relative_to(ctx.uploads.resolve()).parts[0]
+        remove_tree(top, ctx.uploads)

@@ -1,0 +1,184 @@
+"""Background workers of the web app: threads that run queued tasks through the campaign engine.
+
+Each thread takes a task id from the queue and calls
+:func:`lidarfuzz.campaign.runner.run_task` — the function ``lidarfuzz run`` and ``lidarfuzz
+resume`` call — with a stop event. Stopping a task is what ``lidarfuzz cancel`` does (the
+task's status in the store) plus setting that event, so a task stops within a second whether
+this server or a CLI process runs it.
+
+On start, unfinished tasks are queued again: pending ones, and running ones whose process is
+gone (:func:`lidarfuzz.campaign.tasks.looks_alive`, the rule ``lidarfuzz resume`` applies).
+A task interrupted because the server shuts down goes back to pending (it is resumed on the
+next start); one a user stopped stays cancelled.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass, field
+
+from lidarfuzz.campaign.tasks import cancel_task, get_task, list_tasks, looks_alive
+from lidarfuzz.store.models import Status, Task
+from lidarfuzz.store.store import Store, StoreError
+
+log = logging.getLogger("lidarfuzz.web")
+SHUTDOWN_NOTE = "the server stopped while it ran; resumed when the server starts again"
+
+
+@dataclass
+class _Running:
+    stop: threading.Event = field(default_factory=threading.Event)
+    by_user: bool = False
+
+
+class TaskWorkers:
+    """Threads running tasks of one store.
+
+    Args:
+        store: The campaign store.
+        threads: Tasks run at once (0: none run; tasks only queue, e.g. for tests).
+        processes: Worker processes of each task's pool (None: the CPU count), as ``lidarfuzz run
+            --workers``.
+        inline: Run every unit in the worker thread itself (no process pool; tests, debugging).
+    """
+
+    def __init__(self, store: Store, *, threads: int = 1, processes: int | None = None, inline: bool = False) -> None:
+        self.store, self.threads, self.processes, self.inline = store, max(0, threads), processes, inline
+        self._queue: queue.Queue[int | None] = queue.Queue()
+        self._queued: set[int] = set()
+        self._running: dict[int, _Running] = {}
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._closing = threading.Event()
+
+    # -- life cycle ----------------------------------------------------------------------
+    def start(self) -> list[int]:
+        """Start the threads and queue every unfinished task; returns the ids queued."""
+        if self.threads and not self._threads:
+            for number in range(self.threads):
+                thread = threading.Thread(target=self._loop, name=f"lidarfuzz-task-worker-{number}", daemon=True)
+                thread.start()
+                self._threads.append(thread)
+        resumed = []
+        for task in reversed(list_tasks(self.store)):  # oldest first
+            if task.status == Status.PENDING or (task.status == Status.RUNNING and not looks_alive(task)):
+                self.submit(task.id)
+                resumed.append(task.id)
+        if resumed:
+            log.info("queued unfinished task(s) %s", ", ".join(map(str, resumed)))
+        return resumed
+
+    def close(self, timeout: float = 30.0) -> None:
+        """Stop running tasks (they go back to pending) and the threads."""
+        self._closing.set()
+        with self._lock:
+            for running in self._running.values():
+                running.stop.set()
+        for _ in self._threads:
+            self._queue.put(None)
+        for thread in self._threads:
+            thread.join(timeout)
+        self._threads.clear()
+
+    # -- tasks ---------------------------------------------------------------------------
+    def submit(self, task_id: int) -> None:
+        """Queue a task (once; a task already queued or running is left alone)."""
+        with self._lock:
+            if task_id in self._queued or task_id in self._running:
+                return
+            self._queued.add(task_id)
+        self._queue.put(task_id)
+
+    def resume(self, task_id: int) -> Status:
+        """Queue a cancelled, failed or interrupted task again (only units without a result run, as
+        with ``lidarfuzz resume``); a done task, or one another process runs, is left alone."""
+        with self.store.session() as s:
+            task = s.get(Task, task_id)
+            if task is None:
+                raise StoreError(f"no task {task_id} (lidarfuzz list)")
+            if task.status == Status.DONE or looks_alive(task) or self.is_active(task_id):
+                return task.status
+            task.status, task.error = Status.PENDING, ""
+        self.submit(task_id)
+        return Status.PENDING
+
+    def is_active(self, task_id: int) -> bool:
+        """Whether this server has the task queued or running."""
+        with self._lock:
+            return task_id in self._queued or task_id in self._running
+
+    def stop(self, task_id: int) -> Status:
+        """Cancel a task as ``lidarfuzz cancel`` does, and stop it at once if this server runs it."""
+        status = cancel_task(self.store, task_id)
+        with self._lock:
+            self._queued.discard(task_id)
+            running = self._running.get(task_id)
+            if running is not None:
+                running.by_user = True
+                running.stop.set()
+        return status
+
+    def wait_stopped(self, task_id: int, timeout: float = 10.0) -> bool:
+        """Wait until this server no longer runs ``task_id``; False on a timeout."""
+        deadline = threading.Event()
+        for _ in range(int(timeout / 0.05)):
+            with self._lock:
+                if task_id not in self._running:
+                    return True
+            deadline.wait(0.05)
+        return False
+
+    # -- the threads ---------------------------------------------------------------------
+    def _claim(self, task_id: int) -> _Running | None:
+        with self._lock:
+            if task_id not in self._queued:  # stopped while queued
+                return None
+            self._queued.discard(task_id)
+            running = self._running[task_id] = _Running()
+            return running
+
+    def _runnable(self, task_id: int) -> bool:
+        try:
+            task = get_task(self.store, task_id)
+        except StoreError:
+            return False  # deleted while queued
+        return task.status == Status.PENDING or (task.status == Status.RUNNING and not looks_alive(task))
+
+    def _loop(self) -> None:
+        while True:
+            task_id = self._queue.get()
+            if task_id is None or self._closing.is_set():
+                return
+            running = self._claim(task_id)
+            if running is None:
+                continue
+            try:
+                if self._runnable(task_id):
+                    self._run(task_id, running)
+            except Exception:  # the task records its own failure; the worker keeps serving
+                log.exception("task %s failed", task_id)
+            finally:
+                with self._lock:
+                    self._running.pop(task_id, None)
+
+    def _run(self, task_id: int, running: _Running) -> None:
+        from lidarfuzz.campaign.executor import InlineExecutor
+        from lidarfuzz.campaign.runner import run_task
+
+        executor = InlineExecutor() if self.inline else None
+        outcome = run_task(self.store, task_id, executor=executor, workers=self.processes, stop=running.stop)
+        if outcome.status == Status.CANCELLED and not running.by_user and self._closing.is_set():
+            self._requeue(task_id)
+        log.info("task %s: %s", task_id, outcome.status.value)
+
+    def _requeue(self, task_id: int) -> None:
+        """Back to pending after a shutdown (unless someone cancelled it meanwhile)."""
+        with self.store.session() as s:
+            task = s.get(Task, task_id)
+            if task is not None and task.status == Status.CANCELLED and not task.error:
+                task.status, task.error = Status.PENDING, SHUTDOWN_NOTE
+
+
+__all__ = ["TaskWorkers"]
