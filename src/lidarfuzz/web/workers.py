@@ -94,6 +94,10 @@ class TaskWorkers:
     def resume(self, task_id: int) -> Status:
         """Queue a cancelled, failed or interrupted task again (only units without a result run, as
         with ``lidarfuzz resume``); a done task, or one another process runs, is left alone."""
+        with self._lock:
+            stopping = task_id in self._running
+        if stopping:  # stopped a moment ago: let its thread finish first
+            self.wait_stopped(task_id)
         with self.store.session() as s:
             task = s.get(Task, task_id)
             if task is None:

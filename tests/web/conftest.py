@@ -1,0 +1,93 @@
+"""Fixtures of the web tests: a tiny simulated world, apps on fresh workspaces, and one finished
+task (with findings) that read-only tests share.
+
+Tasks run in the app's worker thread with the inline executor (no process pool to start), on
+two HDL-64E frames with the classic pipeline: enough for the gaussian noise operator at
+severity 5 to make the pipeline lose a car (findings to open), and fast (well under a second).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
+from lidarfuzz.store import Store
+from lidarfuzz.store.catalog import add_dataset, add_model
+from lidarfuzz.web import create_app
+
+BASE = "http://127.0.0.1"
+NOISE = [{"name": "gaussian_noise_addition", "severities": [5]}]
+
+
+@pytest.fixture(scope="session")
+def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two independent HDL-64E frames in KITTI layout (read-only)."""
+    root = tmp_path_factory.mktemp("web-world") / "sim"
+    generate_dataset(root, GenerationConfig(frames=2, seed=0), workers=1, overwrite=True)
+    return root
+
+
+def register(workspace: Path, world: Path) -> None:
+    """The world as data set ``world`` and the classic pipeline as model ``classic``."""
+    store = Store(workspace)
+    add_dataset(store, "world", world)
+    add_model(store, "classic", "classic")
+    store.close()
+
+
+def wait_for(client: TestClient, task_id: int, states: tuple[str, ...] = ("done", "failed", "cancelled"),
+             timeout: float = 60.0) -> dict[str, Any]:
+    """Poll a task until it reaches one of ``states``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        task: dict[str, Any] = client.get(f"/api/tasks/{task_id}").json()
+        if task["status"] in states:
+            return task
+        if time.monotonic() > deadline:
+            raise AssertionError(f"task {task_id} still {task['status']} after {timeout} s: {task}")
+        time.sleep(0.1)
+
+
+@pytest.fixture
+def make_client(tmp_path: Path) -> Iterator[Callable[..., TestClient]]:
+    """``make_client(**create_app options)``: a started app on ``tmp_path/ws`` (inline tasks by default)."""
+    clients: list[TestClient] = []
+
+    def make(workspace: Path | None = None, base_url: str = BASE, **options: Any) -> TestClient:
+        options.setdefault("inline", True)
+        client = TestClient(create_app(workspace or tmp_path / "ws", **options), base_url=base_url)
+        client.__enter__()
+        clients.append(client)
+        return client
+
+    yield make
+    for client in reversed(clients):
+        client.__exit__(None, None, None)
+
+
+@pytest.fixture
+def client(make_client: Callable[..., TestClient], tmp_path: Path, world: Path) -> TestClient:
+    """An app whose store knows data set ``world`` and model ``classic``."""
+    register(tmp_path / "ws", world)
+    return make_client()
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory: pytest.TempPathFactory, world: Path) -> Iterator[tuple[TestClient, int]]:
+    """A client and a task run to the end through the API (originals and gaussian noise @5 on the
+    world): shared by read-only tests."""
+    workspace = tmp_path_factory.mktemp("web-finished") / "ws"
+    register(workspace, world)
+    with TestClient(create_app(workspace, inline=True), base_url=BASE) as client:
+        reply = client.post("/api/tasks", json={"name": "noise", "dataset": "world", "sut": "classic",
+                                                "operators": NOISE})
+        assert reply.status_code == 201, reply.text
+        task_id = reply.json()["id"]
+        assert wait_for(client, task_id)["status"] == "done"
+        yield client, task_id
