@@ -77,9 +77,10 @@ function parseProblemLine(text) {
 export class ApiError extends Error {
   constructor(status, detail, url) {
     const problems = problemsFrom(detail);
+    const text = typeof detail === "string" ? detail : typeof detail?.detail === "string" ? detail.detail : null;
     const summary =
-      typeof detail === "string"
-        ? detail.split("\n")[0]
+      text !== null && problems.length <= 1
+        ? text.split("\n")[0]
         : problems.length === 1
           ? problems[0].message
           : `${problems.length || "several"} problems`;
@@ -91,13 +92,18 @@ export class ApiError extends Error {
   }
 }
 
+// The error body: {detail, problems?} keeps its problem list; otherwise its detail.
+function detailOf(body) {
+  if (body && typeof body === "object" && !Array.isArray(body)) return Array.isArray(body.problems) ? body : (body.detail ?? body);
+  return body;
+}
+
 async function errorFrom(response) {
   let detail = response.statusText;
   try {
     const text = await response.text();
     try {
-      const body = JSON.parse(text);
-      detail = body?.detail ?? body;
+      detail = detailOf(JSON.parse(text));
     } catch {
       detail = text || response.statusText;
     }
@@ -167,7 +173,7 @@ export function upload(path, form, onProgress) {
         // not JSON: keep the text
       }
       if (xhr.status >= 200 && xhr.status < 300) resolve(body);
-      else reject(new ApiError(xhr.status, body?.detail ?? body, path));
+      else reject(new ApiError(xhr.status, detailOf(body), path));
     });
     xhr.addEventListener("error", () => reject(new ApiError(0, "the upload failed (connection lost)", path)));
     xhr.send(form);

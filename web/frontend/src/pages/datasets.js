@@ -6,7 +6,7 @@ import { clear, emptyRow, every, formatTime, h, notice, progressBar } from "../d
 export async function datasetsPage(root) {
   const body = h("tbody", { testid: "datasets-body" });
   const listMessage = h("div");
-  const pending = new Set(); // names being generated: keep refreshing until they appear
+  const pending = new Set(); // names being generated: keep refreshing until they are recorded
 
   async function load() {
     let reply;
@@ -21,15 +21,20 @@ export async function datasetsPage(root) {
     clear(body);
     if (!datasets.length) body.append(emptyRow(6, "No data sets yet: upload one or generate one from the simulator."));
     for (const ds of datasets) {
-      const status = ds.status && ds.status !== "ready" ? ` (${ds.status})` : "";
-      if (!ds.status || ds.status === "ready" || ds.status === "done") pending.delete(ds.name);
+      const generating = ds.status === "generating";
+      if (generating) pending.add(ds.name);
+      else pending.delete(ds.name);
+      const status =
+        ds.status && ds.status !== "ready"
+          ? h("span", { class: "muted", testid: "dataset-status" }, ` ${ds.status}${ds.error ? `: ${ds.error}` : ""}`)
+          : null;
       body.append(
         h(
           "tr",
           { testid: "dataset-row", dataset: { name: ds.name } },
           h("td", {}, h("a", { href: `#/browse/${encodeURIComponent(ds.name)}` }, ds.name), status),
           h("td", {}, ds.format ?? "—"),
-          h("td", { class: "num" }, ds.frame_count ?? ds.frames ?? "—"),
+          h("td", { class: "num" }, generating && ds.total ? progressBar(ds.done ?? 0, ds.total) : (ds.frame_count ?? ds.frames ?? "—")),
           h("td", { class: "path" }, ds.path ?? ""),
           h("td", {}, formatTime(ds.added_at ?? ds.created_at)),
           h(

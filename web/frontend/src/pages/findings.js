@@ -11,10 +11,16 @@ export function findingKind(f) {
 export async function findingsPage(root, id, params) {
   const filters = { relation: params.get("relation") ?? "", operator: params.get("operator") ?? "", cls: params.get("cls") ?? "" };
   let offset = Number(params.get("offset") ?? 0);
-  // the filter choices: every value in the task's findings (first 1,000)
-  const all = listOf(await api(`/api/tasks/${id}/findings${query({ limit: 1000 })}`), "findings");
+  // the filter choices: the server's facets, or every value among the task's first 1,000 findings
+  const first = await api(`/api/tasks/${id}/findings${query({ limit: 1000 })}`);
+  const all = listOf(first, "findings");
   const distinct = (fn) => [...new Set(all.map(fn).filter((v) => v !== undefined && v !== null && v !== ""))].sort();
-  const choices = { relation: distinct(findingKind), operator: distinct((f) => f.operator), cls: distinct((f) => f.cls ?? f.class) };
+  const facets = first?.facets ?? {};
+  const choices = {
+    relation: facets.relation ?? distinct(findingKind),
+    operator: facets.operator ?? distinct((f) => f.operator),
+    cls: (facets.class ?? facets.cls ?? distinct((f) => f.cls ?? f.class)).filter((v) => v !== ""),
+  };
   const names = { relation: "relation", operator: "operator", cls: "class" };
   const selects = Object.fromEntries(
     Object.keys(filters).map((key) => {
@@ -62,7 +68,9 @@ export async function findingsPage(root, id, params) {
   }
   const findings = listOf(reply, "findings");
   clear(body);
-  if (!findings.length) body.append(emptyRow(9, all.length ? "No finding matches these filters." : "No findings: the system held every relation."));
+  if (!findings.length) {
+    body.append(emptyRow(9, all.length ? "No finding matches these filters." : "No findings: the system held every relation."));
+  }
   for (const f of findings) {
     const href = `#/findings/${f.id}?task=${id}`;
     body.append(

@@ -29,8 +29,31 @@ export function operatorsByFamily(reply) {
   return groups;
 }
 
+// The severity table: a row per config field that changes with the severity (the server's
+// severity_table: {field, description, values at severity 0, 1, … 5}), or the configs per severity.
+function severityTable(op) {
+  const levels = [0, ...severityLevels(op)];
+  const rows = (op.severity_table ?? []).filter((r) => new Set(r.values.slice(1)).size > 1 || r.values[0] !== r.values[1]);
+  if (rows.length) {
+    return h(
+      "table",
+      { class: "severity-table" },
+      h("tr", {}, h("th", {}, "severity"), levels.map((l) => h("th", {}, String(l)))),
+      rows.map((r) => h("tr", { title: r.description ?? "" }, h("th", {}, r.field), r.values.map((v) => h("td", {}, String(v))))),
+    );
+  }
+  const legacy = severityRows(op);
+  return legacy.length ? h("table", { class: "severity-table" }, legacy) : null;
+}
+
+export function severityLevels(op) {
+  if (Array.isArray(op.severities) && op.severities.every((s) => Number.isInteger(s))) return op.severities;
+  const configs = op.severity_configs ?? (op.severities && !Array.isArray(op.severities) ? op.severities : null);
+  return configs ? Object.keys(configs).map(Number).filter((s) => s > 0).sort() : [1, 2, 3, 4, 5];
+}
+
 function severityRows(op) {
-  const table = op.severities ?? op.severity_table ?? op.severity;
+  const table = op.severity_configs ?? (Array.isArray(op.severities) && op.severities.every(Number.isInteger) ? null : op.severities);
   if (!table) return [];
   const entries = Array.isArray(table) ? table.map((v, i) => [v?.severity ?? i + 1, v?.config ?? v]) : Object.entries(table);
   return entries.map(([level, config]) => {
@@ -50,7 +73,8 @@ function firstParagraph(text) {
 
 function operatorRow(op, previews) {
   const check = h("input", { type: "checkbox", class: "op-check", testid: `op-${op.name}`, value: op.name });
-  const severityChecks = [1, 2, 3, 4, 5].map((s) =>
+  const levels = severityLevels(op);
+  const severityChecks = levels.map((s) =>
     h("label", { class: "sev" }, h("input", { type: "checkbox", value: s, checked: s % 2 === 1, testid: `op-${op.name}-sev-${s}` }), String(s)),
   );
   const modeSeverities = h("input", { type: "radio", name: `mode-${op.name}`, value: "severities", checked: true });
@@ -66,7 +90,11 @@ function operatorRow(op, previews) {
   modeConfig.addEventListener("change", sync);
 
   // preview: loaded when the details open, again when its severity changes
-  const previewSeverity = h("select", { testid: `preview-severity-${op.name}` }, [1, 2, 3, 4, 5].map((s) => h("option", { value: s, selected: s === 3 }, `severity ${s}`)));
+  const previewSeverity = h(
+    "select",
+    { testid: `preview-severity-${op.name}` },
+    levels.map((s) => h("option", { value: s, selected: s === (levels.includes(3) ? 3 : levels[0]) }, `severity ${s}`)),
+  );
   const image = h("img", { class: "preview", alt: `${op.name} before and after`, testid: `preview-${op.name}` });
   const previewMessage = h("span", { class: "muted" });
   async function loadPreview() {
@@ -89,7 +117,7 @@ function operatorRow(op, previews) {
     { class: "op-details", ontoggle: (e) => e.target.open && !image.src && loadPreview() },
     h("summary", {}, "description, severities, preview"),
     h("p", { class: "op-doc" }, firstParagraph(op.description ?? op.doc)),
-    severityRows(op).length ? h("table", { class: "severity-table" }, severityRows(op)) : null,
+    severityTable(op),
     h("div", { class: "preview-box" }, previewSeverity, previewMessage, image),
   );
   const aliases = (op.aliases ?? []).length ? ` (${op.aliases.join(", ")})` : "";

@@ -35,6 +35,7 @@ export const BOX_STYLES = {
   detection: { colour: "#38bdf8", name: "detection" },
   missing: { colour: "#ff4d4f", name: "missing (ground truth not detected)" },
   spurious: { colour: "#ff3bd4", name: "spurious detection" },
+  lost: { colour: "#ffa629", name: "detection lost in the mutant" },
 };
 const ADDED = [64, 255, 96];
 const REMOVED = [255, 64, 64];
@@ -106,6 +107,7 @@ function boxObjects(entry, show) {
   if (!entry) return { objects, count };
   const missing = new Set(entry.missing ?? []);
   const spurious = new Set(entry.spurious ?? []);
+  const lost = new Set(entry.lost ?? []);
   const add = (boxes, style, inflate = 1) => {
     if (!boxes.length) return;
     const { positions, count: n } = boxSegments(boxes, inflate);
@@ -122,10 +124,12 @@ function boxObjects(entry, show) {
     add(miss, "missing", 1.06); // a second outline: WebGL lines are one pixel wide
   }
   if (show.detections) {
-    add(det.filter((_, i) => !spurious.has(i)), "detection");
-    const spur = det.filter((_, i) => spurious.has(i));
-    add(spur, "spurious");
-    add(spur, "spurious", 1.06);
+    add(det.filter((_, i) => !spurious.has(i) && !lost.has(i)), "detection");
+    for (const [style, set] of [["spurious", spurious], ["lost", lost]]) {
+      const picked = det.filter((_, i) => set.has(i));
+      add(picked, style);
+      add(picked, style, 1.06);
+    }
   }
   return { objects, count };
 }
@@ -210,6 +214,17 @@ function removedOf(original) {
   return { ...original, name: `${original.name} (removed)`, count: n, data };
 }
 
+// The centre of the first highlighted box (what a finding is about), or null.
+function highlighted(boxes) {
+  for (const [cloud, key, list] of [["mutant", "missing", "gt"], ["original", "missing", "gt"], ["mutant", "spurious", "detections"], ["original", "lost", "detections"]]) {
+    const entry = boxes?.[cloud];
+    const index = entry?.[key]?.[0];
+    const box = index !== undefined ? entry?.[list]?.[index] : undefined;
+    if (finiteBox(box)) return box.slice(0, 3);
+  }
+  return null;
+}
+
 export class PointCloudViewer {
   constructor(container, { onRender } = {}) {
     this.container = container;
@@ -267,6 +282,14 @@ export class PointCloudViewer {
       this.ortho.zoom = 1;
       this.controls.target.set(extent * 0.35, 0, 0);
       this.ortho.lookAt(this.controls.target);
+    } else if (this.focus) {
+      // a finding: look at the object it is about, from the sensor's side of it
+      const [fx, fy, fz] = this.focus;
+      const norm = Math.hypot(fx, fy);
+      const [dx, dy] = norm > 1 ? [fx / norm, fy / norm] : [1, 0];
+      this.perspective.position.set(fx - dx * 22, fy - dy * 22, fz + 12);
+      this.controls.target.set(fx, fy, fz);
+      this.perspective.lookAt(this.controls.target);
     } else {
       this.perspective.position.set(-12, 0, 10);
       this.controls.target.set(14, 0, 0);
@@ -318,6 +341,7 @@ export class PointCloudViewer {
     const rx = channelRange([original], "x");
     const ry = channelRange([original], "y");
     this.extent = Math.max(20, Math.min(150, Math.max(Math.abs(rx[0]), Math.abs(rx[1]), Math.abs(ry[0]), Math.abs(ry[1]))));
+    this.focus = highlighted(frame.boxes);
     this.build();
     this.resetView();
   }
@@ -522,6 +546,7 @@ export function viewerPanel(root, { title = "", pair = true } = {}) {
     const mode = COLOUR_MODES[viewer.settings.colour];
     legend.append(h("div", { class: "legend-title" }, "Boxes"));
     for (const [key, style] of Object.entries(BOX_STYLES)) {
+      if (!viewer.pair && !["gt", "detection"].includes(key)) continue;
       legend.append(h("div", { class: "legend-row", dataset: { key } }, h("span", { class: "swatch line", style: { background: style.colour } }), style.name));
     }
     legend.append(h("div", { class: "legend-row muted" }, "— heading: line to the front face, front face crossed"));
@@ -548,10 +573,11 @@ export function viewerPanel(root, { title = "", pair = true } = {}) {
       );
     }
     tags.replaceChildren();
+    const failed = (name) => (frame.boxes[name]?.failed ? " · the system failed here" : "");
     if (viewer.pair && viewer.settings.layout === "side") {
       tags.append(
-        h("span", { class: "tag left" }, `original · ${viewer.pair.original.count.toLocaleString()} points`),
-        h("span", { class: "tag right" }, `mutant · ${viewer.pair.mutant.count.toLocaleString()} points`),
+        h("span", { class: "tag left" }, `original · ${viewer.pair.original.count.toLocaleString()} points${failed(viewer.pair.original.name)}`),
+        h("span", { class: "tag right" }, `mutant · ${viewer.pair.mutant.count.toLocaleString()} points${failed(viewer.pair.mutant.name)}`),
       );
     } else if (viewer.pair) {
       tags.append(h("span", { class: "tag left" }, `overlay · mutant ${viewer.pair.mutant.count.toLocaleString()} points + removed`));
