@@ -72,16 +72,16 @@ class UploadTooLarge(HTTPException):
     """A request body over its limit (413)."""
 
     def __init__(self, limit: int) -> None:
-        super().__init__(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE,
+        super().__init__(status.HTTP_413_CONTENT_TOO_LARGE,
                          f"request body: larger than the limit of {format_bytes(limit)} (--max-upload)")
 
 
 def format_bytes(value: int) -> str:
-    """``2147483648`` → ``2 GiB``."""
+    """``2147483648`` → ``2 GiB``; ``10000`` → ``10,000 bytes``."""
     for unit, size in (("GiB", GiB), ("MiB", MiB), ("KiB", 1024)):
-        if value >= size:
-            return f"{value / size:g} {unit}"
-    return f"{value} bytes"
+        if value >= size and value % size == 0:
+            return f"{value // size} {unit}"
+    return f"{value:,} bytes"
 
 
 def is_loopback(host: str) -> bool:
@@ -238,10 +238,9 @@ def check_zip(archive: zipfile.ZipFile, limits: Limits) -> list[tuple[zipfile.Zi
         parts = [p for p in posix.split("/") if p not in ("", ".")]
         if ".." in parts:
             raise _bad_member(name, "a path with '..' (zip-slip)")
-        mode = info.external_attr >> 16
-        if info.create_system == 3 and mode and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-            kind = "a symbolic link" if stat.S_ISLNK(mode) else "not a regular file"
-            raise _bad_member(name, kind)
+        kind = stat.S_IFMT(info.external_attr >> 16) if info.create_system == 3 else 0  # Unix file type bits
+        if kind and kind not in (stat.S_IFREG, stat.S_IFDIR):
+            raise _bad_member(name, "a symbolic link" if kind == stat.S_IFLNK else "not a regular file")
         total += info.file_size
         if total > limits.max_unzipped:
             raise _bad_member(name, f"the zip unpacks to more than the limit of {format_bytes(limits.max_unzipped)}")
