@@ -102,6 +102,17 @@ def test_a_task_is_created_run_by_the_workers_and_listed(finished: tuple[TestCli
     assert client.get("/api/tasks/999").status_code == 404
 
 
+def test_a_task_runs_on_a_process_pool(make_client: Callable[..., TestClient], tmp_path: Path, world: Path) -> None:
+    """What `lidarfuzz serve` does by default: run_task with its pool of worker processes."""
+    register(tmp_path / "ws", world)
+    client = make_client(inline=False, processes=1)
+    task_id = client.post("/api/tasks", json=campaign()).json()["id"]
+    task = wait_for(client, task_id, timeout=120)
+    assert task["status"] == "done" and task["done"] == 4, task
+    assert task["worker"].endswith(f":{os.getpid()}")  # claimed by this server's process
+    assert client.get(f"/api/tasks/{task_id}/findings").json()["total"] > 0
+
+
 def test_task_list_pages_newest_first(make_client: Callable[..., TestClient], tmp_path: Path, world: Path) -> None:
     register(tmp_path / "ws", world)
     client = make_client(workers=0)

@@ -1,0 +1,170 @@
+"""The web app's list pages with 1,000 tasks in the store, and a frame's transfer (and first render).
+
+Usage: ``.venv/bin/python benchmarks/web.py [--tasks N] [--requests R] [--repeat K]``
+
+A store is filled with ``--tasks`` finished tasks (rows inserted directly, each with 40 frame ids,
+eight subtasks and a 20 kB summary, as a real task has), 20 data sets and 10 models; the app is
+served by a real uvicorn server on 127.0.0.1 and called over HTTP with one keep-alive client,
+as a browser does. Per endpoint: p50 and p95 latency of ``--requests`` calls after a warm-up,
+median over ``--repeat`` runs. Target (issue 9): p95 < 100 ms.
+
+Frame transfer: one HDL-64E frame (about 120,000 points, every channel) of a simulated data set
+as the ``LFZ1`` binary payload, request to last byte, median of 20. The browser part (parse and
+first render in the three.js viewer) is :func:`frame_first_render`, measured with a browser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import httpx
+import uvicorn
+from sqlalchemy import insert
+
+from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
+from lidarfuzz.store import Dataset, Model, Status, Store, Subtask, Task
+from lidarfuzz.store.catalog import add_dataset, add_model
+from lidarfuzz.web import create_app
+
+TARGET_MS = 100.0
+ENDPOINTS = ("/api/tasks", "/api/tasks?limit=50&offset=500", "/api/tasks?status=done", "/api/datasets",
+             "/api/models")
+
+
+def fill(store: Store, tasks: int, data: Path) -> None:
+    """``tasks`` finished tasks, 20 data sets and 10 models, inserted as rows."""
+    add_dataset(store, "sim", data)
+    add_model(store, "classic", "classic")
+    now = datetime.now(UTC)
+    with store.session() as s:
+        s.execute(insert(Dataset), [{"name": f"set-{i:02d}", "path": str(data), "format": "kitti", "frame_count": 1,
+                                     "notes": "benchmark", "added_at": now} for i in range(19)])
+        s.execute(insert(Model), [{"name": f"classic-{i}", "spec": "classic", "options": {"min_points": 8 + i},
+                                   "fingerprint": f"{i:016x}", "notes": "", "added_at": now} for i in range(9)])
+        dataset_id = s.query(Dataset.id).filter(Dataset.name == "sim").scalar()
+        model_id = s.query(Model.id).filter(Model.name == "classic").scalar()
+        summary = {"task": {"status": "done"}, "subtasks": [{"label": f"op@{i}", "ap": [0.5] * 300}
+                                                             for i in range(8)]}
+        operators = [{"name": "fog", "severities": [1, 3, 5], "config": None},
+                     {"name": "rotate_z", "severities": [1, 3, 5], "config": None}]
+        rows = []
+        for i in range(tasks):
+            start = now - timedelta(hours=tasks - i)
+            rows.append({"name": f"task {i}", "dataset_id": dataset_id, "model_id": model_id, "operators": operators,
+                         "relations": ["auto"], "seed": i, "status": Status.DONE, "done": 280, "total": 280,
+                         "created_at": start, "started_at": start, "finished_at": start + timedelta(minutes=5),
+                         "summary": summary, "error": "", "worker": "bench:1", "heartbeat_at": start,
+                         "options": {"frame_ids": [f"{f:06d}" for f in range(40)], "trials": 1, "kind": "mutation",
+                                     "relations": "auto", "isolate": False, "timeout": 60.0}})
+        s.execute(insert(Task), rows)
+        ids = [row[0] for row in s.query(Task.id).all()]
+        s.execute(insert(Subtask), [{"task_id": task_id, "operator_key": f"k{j}", "operator": {}, "name": "fog",
+                                     "op_index": j, "severity": j, "status": Status.DONE, "done": 40, "total": 40,
+                                     "results": {"frames": 40}} for task_id in ids for j in range(7)])
+    assert len(json.dumps(summary)) > 10_000
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class Server:
+    """A uvicorn server on 127.0.0.1 in a thread."""
+
+    def __init__(self, app: object) -> None:
+        self.port = free_port()
+        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning"))
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> str:
+        self.thread.start()
+        while not self.server.started:
+            time.sleep(0.05)
+        return f"http://127.0.0.1:{self.port}"
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(10)
+
+
+def latencies(call: Callable[[], httpx.Response], count: int) -> list[float]:
+    out = []
+    for _ in range(count):
+        start = time.perf_counter()
+        reply = call()
+        reply.read()
+        out.append((time.perf_counter() - start) * 1000)
+        reply.raise_for_status()
+    return out
+
+
+def percentile(values: list[float], share: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(share * (len(ordered) - 1)))]
+
+
+def frame_first_render(base_url: str, dataset: str, frame_id: str) -> float | None:
+    """FRONT END HOOK — milliseconds from asking the viewer for a frame to its first drawn picture.
+
+    To be filled in by the front end (measured with headless Chromium through Playwright: open
+    ``{base_url}/#/browse/{dataset}/{frame_id}``, time fetch + parse + first three.js render).
+    Returns None until then; the table says "not measured".
+    """
+    return None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", type=int, default=1000)
+    parser.add_argument("--requests", type=int, default=200, help="calls per endpoint and run")
+    parser.add_argument("--repeat", type=int, default=5, help="runs (the median is shown)")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory(prefix="lidarfuzz-web-bench-") as tmp:
+        root = Path(tmp)
+        data = root / "sim"
+        generate_dataset(data, GenerationConfig(frames=1, seed=0), workers=1)
+        store = Store(root / "ws")
+        start = time.perf_counter()
+        fill(store, args.tasks, data)
+        print(f"store: {args.tasks} tasks, 20 data sets, 10 models ({time.perf_counter() - start:.1f} s to insert)")
+        store.close()
+        app = create_app(root / "ws", workers=0)
+        with Server(app) as base, httpx.Client(base_url=base) as client:
+            total = client.get("/api/tasks").json()["total"]
+            assert total == args.tasks, total
+            print(f"\nlist pages over HTTP (uvicorn, keep-alive), {args.requests} calls x {args.repeat} runs, "
+                  f"median of runs (ms)")
+            print(f"{'endpoint':<34} {'p50':>7} {'p95':>7}  target p95 < {TARGET_MS:.0f}")
+            for endpoint in ENDPOINTS:
+                latencies(lambda e=endpoint: client.get(e), 20)  # warm-up
+                runs = [latencies(lambda e=endpoint: client.get(e), args.requests) for _ in range(args.repeat)]
+                p50 = statistics.median(percentile(r, 0.50) for r in runs)
+                p95 = statistics.median(percentile(r, 0.95) for r in runs)
+                verdict = "ok" if p95 < TARGET_MS else "SLOW"
+                print(f"{endpoint:<34} {p50:7.1f} {p95:7.1f}  {verdict}")
+
+            frame = client.get("/api/datasets/sim/frames/000000")
+            header_length = int.from_bytes(frame.content[4:8], "little")
+            points = json.loads(frame.content[8:8 + header_length])["clouds"][0]["count"]
+            times = latencies(lambda: client.get("/api/datasets/sim/frames/000000"), 20)
+            print(f"\nframe transfer: {points:,} points, {len(frame.content) / 1e6:.1f} MB LFZ1, request to last "
+                  f"byte {statistics.median(times):.0f} ms (median of 20)")
+            render = frame_first_render(base, "sim", "000000")
+            print("frame first render (browser): " + ("not measured (see frame_first_render)" if render is None
+                                                      else f"{render:.0f} ms"))
+
+
+if __name__ == "__main__":
+    main()
