@@ -2,12 +2,28 @@
 import { api, fetchBinary } from "../api.js";
 import { clear, formatNumber, h, notice } from "../dom.js";
 
+// The viewer's code and the frame are fetched at once; `window.__viewer.timings` says where the
+// time to the first render went (ms from the start): code loaded, frame received, parsed, WebGL up.
 export async function loadViewer(root, url, options) {
   const started = performance.now();
-  const [module, buffer] = await Promise.all([import("../viewer/viewer.js"), fetchBinary(url)]);
-  const frame = module.parseFrame(buffer);
+  const timings = {};
+  const since = () => Math.round((performance.now() - started) * 10) / 10;
+  const arriving = fetchBinary(url).then((b) => ((timings.frame = since()), b));
+  const module = await import("../viewer/viewer.js");
+  timings.code = since();
+  // WebGL up and its shaders compiled while the frame is still arriving
   const panel = module.viewerPanel(root, options);
+  timings.webgl = since();
+  let frame;
+  try {
+    frame = module.parseFrame(await arriving);
+  } catch (exc) {
+    panel.dispose();
+    throw exc;
+  }
+  timings.parsed = since();
   panel.show(frame, started);
+  window.__viewer.timings = timings;
   return { panel, frame };
 }
 

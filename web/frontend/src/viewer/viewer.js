@@ -94,10 +94,38 @@ export function boxSegments(boxes, inflate = 1) {
   return { positions: out, count: valid.length };
 }
 
+// One WebGL context, its materials and so its compiled shader programs serve every viewer the page
+// opens: a context costs tens of milliseconds to create and its shaders more to compile (far more
+// with software WebGL), and browsers cap the contexts a page may hold.
+const shared = { renderer: null, points: null, lines: new Map() };
+
+function sharedRenderer() {
+  if (!shared.renderer || shared.renderer.getContext().isContextLost()) {
+    shared.renderer = new WebGLRenderer({ antialias: false, powerPreference: "high-performance" });
+    shared.renderer.domElement.dataset.testid = "viewer-canvas";
+    shared.renderer.domElement.className = "viewer-canvas";
+    shared.points = new PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true });
+    shared.lines.clear();
+    // compile the two programs now, while the frame may still be on its way
+    const scene = new Scene();
+    const geometry = new BufferGeometry();
+    geometry.setAttribute("position", new BufferAttribute(new Float32Array(6), 3));
+    geometry.setAttribute("color", new BufferAttribute(new Uint8Array(6), 3, true));
+    scene.add(new Points(geometry, shared.points), new LineSegments(geometry, lineMaterial(BOX_STYLES.gt.colour)));
+    shared.renderer.compile(scene, new PerspectiveCamera());
+  }
+  return shared.renderer;
+}
+
+function lineMaterial(colour) {
+  if (!shared.lines.has(colour)) shared.lines.set(colour, new LineBasicMaterial({ color: new Color(colour) }));
+  return shared.lines.get(colour);
+}
+
 function lines(positions, colour) {
   const geometry = new BufferGeometry();
   geometry.setAttribute("position", new BufferAttribute(positions, 3));
-  return new LineSegments(geometry, new LineBasicMaterial({ color: new Color(colour), depthTest: true }));
+  return new LineSegments(geometry, lineMaterial(colour));
 }
 
 // Boxes of one cloud: {objects: [LineSegments], count} split by style.
@@ -137,18 +165,19 @@ function boxObjects(entry, show) {
 // Robust range of a channel over clouds: the 1st and 99th percentiles of a sample (99.8th for height:
 // the ground is most of a sweep, and what stands on it is what one looks at).
 function channelRange(clouds, channel) {
-  const sample = [];
+  const values = new Float32Array(clouds.reduce((n, c) => n + Math.min(c.count, 20000), 0));
+  let n = 0;
   for (const cloud of clouds) {
     const i = cloud.index[channel];
     if (i === undefined || !cloud.count) continue;
     const step = Math.max(1, Math.floor(cloud.count / 20000));
-    for (let p = 0; p < cloud.count; p += step) {
+    for (let p = 0; p < cloud.count && n < values.length; p += step) {
       const v = cloud.data[p * cloud.stride + i];
-      if (Number.isFinite(v)) sample.push(v);
+      if (Number.isFinite(v)) values[n++] = v;
     }
   }
-  if (!sample.length) return [0, 1];
-  sample.sort((a, b) => a - b);
+  if (!n) return [0, 1];
+  const sample = values.subarray(0, n).sort(); // a typed array sorts numerically, natively
   const discrete = channel === "ring" || channel === "label";
   const at = (q) => sample[Math.min(sample.length - 1, Math.floor(sample.length * q))];
   const lo = discrete ? sample[0] : at(0.01);
@@ -163,26 +192,26 @@ function fillColours(out, cloud, mode, range, role) {
   const change = cloud.index.change;
   const [lo, hi] = range;
   const scale = 255 / (hi - lo);
-  for (let p = 0; p < n; p++) {
-    const row = p * cloud.stride;
-    let r;
-    let g;
-    let b;
-    const ch = change !== undefined ? cloud.data[row + change] : 0;
-    if (mode === "change" || (role === "overlay" && ch !== 0)) {
-      [r, g, b] = ch === 1 ? ADDED : ch === 2 ? REMOVED : KEPT;
-    } else if (ci === undefined) {
-      [r, g, b] = KEPT;
-    } else {
-      const v = cloud.data[row + ci];
-      const t = spec.categorical ? Math.round(categorical(v) * 255) : Math.max(0, Math.min(255, Math.round((v - lo) * scale)));
-      r = TURBO[t * 3];
-      g = TURBO[t * 3 + 1];
-      b = TURBO[t * 3 + 2];
+  const data = cloud.data;
+  const stride = cloud.stride;
+  const byChange = mode === "change";
+  const marked = role === "overlay" && change !== undefined;
+  for (let p = 0, row = 0, o = 0; p < n; p++, row += stride, o += 3) {
+    const ch = change !== undefined ? data[row + change] : 0;
+    let colour = null;
+    if (byChange || (marked && ch !== 0)) colour = ch === 1 ? ADDED : ch === 2 ? REMOVED : KEPT;
+    else if (ci === undefined) colour = KEPT;
+    if (colour) {
+      out[o] = colour[0];
+      out[o + 1] = colour[1];
+      out[o + 2] = colour[2];
+      continue;
     }
-    out[p * 3] = r;
-    out[p * 3 + 1] = g;
-    out[p * 3 + 2] = b;
+    const v = data[row + ci];
+    const t = spec.categorical ? Math.round(categorical(v) * 255) : Math.max(0, Math.min(255, Math.round((v - lo) * scale)));
+    out[o] = TURBO[t * 3];
+    out[o + 1] = TURBO[t * 3 + 1];
+    out[o + 2] = TURBO[t * 3 + 2];
   }
 }
 
@@ -229,13 +258,12 @@ export class PointCloudViewer {
   constructor(container, { onRender } = {}) {
     this.container = container;
     this.onRender = onRender;
-    this.renderer = new WebGLRenderer({ antialias: false, powerPreference: "high-performance" });
+    this.renderer = sharedRenderer();
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
     this.renderer.setClearColor(BACKGROUND, 1);
-    this.renderer.domElement.dataset.testid = "viewer-canvas";
-    this.renderer.domElement.className = "viewer-canvas";
     container.append(this.renderer.domElement);
-    this.material = new PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true });
+    this.material = shared.points;
+    this.material.size = 2;
     this.settings = { layout: "side", colour: "height", bev: false, gt: true, detections: true, pointSize: 2 };
     this.frame = null;
     this.scenes = [];
@@ -344,13 +372,13 @@ export class PointCloudViewer {
     this.focus = highlighted(frame.boxes);
     this.build();
     this.resetView();
+    this.stats.builtMs = performance.now() - this.frameStart;
   }
 
   clearScenes() {
     for (const scene of this.scenes) {
       scene.traverse((obj) => {
         if (obj.geometry) obj.geometry.dispose();
-        if (obj.material && obj.material !== this.material) obj.material.dispose();
       });
     }
     this.scenes = [];
@@ -362,10 +390,7 @@ export class PointCloudViewer {
   build() {
     for (const scene of this.scenes) {
       scene.traverse((obj) => {
-        if (obj.isLineSegments) {
-          obj.geometry.dispose();
-          obj.material.dispose();
-        }
+        if (obj.isLineSegments) obj.geometry.dispose();
       });
     }
     this.scenes = [];
@@ -473,10 +498,20 @@ export class PointCloudViewer {
     if (this.stats.firstRenderMs === null && this.frame) {
       // wait for the GPU: reading one pixel back returns only once the frame is drawn
       const gl = renderer.getContext();
+      this.stats.submittedMs = performance.now() - this.frameStart;
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
       this.stats.firstRenderMs = performance.now() - this.frameStart;
     }
     this.onRender?.(this.stats);
+  }
+
+  // Draw now and wait for the GPU; returns the milliseconds it took (the cost of one camera move).
+  timedRender() {
+    const start = performance.now();
+    this.render();
+    const gl = this.renderer.getContext();
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(4));
+    return performance.now() - start;
   }
 
   dispose() {
@@ -485,10 +520,7 @@ export class PointCloudViewer {
     this.controls?.dispose();
     this.clearScenes();
     for (const layer of this.cache?.values() ?? []) layer.points.geometry.dispose();
-    this.material.dispose();
-    this.renderer.dispose();
-    this.renderer.forceContextLoss?.();
-    this.renderer.domElement.remove();
+    this.renderer.domElement.remove(); // the context, its materials and programs stay for the next viewer
   }
 }
 
@@ -500,6 +532,7 @@ export function viewerPanel(root, { title = "", pair = true } = {}) {
   const info = h("div", { class: "viewer-info muted", testid: "viewer-info" });
   stage.append(tags);
   const hook = (window.__viewer = { ready: false, pointsDrawn: 0, boxesDrawn: 0, firstRenderMs: null, renders: 0 });
+  hook.timedRender = () => viewer.timedRender();
   const viewer = new PointCloudViewer(stage, {
     onRender: (stats) => {
       Object.assign(hook, stats, { ready: true, layout: viewer.settings.layout, bev: viewer.settings.bev, colour: viewer.settings.colour });
