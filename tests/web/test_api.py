@@ -61,6 +61,8 @@ def test_openapi_docs_load_nothing_from_the_network(client: TestClient) -> None:
     assert "/static/vendor/swagger-ui/swagger-ui-bundle.js" in page.text
     assert "/static/vendor/swagger-ui/swagger-ui.css" in page.text
     assert "http://" not in page.text and "https://" not in page.text  # no CDN
+    for asset in ("swagger-ui-bundle.js", "swagger-ui.css"):  # bundled by the front end's build
+        assert client.get(f"/static/vendor/swagger-ui/{asset}").status_code == 200
     assert client.get("/redoc").status_code == 404
     paths = client.get("/openapi.json").json()["paths"]
     for path in ("/api/tasks", "/api/tasks/{task_id}/events", "/api/findings/{finding_id}/frames",
@@ -379,6 +381,38 @@ def test_a_findings_frames_decode_to_the_rebuilt_pair(finished: tuple[TestClient
     assert boxes["original"]["lost"] == sorted(pair.lost_source) and boxes["original"]["lost"]
     assert header["finding"]["id"] == finding_id and header["finding"]["has_mutant"] is True
     assert client.get("/api/findings/99999/frames").status_code == 404
+
+
+def test_change_flags_match_points_bit_for_bit() -> None:
+    from lidarfuzz.web.frames import change_flags
+
+    original = np.array([[0, 0, 0, 1], [1, 2, 3, 0], [1, 2, 3, 0.5], [5, 5, 5, 0]], np.float32)
+    mutant = np.array([[1, 2, 3, 9], [5, 5, 5.0001, 0], [7, 7, 7, 0]], np.float32)  # intensity does not count
+    before, after = change_flags(original, mutant)
+    assert before.tolist() == [ONLY_ORIGINAL, SAME, SAME, ONLY_ORIGINAL]
+    assert after.tolist() == [SAME, ONLY_MUTANT, ONLY_MUTANT]
+    empty = np.zeros((0, 4), np.float32)
+    assert change_flags(empty, mutant)[1].tolist() == [ONLY_MUTANT] * 3
+    assert change_flags(original, empty)[0].tolist() == [ONLY_ORIGINAL] * 4
+
+
+def test_boxes_without_geometry_are_left_out_and_highlights_renumbered() -> None:
+    from lidarfuzz.scene.boxes import Boxes3D
+    from lidarfuzz.web.frames import Cloud, encode, frame_boxes
+
+    nan = float("nan")
+    gt = Boxes3D.create([[1, 0, 0], [nan, nan, nan], [9, 0, 0]], [[4, 2, 1.5]] * 3, [0, 0, 0.5],
+                        ["Car", "DontCare", "Pedestrian"])
+    detections = Boxes3D.create([[9, 0, 0]], [[0.8, 0.6, 1.7]], [0.5], ["Pedestrian"], scores=[0.9])
+    boxes = frame_boxes(gt, detections, missing=[2], lost=[0])
+    assert boxes["gt_labels"] == ["Car", "Pedestrian"] and boxes["missing"] == [1] and boxes["lost"] == [0]
+    assert boxes["scores"] == [0.9] and boxes["failed"] is False
+    assert frame_boxes(gt, None)["failed"] is True and frame_boxes(gt, None)["detections"] == []
+    header, clouds = decode(encode([Cloud("frame", np.zeros((0, 4), np.float32), ("x", "y", "z", "intensity")),
+                                    Cloud("more", np.ones((3, 5), np.float32), ("x", "y", "z", "intensity", "ring"))],
+                                   {"frame": boxes}))
+    assert clouds["frame"].shape == (0, 4) and clouds["more"].tolist() == [[1.0] * 5] * 3
+    assert header["clouds"][1]["offset"] == 0 and header["boxes"]["frame"]["missing"] == [1]
 
 
 def test_a_data_set_frame_as_binary(client: TestClient, world: Path) -> None:
