@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import xml.etree.ElementTree as ET
+import zipfile
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -113,6 +114,27 @@ def test_a_task_runs_on_a_process_pool(make_client: Callable[..., TestClient], t
     assert task["status"] == "done" and task["done"] == 4, task
     assert task["worker"].endswith(f":{os.getpid()}")  # claimed by this server's process
     assert client.get(f"/api/tasks/{task_id}/findings").json()["total"] > 0
+
+
+def test_the_app_on_a_postgresql_store(make_client: Callable[..., TestClient], fresh_postgres_url: str,
+                                      tmp_path: Path, world: Path) -> None:
+    """A database URL as the workspace: the same engine; uploads, reports and caches go to ``files``."""
+    client = make_client(fresh_postgres_url, files=tmp_path / "files")
+    zipped = io.BytesIO()
+    with zipfile.ZipFile(zipped, "w") as archive:
+        for path in sorted(world.rglob("*")):
+            if path.is_file():
+                archive.write(path, path.relative_to(world).as_posix())
+    reply = client.post("/api/datasets/upload", data={"name": "world"}, files={"files": ("w.zip", zipped.getvalue())})
+    assert reply.status_code == 201, reply.text
+    assert Path(reply.json()["path"]).is_relative_to((tmp_path / "files" / "uploads").resolve())
+    assert client.post("/api/models", json={"name": "classic", "spec": "classic"}).status_code == 201
+    task_id = client.post("/api/tasks", json=campaign()).json()["id"]
+    with client.stream("GET", f"/api/tasks/{task_id}/events") as stream:
+        assert events("".join(stream.iter_text()))[-1][1]["status"] == "done"
+    assert client.get(f"/api/tasks/{task_id}/findings").json()["total"] > 0
+    assert client.get(f"/api/tasks/{task_id}/junit.xml").status_code == 200
+    assert (tmp_path / "files" / "reports" / f"task-{task_id}" / "junit.xml").is_file()
 
 
 def test_task_list_pages_newest_first(make_client: Callable[..., TestClient], tmp_path: Path, world: Path) -> None:
