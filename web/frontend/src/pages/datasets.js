@@ -65,7 +65,7 @@ export async function datasetsPage(root) {
   }
 
   // -- upload --
-  const uploadName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._-]+", testid: "upload-name" });
+  const uploadName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "upload-name" });
   const uploadFiles = h("input", { name: "files", type: "file", multiple: true, required: true, testid: "upload-files" });
   const uploadMessage = h("div", { testid: "upload-message" });
   const uploadProgress = h("div");
@@ -115,7 +115,7 @@ export async function datasetsPage(root) {
   );
 
   // -- generate --
-  const genName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._-]+", testid: "generate-name" });
+  const genName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "generate-name" });
   const genFrames = h("input", { name: "frames", type: "number", min: 1, max: 10000, value: 10, required: true });
   const genSeed = h("input", { name: "seed", type: "number", min: 0, value: 0, required: true });
   const genKind = h("select", { name: "kind" }, h("option", { value: "urban" }, "urban"), h("option", { value: "suburban" }, "suburban"));

@@ -84,10 +84,11 @@ export async function modelsPage(root) {
     h("option", { value: "builtin" }, "built-in"),
     h("option", { value: "plugin" }, "plugin spec (module:callable)"),
   );
-  const name = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._-]+", testid: "model-name" });
+  const name = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "model-name" });
   const spec = h("input", { required: true, placeholder: "classic", list: "builtin-suts", testid: "model-spec" });
   const options = h("textarea", { rows: 3, placeholder: "key=value per line (optional)", testid: "model-options" });
   const specMessage = h("div", { testid: "model-message" });
+  const datalist = h("datalist", { id: "builtin-suts" }, BUILT_INS.map((n) => h("option", { value: n })));
   kind.addEventListener("change", () => {
     spec.placeholder = kind.value === "builtin" ? "classic" : "my_package.detectors:build";
   });
@@ -125,7 +126,7 @@ export async function modelsPage(root) {
     h("label", {}, "Kind ", kind),
     h("label", {}, "Name ", name),
     h("label", {}, "Spec ", spec),
-    h("datalist", { id: "builtin-suts" }, BUILT_INS.map((n) => h("option", { value: n }))),
+    datalist,
     h("label", {}, "Options ", options),
     h("button", { type: "submit", class: "primary", testid: "model-submit" }, "Register"),
     specMessage,
@@ -138,7 +139,7 @@ export async function modelsPage(root) {
     h("option", { value: "onnx" }, "ONNX model (.onnx)"),
     h("option", { value: "open3d" }, "Open3D-ML checkpoint (.pth / .pt)"),
   );
-  const fileName = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._-]+" });
+  const fileName = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+" });
   const file = h("input", { type: "file", required: true, accept: ".onnx,.pth,.pt,.ckpt", testid: "model-file" });
   const fileOptions = h("textarea", { rows: 2, placeholder: "key=value per line (optional)" });
   const fileMessage = h("div");
@@ -185,6 +186,16 @@ export async function modelsPage(root) {
     fileProgress,
     fileMessage,
   );
+
+  // the built-in and plugin systems the server knows, for the spec field
+  api("/api/suts")
+    .then((reply) => {
+      const known = listOf(reply, "suts");
+      if (known.length) {
+        datalist.replaceChildren(...known.map((s) => h("option", { value: s.name }, s.description ?? "")));
+      }
+    })
+    .catch(() => {});
 
   root.append(
     h("div", { class: "page-head" }, h("h1", {}, "Models")),
