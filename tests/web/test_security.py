@@ -403,3 +403,12 @@ def test_a_checkpoint_with_code_is_never_run(client: TestClient, tmp_path: Path)
     assert "weights_only=True" in reply.json()["detail"] and reply.json()["detail"].startswith("evil.pth")
     assert not marker.exists()
     assert uploads(tmp_path) == [] and len(client.get("/api/models").json()["items"]) == 1
+
+
+def test_the_report_runs_in_an_opaque_origin(finished: tuple[TestClient, int]) -> None:
+    """Task names and messages are escaped by the report's templates; opened in its own tab, the
+    page is also sandboxed (no access to the app's origin, where the token is kept)."""
+    client, task_id = finished
+    reply = client.get(f"/api/tasks/{task_id}/report")
+    policy = reply.headers["content-security-policy"]
+    assert policy.startswith("sandbox") and "allow-same-origin" not in policy

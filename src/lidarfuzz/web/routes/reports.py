@@ -22,6 +22,7 @@ from lidarfuzz.web.app import WebContext, web
 router = APIRouter(tags=["reports"])
 Web = Annotated[WebContext, Depends(web)]
 STATE = ".web-report.json"
+REPORT_POLICY = "sandbox allow-scripts allow-popups allow-popups-to-escape-sandbox allow-downloads"
 EXPORTS = {"report.json": "application/json", "ap.csv": "text/csv", "delta_ap.csv": "text/csv",
            "violations.csv": "text/csv", "findings.csv": "text/csv", "junit.xml": "application/xml"}
 
@@ -87,7 +88,9 @@ def _write_exports(ctx: WebContext, task_id: int, folder: Path) -> None:
 async def report_html(ctx: Web, task_id: int) -> FileResponse:
     """The HTML report (``lidarfuzz report``), written on demand and cached until the task changes."""
     folder = await run_in_threadpool(ensure, ctx, task_id, "html")
-    return FileResponse(folder / "report.html", media_type="text/html", headers={"Cache-Control": "no-cache"})
+    # opened in its own tab it runs in an opaque origin: its scripts never see the app's token
+    return FileResponse(folder / "report.html", media_type="text/html",
+                        headers={"Cache-Control": "no-cache", "Content-Security-Policy": REPORT_POLICY})
 
 
 def _export_route(name: str, media_type: str) -> None:
