@@ -118,7 +118,13 @@ export async function datasetsPage(root) {
   const genName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "generate-name" });
   const genFrames = h("input", { name: "frames", type: "number", min: 1, max: 10000, value: 10, required: true });
   const genSeed = h("input", { name: "seed", type: "number", min: 0, value: 0, required: true });
-  const genKind = h("select", { name: "kind" }, h("option", { value: "urban" }, "urban"), h("option", { value: "suburban" }, "suburban"));
+  const genKind = h(
+    "select",
+    { name: "kind" },
+    h("option", { value: "" }, "mixed"),
+    h("option", { value: "urban" }, "urban"),
+    h("option", { value: "suburban" }, "suburban"),
+  );
   const genMessage = h("div", { testid: "generate-message" });
   const genForm = h(
     "form",
@@ -132,7 +138,7 @@ export async function datasetsPage(root) {
         try {
           await api("/api/datasets/generate", {
             method: "POST",
-            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value },
+            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value || null },
           });
           pending.add(name);
           genMessage.append(notice("ok", `Rendering ${name} in the background; it appears in the list when done.`));

@@ -67,8 +67,9 @@ function severityRows(op) {
   });
 }
 
+// The first paragraph of a docstring, as plain text (reStructuredText's ``code`` marks dropped).
 function firstParagraph(text) {
-  return String(text ?? "").split(/\n\s*\n/)[0].replace(/\s+/g, " ").trim();
+  return String(text ?? "").split(/\n\s*\n/)[0].replace(/``/g, "").replace(/\s+/g, " ").trim();
 }
 
 function operatorRow(op, previews) {
