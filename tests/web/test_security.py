@@ -412,3 +412,9 @@ def test_the_report_runs_in_an_opaque_origin(finished: tuple[TestClient, int]) -
     reply = client.get(f"/api/tasks/{task_id}/report")
     policy = reply.headers["content-security-policy"]
     assert policy.startswith("sandbox") and "allow-same-origin" not in policy
+
+
+def test_responses_send_no_referrer_and_no_sniffing(guarded: TestClient) -> None:
+    for reply in (guarded.get("/api/health", params={"token": TOKEN}), guarded.get("/"), guarded.get("/api/tasks")):
+        assert reply.headers["referrer-policy"] == "no-referrer"  # ?token= never leaks in a Referer
+        assert reply.headers["x-content-type-options"] == "nosniff"

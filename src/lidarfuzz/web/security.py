@@ -66,6 +66,8 @@ class Limits:
 
 
 UPLOAD_PATHS = frozenset({"/api/datasets/upload", "/api/models/upload"})
+# on every response: no content sniffing, and no Referer (a ?token= in the address never leaks)
+SECURITY_HEADERS = ((b"x-content-type-options", b"nosniff"), (b"referrer-policy", b"no-referrer"))
 
 
 class UploadTooLarge(HTTPException):
@@ -158,7 +160,12 @@ class RequestGuard:
                     raise UploadTooLarge(limit)
             return message
 
-        await self.app(scope, counted, send)
+        async def with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                message["headers"] = [*message.get("headers", []), *SECURITY_HEADERS]
+            await send(message)
+
+        await self.app(scope, counted, with_headers)
 
 
 _bearer = HTTPBearer(auto_error=False, description="The server's token (lidarfuzz serve --token); "
