@@ -115,13 +115,13 @@ def percentile(values: list[float], share: float) -> float:
 
 
 def frame_first_render(base_url: str, dataset: str, frame_id: str) -> float | None:
-    """FRONT END HOOK — milliseconds from asking the viewer for a frame to its first drawn picture.
+    """Milliseconds from asking the viewer for a frame to its first drawn picture: headless Chromium
+    (Playwright, software WebGL) opens ``{base_url}/#/browse/{dataset}/{frame_id}`` again and again
+    in one tab with the HTTP cache off; the median of 7 (``benchmarks/web_render.py`` has the
+    breakdown, and cold starts). None when Chromium or Playwright is missing."""
+    from web_render import first_render_ms  # benchmarks/ is on sys.path when this script runs
 
-    To be filled in by the front end (measured with headless Chromium through Playwright: open
-    ``{base_url}/#/browse/{dataset}/{frame_id}``, time fetch + parse + first three.js render).
-    Returns None until then; the table says "not measured".
-    """
-    return None
+    return first_render_ms(base_url, dataset, frame_id)
 
 
 def main() -> None:

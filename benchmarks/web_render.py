@@ -16,7 +16,8 @@ before the frame is requested to the end of its first draw, read back from the G
 pixel, so the time includes the GPU's work). ``transfer`` is the frame request's Resource
 Timing (request start to last byte). Medians of the runs; target (issue 9): < 500 ms.
 
-The function :func:`render_times` is the hook ``benchmarks/web.py`` calls with its own server.
+:func:`first_render_ms` (one frame, opened again and again in one tab with the HTTP cache off) is
+what ``benchmarks/web.py`` calls with its own server; :func:`render_times` is this script's.
 """
 
 from __future__ import annotations
@@ -89,6 +90,48 @@ def render_times(base_url: str, dataset: str, frame_ids: list[str], *, chromium:
         finally:
             browser.close()
     return out
+
+
+def repeated_first_render(base_url: str, dataset: str, frame_id: str, *, runs: int = 7,
+                          chromium: str = "/usr/bin/chromium", gl_args: list[str] | None = None,
+                          token: str | None = None) -> list[dict[str, Any]]:
+    """One frame opened ``runs`` times in one tab (the app and the viewer's code loaded, the HTTP
+    cache off so the frame crosses the wire each time), after one warm-up; the viewer's records."""
+    from playwright.sync_api import sync_playwright
+
+    query = f"?token={token}" if token else ""
+    args = ["--no-sandbox", *(SWIFTSHADER if gl_args is None else gl_args)]
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=chromium, args=args)
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            cdp = page.context.new_cdp_session(page)
+            cdp.send("Network.enable")
+            cdp.send("Network.setCacheDisabled", {"cacheDisabled": True})
+            route = f"#/browse/{dataset}/{frame_id}"
+            page.goto(f"{base_url}/{query}{route}")
+            _viewer_state(page)
+            records = []
+            for _ in range(runs):
+                page.evaluate("window.__viewer.disposed = true; location.hash = '#/tasks'")
+                page.wait_for_function("!!document.querySelector('[data-testid=tasks-table]')")
+                page.evaluate(f"location.hash = '{route}'")
+                records.append(_viewer_state(page))
+            return records
+        finally:
+            browser.close()
+
+
+def first_render_ms(base_url: str, dataset: str, frame_id: str, **kwargs: Any) -> float | None:
+    """The median of :func:`repeated_first_render` (None when Chromium or Playwright is missing)."""
+    chromium = kwargs.get("chromium", "/usr/bin/chromium")
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        return None
+    if not Path(chromium).exists():
+        return None
+    return statistics.median(r["firstRenderMs"] for r in repeated_first_render(base_url, dataset, frame_id, **kwargs))
 
 
 def _table(results: dict[str, list[dict[str, Any]]]) -> str:
