@@ -9,7 +9,9 @@ as a browser does. Per endpoint: p50 and p95 latency of ``--requests`` calls aft
 median over ``--repeat`` runs. Target (issue 9): p95 < 100 ms.
 
 Frame transfer: one HDL-64E frame (about 120,000 points, every channel) of a simulated data set
-as the ``LFZ1`` binary payload, request to last byte, median of 20. The browser part (parse and
+as the ``LFZ1`` binary payload, request to last byte, median of 20; and a finding's pair (the
+original and its mutant rebuilt from the stored params, with the change channel and boxes) of a
+task run for real on two frames. The browser part (parse and
 first render in the three.js viewer) is :func:`frame_first_render`, measured with a browser.
 """
 
@@ -30,6 +32,10 @@ import httpx
 import uvicorn
 from sqlalchemy import insert
 
+from lidarfuzz.campaign.executor import InlineExecutor
+from lidarfuzz.campaign.runner import run_task
+from lidarfuzz.campaign.spec import parse_campaign
+from lidarfuzz.campaign.tasks import create_task
 from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
 from lidarfuzz.store import Dataset, Model, Status, Store, Subtask, Task
 from lidarfuzz.store.catalog import add_dataset, add_model
@@ -40,13 +46,19 @@ ENDPOINTS = ("/api/tasks", "/api/tasks?limit=50&offset=500", "/api/tasks?status=
              "/api/models")
 
 
+def finding_task(store: Store) -> int:
+    """A real task with findings (gaussian noise at severity 5 on the simulated frames): its id."""
+    task_id = create_task(store, parse_campaign({"dataset": "sim", "sut": "classic", "operators": [
+        {"name": "gaussian_noise_addition", "severities": [5]}]}))
+    run_task(store, task_id, executor=InlineExecutor())
+    return task_id
+
+
 def fill(store: Store, tasks: int, data: Path) -> None:
-    """``tasks`` finished tasks, 20 data sets and 10 models, inserted as rows."""
-    add_dataset(store, "sim", data)
-    add_model(store, "classic", "classic")
+    """``tasks`` more finished tasks, 19 more data sets and 9 more models, inserted as rows."""
     now = datetime.now(UTC)
     with store.session() as s:
-        s.execute(insert(Dataset), [{"name": f"set-{i:02d}", "path": str(data), "format": "kitti", "frame_count": 1,
+        s.execute(insert(Dataset), [{"name": f"set-{i:02d}", "path": str(data), "format": "kitti", "frame_count": 2,
                                      "notes": "benchmark", "added_at": now} for i in range(19)])
         s.execute(insert(Model), [{"name": f"classic-{i}", "spec": "classic", "options": {"min_points": 8 + i},
                                    "fingerprint": f"{i:016x}", "notes": "", "added_at": now} for i in range(9)])
@@ -134,11 +146,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="lidarfuzz-web-bench-") as tmp:
         root = Path(tmp)
         data = root / "sim"
-        generate_dataset(data, GenerationConfig(frames=1, seed=0), workers=1)
+        generate_dataset(data, GenerationConfig(frames=2, seed=0), workers=1)
         store = Store(root / "ws")
+        add_dataset(store, "sim", data)
+        add_model(store, "classic", "classic")
+        real = finding_task(store)
         start = time.perf_counter()
-        fill(store, args.tasks, data)
-        print(f"store: {args.tasks} tasks, 20 data sets, 10 models ({time.perf_counter() - start:.1f} s to insert)")
+        fill(store, args.tasks - 1, data)
+        print(f"store: {args.tasks} tasks (one run for real, with findings), 20 data sets, 10 models "
+              f"({time.perf_counter() - start:.1f} s to insert)")
         store.close()
         app = create_app(root / "ws", workers=0)
         with Server(app) as base, httpx.Client(base_url=base) as client:
@@ -161,6 +177,11 @@ def main() -> None:
             times = latencies(lambda: client.get("/api/datasets/sim/frames/000000"), 20)
             print(f"\nframe transfer: {points:,} points, {len(frame.content) / 1e6:.1f} MB LFZ1, request to last "
                   f"byte {statistics.median(times):.0f} ms (median of 20)")
+            finding = client.get(f"/api/tasks/{real}/findings").json()["items"][0]["id"]
+            pair = client.get(f"/api/findings/{finding}/frames")
+            times = latencies(lambda: client.get(f"/api/findings/{finding}/frames"), 20)
+            print(f"finding pair (original + rebuilt mutant, change channel, boxes): {len(pair.content) / 1e6:.1f} MB, "
+                  f"request to last byte {statistics.median(times):.0f} ms (median of 20)")
             render = frame_first_render(base, "sim", "000000")
             print("frame first render (browser): " + ("not measured (see frame_first_render)" if render is None
                                                       else f"{render:.0f} ms"))
