@@ -156,7 +156,14 @@ def test_without_a_token_only_requests_to_loopback_names_are_answered(make_clien
 
 def test_with_a_token_other_host_names_are_answered(make_client: Callable[..., TestClient]) -> None:
     remote = make_client(base_url="http://lidar-lab.example:8000", token=TOKEN)
-    assert remote.get("/api/health", headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    assert remote.get("/api/health", headers=auth).status_code == 200
+    # behind a reverse proxy the Origin differs from the Host; the token is what protects writes
+    proxied = remote.post("/api/models", json={"name": "c", "spec": "classic"},
+                          headers={**auth, "Origin": "https://lab.example"})
+    assert proxied.status_code == 201
+    assert remote.post("/api/models", json={"name": "d", "spec": "classic"},
+                       headers={"Origin": "https://lab.example"}).status_code == 401
 
 
 def test_cross_site_writes_are_refused(client: TestClient) -> None:

@@ -140,7 +140,8 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
                               "Every call drives the same campaign engine as the lidarfuzz CLI.")
     app.state.web = context
     app.add_middleware(RequestGuard, limits=context.limits,  # type: ignore[arg-type]
-                       loopback_only=token is None if loopback_only is None else loopback_only)
+                       loopback_only=token is None if loopback_only is None else loopback_only,
+                       same_origin_writes=token is None)
     _errors(app)
 
     from lidarfuzz.web.routes import catalogue, datasets, findings, frames, models, reports, tasks

@@ -5,7 +5,8 @@
   compared in constant time (:func:`check_token`).
 * Without a token the app answers only requests addressed to a loopback name (a web page
   cannot reach it through DNS rebinding), and state-changing calls from another origin are
-  refused (a page cannot post a form to it): :class:`RequestGuard`.
+  refused (a page cannot post a form to it): :class:`RequestGuard`. With a token neither is
+  needed: no other site can add the ``Authorization`` header.
 * Uploads: a size limit per request, checked on ``Content-Length`` and again while the body
   streams in (:class:`RequestGuard`); zip members checked before anything is extracted —
   absolute paths, ``..``, links, member count and total uncompressed size
@@ -113,10 +114,14 @@ class RequestGuard:
         limits: Size limits (uploads to :data:`UPLOAD_PATHS`, others to ``max_request``).
         loopback_only: Answer only requests whose ``Host`` is a loopback name (set when no
             token protects the server, against DNS rebinding).
+        same_origin_writes: Refuse POST/DELETE... from another site's page (set when no token
+            protects the server; a token travels in a header no other site can add, so with one
+            a reverse proxy that rewrites ``Host`` keeps working).
     """
 
-    def __init__(self, app: ASGIApp, limits: Limits, loopback_only: bool) -> None:
+    def __init__(self, app: ASGIApp, limits: Limits, loopback_only: bool, same_origin_writes: bool = True) -> None:
         self.app, self.limits, self.loopback_only = app, limits, loopback_only
+        self.same_origin_writes = same_origin_writes
 
     async def _refuse(self, send: Send, code: int, detail: str) -> None:
         import json
@@ -138,7 +143,7 @@ class RequestGuard:
             return
         method = scope.get("method", "GET")
         origin = headers.get("origin")
-        if method not in ("GET", "HEAD", "OPTIONS") and origin and origin != "null":
+        if self.same_origin_writes and method not in ("GET", "HEAD", "OPTIONS") and origin and origin != "null":
             origin_host = origin.split("://", 1)[-1].rstrip("/").lower()
             if origin_host != headers.get("host", "").lower():
                 await self._refuse(send, 403, f"Origin {origin!r}: cross-site requests are refused")
