@@ -321,6 +321,7 @@ def test_journey_upload_register_run_report_and_view_a_finding(page: Any, server
     # 6. the findings, filtered
     page.get_by_test_id("nav-tasks").click()
     task_row = page.locator(f"[data-testid=task-row][data-task-id='{task_id}']")
+    task_row.wait_for()
     cells = task_row.locator("td").all_inner_texts()
     assert cells[1:6] == ["browser test", "done", "world", "classic", "2"], cells
     assert cells[8].replace(" ", "") == "9/9"
@@ -390,6 +391,7 @@ def test_new_task_server_errors_are_shown_at_their_field(page: Any, server: Serv
     for severity in (1, 3, 5):
         page.get_by_test_id(f"op-fog-sev-{severity}").uncheck()
     page.get_by_test_id("task-submit").click()
+    page.get_by_test_id("field-error").first.wait_for()
     errors = page.get_by_test_id("field-error").all_inner_texts()
     assert any("seed" in e for e in errors) and any("severity" in e for e in errors), errors
 

@@ -13,12 +13,11 @@ import {
   Color,
   InterleavedBuffer,
   InterleavedBufferAttribute,
-  LineBasicMaterial,
   LineSegments,
   OrthographicCamera,
   PerspectiveCamera,
   Points,
-  PointsMaterial,
+  RawShaderMaterial,
   Scene,
   Vector3,
   WebGLRenderer,
@@ -104,7 +103,7 @@ function sharedRenderer() {
     shared.renderer = new WebGLRenderer({ antialias: false, powerPreference: "high-performance" });
     shared.renderer.domElement.dataset.testid = "viewer-canvas";
     shared.renderer.domElement.className = "viewer-canvas";
-    shared.points = new PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true });
+    shared.points = pointsMaterial();
     shared.lines.clear();
     // compile the two programs now, while the frame may still be on its way
     const scene = new Scene();
@@ -117,8 +116,40 @@ function sharedRenderer() {
   return shared.renderer;
 }
 
+// Small shaders of our own instead of three's general ones: they compile several times faster,
+// which is most of a first render's cost with software WebGL. Point size is in CSS pixels.
+function pointsMaterial() {
+  const material = new RawShaderMaterial({
+    uniforms: { pointSize: { value: 2 } },
+    vertexShader: `precision highp float;
+uniform mat4 modelViewMatrix; uniform mat4 projectionMatrix; uniform float pointSize;
+attribute vec3 position; attribute vec3 color; varying vec3 vColour;
+void main() { vColour = color; gl_PointSize = pointSize; gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); }`,
+    fragmentShader: `precision mediump float; varying vec3 vColour;
+void main() { gl_FragColor = vec4(vColour, 1.0); }`,
+  });
+  Object.defineProperty(material, "size", {
+    get: () => material.uniforms.pointSize.value / (shared.renderer?.getPixelRatio() ?? 1),
+    set: (value) => (material.uniforms.pointSize.value = value * (shared.renderer?.getPixelRatio() ?? 1)),
+  });
+  return material;
+}
+
 function lineMaterial(colour) {
-  if (!shared.lines.has(colour)) shared.lines.set(colour, new LineBasicMaterial({ color: new Color(colour) }));
+  if (!shared.lines.has(colour)) {
+    const c = new Color(colour);
+    shared.lines.set(
+      colour,
+      new RawShaderMaterial({
+        uniforms: { colour: { value: [c.r, c.g, c.b] } },
+        vertexShader: `precision highp float;
+uniform mat4 modelViewMatrix; uniform mat4 projectionMatrix; attribute vec3 position;
+void main() { gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); }`,
+        fragmentShader: `precision mediump float; uniform vec3 colour;
+void main() { gl_FragColor = vec4(colour, 1.0); }`,
+      }),
+    );
+  }
   return shared.lines.get(colour);
 }
 
