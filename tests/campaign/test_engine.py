@@ -183,3 +183,39 @@ def test_deleting_a_task_leaves_the_catalogue(tmp_path: Path, world: Path) -> No
         assert s.scalar(select(func.count()).select_from(Task)) == 0
         assert s.scalar(select(func.count()).select_from(FrameResult)) == 0
         assert s.scalar(select(func.count()).select_from(Finding)) == 0
+
+
+def test_a_moved_scene_is_scored_only_where_the_source_had_labels(tmp_path: Path, world: Path) -> None:
+    """Labels cover the camera's view only: a half turn brings unlabelled ground into view and
+    carries every labelled object out of it, so the subtask has no AP (not an AP of 0); a small
+    turn is scored, without the detections that came from the unlabelled region."""
+    import numpy as np
+
+    from lidarfuzz.campaign.results import labelled_region
+    from lidarfuzz.io.kitti import open_kitti
+    from lidarfuzz.report import write_report
+
+    store = Store(tmp_path / "ws")
+    spec = parse_campaign({"dataset": str(world), "sut": "classic", "relations": ["equivariance"], "operators": [
+        {"name": "rotate_z", "config": {"angle_range": [180.0, 180.0], "both_directions": False}},
+        {"name": "rotate_z", "config": {"angle_range": [10.0, 10.0], "both_directions": False}}]})
+    task_id = create_task(store, spec)
+    run_task(store, task_id, executor=InlineExecutor())
+    with store.session() as s:
+        results = {sub.operator.get("config", {}).get("angle_range", [None])[0]: sub.results
+                   for sub in s.scalars(select(Subtask).where(Subtask.task_id == task_id))}
+    assert results[None]["ap"] is not None  # the originals
+    assert results[180.0]["ap"] is None
+    assert "out of the camera's view" in results[180.0]["ap_note"]
+    assert results[10.0]["ap"] is not None
+    html = write_report(store, task_id, tmp_path / "report").html.read_text()
+    assert "moved every labelled object out of the camera" in html
+
+    data = open_kitti(world)
+    scene = data.load(data.frame_ids()[0])
+    half_turn = np.diag([-1.0, -1.0, 1.0, 1.0])
+    ahead = scene.boxes.select(scene.calib.in_view(scene.boxes.centers))
+    assert len(ahead) > 0
+    assert len(labelled_region(ahead, scene.calib, None)) == len(ahead)
+    assert len(labelled_region(ahead, scene.calib, np.eye(4))) == len(ahead)
+    assert len(labelled_region(ahead, scene.calib, half_turn)) == 0  # mapped back, they lie behind the car

@@ -18,10 +18,13 @@ from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy import func, select
 
 from lidarfuzz.campaign.codec import decode_boxes, json_safe
 from lidarfuzz.campaign.tasks import ORIGINAL, get_task, subtask_label
+from lidarfuzz.operators.base import Relation
 from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult, KittiFrame, evaluate_kitti
 from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
 from lidarfuzz.oracles.robustness import RelationRecord, count_form_rates, robustness_summary, violation_rates
@@ -46,14 +49,35 @@ def in_view(detections: Boxes3D, calib: Any) -> Boxes3D:
     return detections.select(calib.in_view(detections.centers))
 
 
-def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any]) -> dict[str, Any]:
+def labelled_region(detections: Boxes3D, calib: Any, transform: NDArray[np.float64] | None) -> Boxes3D:
+    """The detections of a moved scene that lie where the source frame had labels.
+
+    Labels cover only the camera's view (KITTI's convention). When an equivariant operator moves
+    the scene (``transform``: source → mutant), part of the view shows what was unlabelled in
+    the source (behind or beside the car); a detection there has nothing to be matched against and
+    would count as a false positive, so it is left out — as KITTI leaves out DontCare regions.
+    """
+    if transform is None or calib is None or len(detections) == 0:
+        return detections
+    centres = np.c_[detections.centers, np.ones(len(detections))] @ np.linalg.inv(transform).T
+    return detections.select(calib.in_view(centres[:, :3]))
+
+
+def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
+                     operator: Any = None) -> dict[str, Any]:
     """Figures of one complete subtask from its frame results (rows of frame id, boxes, labels,
-    gt boxes, gt labels, failure, relations, seconds, cached)."""
+    gt boxes, gt labels, failure, relations, seconds, cached and, when ``operator`` is given, the
+    params of its mutant).
+
+    With an operator that moves the scene (an equivariant one with a transform), detections in the
+    part of the view the source had no labels for are not scored (:func:`labelled_region`), and
+    when no labelled object is left in view at all the subtask has no AP (``None``: not 0).
+    """
     frames, records = [], []
-    labelled = False
+    labelled = moved = False
     failures = cached = 0
     seconds = 0.0
-    for frame_id, boxes, labels, gt_boxes, gt_labels, failure, relations, secs, was_cached in rows:
+    for frame_id, boxes, labels, gt_boxes, gt_labels, failure, relations, secs, was_cached, *more in rows:
         failures += int(failure is not None)
         cached += int(bool(was_cached))
         seconds += float(secs or 0.0)
@@ -62,14 +86,25 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any]) -> 
         if failure is not None and failure.get("kind") == "operator_error":
             continue  # no mutant: nothing to evaluate
         gt = decode_boxes(gt_boxes, gt_labels)
-        labelled = labelled or len(gt) > 0
         calib = calibration(frame_id)
+        transform = None
+        # only equivariant operators move the scene; a frame the SUT crashed on may have no params
+        if operator is not None and operator.relation == Relation.EQUIVARIANT and more and more[0]:
+            transform = operator.transform(operator.parse_params(more[0]))
+        if transform is not None and calib is not None:
+            moved = True
+            real = gt.centers[np.isfinite(gt.centers[:, 0])]  # DontCare regions have no geometry
+            labelled = labelled or (len(real) > 0 and bool(calib.in_view(real).any()))
+        else:
+            labelled = labelled or len(gt) > 0
         detections = decode_boxes(boxes, labels) if boxes is not None else Boxes3D.empty()  # None: the SUT failed
-        frame = KittiFrame(gt, in_view(detections, calib), calib) if calib is not None else KittiFrame(
-            gt, detections)
+        frame = KittiFrame(gt, labelled_region(in_view(detections, calib), calib, transform), calib) \
+            if calib is not None else KittiFrame(gt, detections)
         frames.append(frame)
     out: dict[str, Any] = {"frames": len(rows), "failures": failures, "cached": cached, "sut_seconds": seconds}
     out["ap"] = evaluate_kitti(frames).to_dict() if labelled and frames else None
+    if out["ap"] is None and moved and frames:
+        out["ap_note"] = "no AP: the operator moved every labelled object out of the camera's view"
     out["violations"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"))]
     out["violations_per_object"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"),
                                                                           per="object")]

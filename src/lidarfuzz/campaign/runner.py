@@ -274,6 +274,7 @@ class _Run:
     def finish(self, sub: Subtask) -> None:
         """A complete subtask: its AP and relation figures, then done."""
         from lidarfuzz.campaign.results import evaluate_subtask
+        from lidarfuzz.operators.registry import from_spec
 
         start = time.perf_counter()
         with self.store.session() as s:
@@ -283,10 +284,11 @@ class _Run:
                 return
             rows = list(s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
                                          FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
-                                         FrameResult.relations, FrameResult.seconds, FrameResult.cached).where(
-                FrameResult.subtask_id == sub.id)))
+                                         FrameResult.relations, FrameResult.seconds, FrameResult.cached,
+                                         FrameResult.params).where(FrameResult.subtask_id == sub.id)))
             results = dict(row.results)
-            results.update(evaluate_subtask(rows, self.calibration))
+            operator = from_spec(row.operator) if row.operator else None
+            results.update(evaluate_subtask(rows, self.calibration, operator=operator))
             row.results = json_safe(results)
             row.status = Status.DONE
         self.stats.evaluate += time.perf_counter() - start

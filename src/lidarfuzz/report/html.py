@@ -119,7 +119,7 @@ def _ap_tables(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
                 elif entry.get("status") != "done":
                     note = f"not evaluated yet ({entry.get('done', 0)}/{entry.get('total', 0)} frames)"
                 else:
-                    note = "no AP: the data set has no labels"
+                    note = entry.get("ap_note") or "no AP: the data set has no labels"
                 groups.append({"label": entry.get("label", ""), "note": note, "rows": rows})
             tables.append({"difficulty": difficulty, "points": points, "classes": classes, "groups": groups,
                            "default": difficulty == "moderate" and points == "R40"})
