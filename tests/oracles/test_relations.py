@@ -153,6 +153,38 @@ def test_gt_recall_reports_objects_found_then_lost_by_track_id() -> None:
     assert out.stats == {"n_gt": 2, "n_found_source": 1, "n_lost": 1}
 
 
+def test_max_truncation_skips_objects_the_camera_view_cuts() -> None:
+    """An object beside the car (half outside the camera's view) is not checked with
+    max_truncation; one well inside the view still is."""
+    from lidarfuzz.scene.calib import KittiCalibration
+
+    def framed(gt: Boxes3D | None = None) -> Scene:
+        return Scene(PointCloud(np.zeros((0, 4))), boxes=gt if gt is not None else Boxes3D.empty(),
+                     calib=KittiCalibration.default())
+
+    src = boxes([(0.5, -3.0), (20, 0)], scores=[0.9, 0.9])  # beside the car: x = -1.5 .. 2.5
+    lost_both = pair(src, Boxes3D.empty(), source=framed(), follow=framed())
+    assert len(Preservation()(lost_both).violations) == 2
+    out = Preservation(max_truncation=0.3)(lost_both)
+    assert [v.source_index for v in out.violations] == [1] and out.checked == {"Car": 1}
+    # ground truth by its KITTI truncation
+    gt = Boxes3D.create([[0.5, -3.0, -0.8], [20, 0, -0.8]], [[4.0, 1.8, 1.5]] * 2, [0.0, 0.0], ["Car"] * 2,
+                        track_ids=[1, 2], truncation=[0.6, 0.0])
+    p = pair(src, Boxes3D.empty(), Relation.DEGRADING, source=framed(gt), follow=framed(gt))
+    assert [v.gt_index for v in GroundTruthRecall()(p).violations] == [0, 1]
+    assert [v.gt_index for v in GroundTruthRecall(max_truncation=0.5)(p).violations] == [1]
+    # equivariance: neither a source object cut by the view nor a follow-up one counts
+    shift = np.eye(4)
+    out = Equivariance(max_truncation=0.3)(pair(src, boxes([(20, 0), (1.0, 3.0)], scores=[0.9, 0.9]),
+                                              Relation.EQUIVARIANT, source=framed(), follow=framed(),
+                                              transform=shift))
+    assert out.holds, out.violations
+    assert not Equivariance()(pair(src, boxes([(20, 0), (1.0, 3.0)], scores=[0.9, 0.9]), Relation.EQUIVARIANT,
+                                   source=framed(), follow=framed(), transform=shift)).holds
+    with pytest.raises(ValueError):
+        Preservation(max_truncation=1.5)
+
+
 def test_gt_recall_needs_ground_truth_it_can_pair_up() -> None:
     d = boxes([(10, 0)], scores=[0.9])
     assert not GroundTruthRecall()(pair(d, d)).applicable

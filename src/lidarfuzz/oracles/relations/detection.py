@@ -32,7 +32,7 @@ from lidarfuzz.operators.base import Relation as OperatorRelation
 from lidarfuzz.oracles.matching import IGNORED_LABELS, Matching, ground_range, match_boxes, overlap_matrix
 from lidarfuzz.oracles.relations.base import MetamorphicRelation, Pair, RelationConfig, RelationOutcome, Violation
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
-from lidarfuzz.scene.geometry import transform_boxes
+from lidarfuzz.scene.geometry import box_corners, transform_boxes
 
 DetectionPair = Pair[Any, Boxes3D]
 
@@ -47,6 +47,33 @@ class MatchConfig(RelationConfig):
     method: Literal["hungarian", "greedy"] = Field(default="hungarian", description="optimal or greedy by score")
     min_score: float = Field(default=0.5, ge=0.0, description="a detection counts as detected from this score")
     roi_only: bool = Field(default=True, description="check only objects inside the frame's drivable-area ROI")
+    max_truncation: float | None = Field(
+        default=None, ge=0.0, le=1.0,
+        description="check only objects the camera's view cuts by at most this share (ground truth: its KITTI "
+                    "truncation; a detection: the share of its box corners outside the view); none: all objects",
+    )
+
+
+def _view_share_outside(sample: Any, boxes: Boxes3D) -> NDArray[np.float64]:
+    """Share of each box's 8 corners outside the camera's view (0 when the frame has no camera)."""
+    calib = getattr(sample, "calib", None)
+    if calib is None or len(boxes) == 0:
+        return np.zeros(len(boxes))
+    corners = box_corners(boxes.as_array()).reshape(-1, 3)
+    return 1.0 - calib.in_view(corners).reshape(len(boxes), 8).mean(axis=1)
+
+
+def _not_truncated(sample: Any, boxes: Boxes3D, index: NDArray[np.int64], limit: float | None,
+                   *, labelled: bool = False) -> NDArray[np.int64]:
+    """``index`` without the boxes the camera's view cuts by more than ``limit``: ground truth by
+    its truncation (when known), detections by their corners."""
+    if limit is None or index.size == 0:
+        return index
+    if labelled and np.isfinite(boxes.truncation[index]).all():
+        share = boxes.truncation[index]
+    else:
+        share = _view_share_outside(sample, boxes.select(index))
+    return index[share <= limit]
 
 
 def _detected(boxes: Boxes3D, min_score: float) -> NDArray[np.int64]:
@@ -124,6 +151,7 @@ class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
     def check(self, pair: DetectionPair) -> RelationOutcome:
         cfg = self.config
         src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _detected(pair.follow_output, cfg.min_score)
         fol_roi = _in_roi(pair.follow, pair.follow_output, fol_idx, cfg.roi_only)
         src = pair.source_output.select(src_idx)
@@ -159,9 +187,13 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
         cfg = self.config
         assert pair.transform is not None
         src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _in_roi(pair.follow, pair.follow_output, _detected(pair.follow_output, cfg.min_score), cfg.roi_only)
         src = pair.source_output.select(src_idx)
         moved = Boxes3D.from_array(transform_boxes(src.as_array(), pair.transform), src.labels, scores=src.scores)
+        if cfg.max_truncation is not None:  # nor objects the move carries to the edge of the view
+            keep = _view_share_outside(pair.follow, moved) <= cfg.max_truncation
+            src_idx, src, moved = src_idx[keep], src.select(keep), moved.select(keep)
         follow = pair.follow_output.select(fol_idx)
         m = _match(moved, follow, cfg)
         violations = _missing(
@@ -175,6 +207,9 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
         )
         checked = Counter(_checked(src))
         if cfg.check_spurious:
+            if cfg.max_truncation is not None:
+                outside = _view_share_outside(pair.follow, follow.select(m.unmatched_b))
+                m = Matching(m.pairs, m.iou, m.unmatched_a, m.unmatched_b[outside <= cfg.max_truncation])
             best = _best_iou(follow.select(m.unmatched_b), moved, cfg.metric)
             ranges = _ranges(follow)
             for k, local in enumerate(m.unmatched_b.tolist()):
@@ -221,6 +256,7 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
     def check(self, pair: DetectionPair) -> RelationOutcome:
         cfg = self.config
         src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _detected(pair.follow_output, 0.0)
         src = pair.source_output.select(src_idx)
         follow = pair.follow_output.select(fol_idx)
@@ -314,6 +350,7 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         found_src = _gt_matches(pair.source_output, src_gt, cfg)
         found_fol = _gt_matches(pair.follow_output, fol_gt, cfg)
         in_roi = _in_roi(pair.source, src_gt, np.arange(len(src_gt)), cfg.roi_only)
+        in_roi = _not_truncated(pair.source, src_gt, in_roi, cfg.max_truncation, labelled=True)
         considered = np.zeros(len(src_gt), dtype=bool)
         considered[in_roi] = True
         considered &= (found_src >= 0) & (corr >= 0)
