@@ -219,3 +219,40 @@ def test_a_moved_scene_is_scored_only_where_the_source_had_labels(tmp_path: Path
     assert len(labelled_region(ahead, scene.calib, None)) == len(ahead)
     assert len(labelled_region(ahead, scene.calib, np.eye(4))) == len(ahead)
     assert len(labelled_region(ahead, scene.calib, half_turn)) == 0  # mapped back, they lie behind the car
+
+
+class _FlakyPool:
+    """A stand-in for ProcessPoolExecutor's submit/shutdown: the units listed in ``dies_with`` fail
+    as a killed worker's do, and the pool refuses the ``refuse_at``-th submit as a broken one does."""
+
+    def __init__(self, dies_with: tuple[str, ...] = (), refuse_at: int | None = None) -> None:
+        self.dies_with, self.refuse_at, self.calls = dies_with, refuse_at, 0
+
+    def submit(self, fn: object, unit: str) -> object:
+        from concurrent.futures import Future
+        from concurrent.futures.process import BrokenProcessPool
+
+        self.calls += 1
+        if self.calls == self.refuse_at:
+            raise BrokenProcessPool("a child process terminated abruptly")
+        future: Future = Future()
+        if unit in self.dies_with:
+            future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+        else:
+            future.set_result(f"ran {unit}")
+        return future
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        pass
+
+
+@pytest.mark.parametrize("first", [_FlakyPool(refuse_at=1), _FlakyPool(dies_with=("a",), refuse_at=2)],
+                         ids=["refused-with-nothing-in-flight", "refused-while-a-worker-dies"])
+def test_a_pool_that_breaks_between_waits_loses_no_unit(first: _FlakyPool) -> None:
+    """A worker can die after the executor last waited: the next submit is refused. The refused
+    unit never ran, so it runs on the new pool; the one with the dead worker is re-run alone."""
+    executor = ProcessExecutor(2)
+    pools = [first, _FlakyPool(), _FlakyPool()]
+    executor._new_pool = lambda: pools.pop(0)  # type: ignore[method-assign]
+    executor._pool = executor._new_pool()  # type: ignore[assignment]
+    assert sorted(executor.run(iter(["a", "b", "c"]))) == ["ran a", "ran b", "ran c"]  # type: ignore[arg-type]

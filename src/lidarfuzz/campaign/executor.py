@@ -118,13 +118,17 @@ class ProcessExecutor(Executor):
             raise RuntimeError("open() the executor first")
         source = iter(units)
         suspects: deque[WorkUnit] = deque()  # units in flight when the pool broke: re-run one at a time
+        held: deque[WorkUnit] = deque()  # units the pool refused because it broke meanwhile: they never ran
         in_flight: dict[Future[UnitResult], WorkUnit] = {}
         exhausted = False
         while True:
             limit = 1 if suspects else self.window
             while len(in_flight) < limit:
+                suspect = bool(suspects)
                 if suspects:
                     unit: WorkUnit | None = suspects.popleft()
+                elif held:
+                    unit = held.popleft()
                 elif not exhausted:
                     unit = next(source, None)
                     exhausted = unit is None
@@ -132,7 +136,15 @@ class ProcessExecutor(Executor):
                     unit = None
                 if unit is None:
                     break
-                in_flight[self._pool.submit(_run, unit)] = unit
+                try:
+                    in_flight[self._pool.submit(_run, unit)] = unit
+                except BrokenProcessPool:
+                    # a worker died after the last wait: the futures in flight say which units were
+                    # with it; this one is submitted again once the pool is new
+                    (suspects if suspect else held).appendleft(unit)
+                    if in_flight:
+                        break
+                    self._restart()
             if not in_flight:
                 return
             done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
