@@ -25,12 +25,17 @@ BASE = "http://127.0.0.1"
 NOISE = [{"name": "gaussian_noise_addition", "severities": [5]}]
 
 
+def simulated_world(factory: pytest.TempPathFactory, frames: int) -> Path:
+    """``frames`` independent HDL-64E frames of seed 0 in KITTI layout, in a new temporary folder."""
+    root = factory.mktemp("web-world") / "sim"
+    generate_dataset(root, GenerationConfig(frames=frames, seed=0), workers=1, overwrite=True)
+    return root
+
+
 @pytest.fixture(scope="session")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two independent HDL-64E frames in KITTI layout (read-only)."""
-    root = tmp_path_factory.mktemp("web-world") / "sim"
-    generate_dataset(root, GenerationConfig(frames=2, seed=0), workers=1, overwrite=True)
-    return root
+    return simulated_world(tmp_path_factory, 2)
 
 
 def register(workspace: Path, world: Path) -> None:

@@ -37,8 +37,8 @@ if not CHROMIUM.exists():
 sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is missing (pip install -e '.[test]')")
 uvicorn = pytest.importorskip("uvicorn")
 
-from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset  # noqa: E402
 from lidarfuzz.web.app import create_app  # noqa: E402
+from tests.web.conftest import simulated_world  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BACKGROUND = (16, 18, 23)  # the viewer's clear colour, 0x101217
@@ -130,9 +130,7 @@ def artifacts() -> Path:
 @pytest.fixture(scope="module")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Three simulated HDL-64E frames in KITTI layout (the campaign tests' world)."""
-    root = tmp_path_factory.mktemp("world") / "sim"
-    generate_dataset(root, GenerationConfig(frames=3, seed=0), workers=1, overwrite=True)
-    return root
+    return simulated_world(tmp_path_factory, 3)
 
 
 def zip_folder(folder: Path, target: Path) -> Path:

@@ -44,22 +44,22 @@ def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None
     return row
 
 
+def _named(store: Store, table: type[Dataset] | type[Model], name: str, what: str, listing: str) -> Any:
+    with store.session() as s:
+        row = s.scalar(select(table).where(table.name == name))
+        if row is None:
+            raise StoreError(f"no {what} called {name!r} (lidarfuzz {listing} list)")
+        return row
+
+
 def get_dataset(store: Store, name: str) -> Dataset:
     """The data set recorded as ``name``."""
-    with store.session() as s:
-        row = s.scalar(select(Dataset).where(Dataset.name == name))
-        if row is None:
-            raise StoreError(f"no data set called {name!r} (lidarfuzz datasets list)")
-        return row
+    return _named(store, Dataset, name, "data set", "datasets")
 
 
 def get_model(store: Store, name: str) -> Model:
     """The system under test recorded as ``name``."""
-    with store.session() as s:
-        row = s.scalar(select(Model).where(Model.name == name))
-        if row is None:
-            raise StoreError(f"no model called {name!r} (lidarfuzz models list)")
-        return row
+    return _named(store, Model, name, "model", "models")
 
 
 def list_datasets(store: Store) -> list[Dataset]:
