@@ -337,3 +337,12 @@ def test_report_of_a_system_that_crashes(campaign: tuple[Store, int, Path], tmp_
     pair = load_pair(store, top[0]["id"])
     assert (pair.mutant is None) == (top[0]["operator"] == "original")
     assert pair.follow_detections is None
+
+
+def test_html_shows_the_ap_sample_warnings(summary: dict[str, Any]) -> None:
+    """The campaign's few objects per class are named above the AP tables, and only then."""
+    assert summary["ap_warnings"], "the fixture's small campaign has fewer than 41 objects of some class"
+    html = render_html(summary)
+    assert 'id="ap-warnings"' in html and "too few objects to score" in html
+    quiet = {**summary, "ap_warnings": []}
+    assert 'id="ap-warnings"' not in render_html(quiet)

@@ -116,7 +116,25 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
 def ap_result(data: Mapping[str, Any] | None) -> KittiEvalResult | None:
     if not data:
         return None
-    return KittiEvalResult(ap=data["ap"], overlaps=data["overlaps"], num_frames=data["num_frames"])
+    return KittiEvalResult.from_dict(dict(data))
+
+
+def ap_warnings(subtasks: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Why a task's AP may not mean what it seems (single frame, few objects): the original's
+    warnings, then any a mutant adds (an operator that removes objects), prefixed by its label."""
+    notes: list[str] = []
+    base: set[str] = set()
+    for index, entry in enumerate(subtasks):
+        result = ap_result(entry.get("ap"))
+        if result is None:
+            continue
+        for note in result.sample_warnings():
+            if index == 0:
+                base.add(note)
+                notes.append(note)
+            elif note not in base:
+                notes.append(f"{entry.get('label', '')}: {note}")
+    return notes
 
 
 def _sum_rates(rows: Iterable[tuple[dict[str, Any], dict[str, Any]]], keys: Sequence[str]) -> list[dict[str, Any]]:
@@ -233,6 +251,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
         "classes": list(CLASSES),
         "subtasks": subtasks,
         "delta_ap": delta_rows,
+        "ap_warnings": ap_warnings(subtasks),
         "robustness": robustness,
         "violations": violation,
         "findings": {"total": sum(kinds.values()), "by_kind": kinds, "top": top},
@@ -263,4 +282,4 @@ def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[
     return chosen
 
 
-__all__ = ["ap_result", "evaluate_subtask", "summarise", "top_findings"]
+__all__ = ["ap_result", "ap_warnings", "evaluate_subtask", "summarise", "top_findings"]

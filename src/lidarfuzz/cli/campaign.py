@@ -151,6 +151,8 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
         console.print("[yellow]the data set has no labels: no AP (relations still apply)[/]")
     else:
         console.print(table)
+    for note in data.get("ap_warnings", []):
+        console.print(f"[yellow]AP warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
     rates = Table(title="metamorphic relations: frames violated / checked (rate)")
     rates.add_column("operator")
     relations = [r["relation"] for r in data["violations"]["relation"]]

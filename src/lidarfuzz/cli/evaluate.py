@@ -89,6 +89,8 @@ def register(app: typer.Typer) -> None:
         result = evaluate_kitti(loaded.frames, classes=names, overlaps=cast(Literal["official", "loose"], overlaps))
         console.print(result.format_table(), markup=False, highlight=False, end="")
         console.print(summary_table(result, names))
+        for note in result.sample_warnings():
+            err_console.print(f"[yellow]warning:[/] {note}", highlight=False, soft_wrap=True, markup=True)
         if json_out is not None:
             payload = result.to_dict()
             payload["map_moderate_R40"] = {m: result.mean_ap(m, "moderate", "R40") for m in METRICS}

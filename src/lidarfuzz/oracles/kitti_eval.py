@@ -57,6 +57,10 @@ MAX_OCCLUSION = (0, 1, 2)
 MAX_TRUNCATION = (0.15, 0.3, 0.5)
 NUM_SAMPLE_POINTS = 41
 _NO_DETECTION = -10000000.0
+#: Below this many counted objects of a class and difficulty an AP cannot reach 100 even for a
+#: perfect detector: the devkit samples at most one score threshold per true positive, so with n
+#: objects only the first n of the 41 precision samples are filled (see :func:`ap_ceiling`).
+MIN_RELIABLE_OBJECTS = NUM_SAMPLE_POINTS
 
 
 @dataclass(frozen=True)
@@ -75,6 +79,9 @@ class KittiEvalResult:
     ap: dict[str, dict[str, dict[str, dict[str, float]]]]
     overlaps: dict[str, dict[str, float]]
     num_frames: int
+    #: Counted (not ignored) ground-truth objects: ``num_objects[class][difficulty]``; empty when
+    #: unknown (results stored before it was recorded).
+    num_objects: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def get(self, metric: str, cls: str, difficulty: str, points: str = "R40") -> float:
         return self.ap[metric][cls][difficulty][points]
@@ -84,9 +91,45 @@ class KittiEvalResult:
         values = [self.ap[metric][cls][difficulty][points] for cls in self.ap[metric]]
         return float(np.mean(values)) if values else float("nan")
 
+    def sample_warnings(self, *, min_objects: int = MIN_RELIABLE_OBJECTS) -> list[str]:
+        """Why these figures may not mean what they seem: a single frame, or classes whose AP
+        rests on fewer than ``min_objects`` objects (with the highest AP they could reach).
+
+        Example:
+            >>> gt = Boxes3D.create([[10, 0, -0.9], [20, 3, -0.9]], [[3.9, 1.6, 1.5]] * 2, [0.0, 0.0],
+            ...     ["Car", "Car"], truncation=[0.0, 0.0], occlusion=[0, 0])
+            >>> evaluate_kitti([KittiFrame(gt, gt.replace(scores=[0.9, 0.8]))], classes=["Car"]).sample_warnings()[1]
+            'Car: too few objects to score (easy 2, moderate 2, hard 2; fewer than 41): with 2 a perfect detector \
+reaches at most 2.5 AP|R40 and 9.1 AP|R11'
+        """
+        notes: list[str] = []
+        if self.num_frames == 1:
+            notes.append("AP from a single frame: it describes that frame, not the detector")
+        for cls, per_difficulty in self.num_objects.items():
+            few = {d: per_difficulty[d] for d in DIFFICULTIES if per_difficulty.get(d, min_objects) < min_objects}
+            if not few:
+                continue
+            counts = ", ".join(f"{d} {n}" for d, n in few.items())
+            fewest = min(few.values())
+            if fewest == 0:
+                notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}); with none the "
+                             "AP is 0 whatever the detector does")
+                continue
+            r40, r11 = ap_ceiling(fewest)
+            notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}): with {fewest} a "
+                         f"perfect detector reaches at most {r40:.1f} AP|R40 and {r11:.1f} AP|R11")
+        return notes
+
     def to_dict(self) -> dict[str, Any]:
         mean = {m: {d: {p: self.mean_ap(m, d, p) for p in ("R11", "R40")} for d in DIFFICULTIES} for m in self.ap}
-        return {"ap": self.ap, "map": mean, "overlaps": self.overlaps, "num_frames": self.num_frames}
+        return {"ap": self.ap, "map": mean, "overlaps": self.overlaps, "num_frames": self.num_frames,
+                "num_objects": self.num_objects, "warnings": self.sample_warnings()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> KittiEvalResult:
+        """The inverse of :meth:`to_dict` (``num_objects`` may be absent in older records)."""
+        return cls(ap=data["ap"], overlaps=data["overlaps"], num_frames=data["num_frames"],
+                   num_objects=data.get("num_objects") or {})
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
@@ -690,6 +733,23 @@ def _curves(
     return precision, aos
 
 
+def ap_ceiling(num_objects: int) -> tuple[float, float]:
+    """The highest AP|R40 and AP|R11 (percent) a perfect detector can score on ``num_objects`` objects.
+
+    The devkit picks at most one score threshold per true positive (:func:`get_thresholds`), so
+    only the first ``n`` of the 41 precision samples can be non-zero: R40 averages samples 1–40,
+    of which ``n − 1`` are filled; R11 averages samples 0, 4, …, 40, of which ``⌊(n − 1)/4⌋ + 1`` are.
+
+    Example:
+        >>> ap_ceiling(1), ap_ceiling(2), ap_ceiling(41)
+        ((0.0, 9.090909090909092), (2.5, 9.090909090909092), (100.0, 100.0))
+    """
+    n = min(int(num_objects), NUM_SAMPLE_POINTS)
+    if n <= 0:
+        return 0.0, 0.0
+    return (n - 1) / 40.0 * 100.0, ((n - 1) // 4 + 1) / 11.0 * 100.0
+
+
 def ap_r11(precision: NDArray[np.float64]) -> float:
     """Mean of the 11 samples 0, 4, …, 40 (recall 0, 0.1, …, 1), in percent."""
     return float(np.sum(precision[0::4]) / 11.0 * 100.0)
@@ -741,19 +801,22 @@ def evaluate_kitti(
             raise ValueError(f"frame {index}: every detection needs a finite score")
     batch = _batch(frame_list)
     ap: dict[str, dict[str, dict[str, dict[str, float]]]] = {m: {} for m in METRICS}
+    counted: dict[str, dict[str, int]] = {}
     for cls in classes:
         for m in METRICS:
             ap[m][cls] = {}
+        counted[cls] = {}
         view = _class_view(batch, cls)
         for d, difficulty in enumerate(DIFFICULTIES):
             ignored_gt, ignored_dt = _ignored(batch, view, cls, d)
+            counted[cls][difficulty] = int(np.count_nonzero(ignored_gt == 0))
             for metric in GEOMETRIC_METRICS:
                 prec, aos = _curves(batch, view, ignored_gt, ignored_dt, metric, table[metric][cls])
                 ap[metric][cls][difficulty] = {"R11": ap_r11(prec), "R40": ap_r40(prec)}
                 if metric == "bbox":
                     ap["aos"][cls][difficulty] = {"R11": ap_r11(aos), "R40": ap_r40(aos)}
     used = {m: {c: float(table[m][c]) for c in classes} for m in GEOMETRIC_METRICS}
-    return KittiEvalResult(ap=ap, overlaps=used, num_frames=len(frame_list))
+    return KittiEvalResult(ap=ap, overlaps=used, num_frames=len(frame_list), num_objects=counted)
 
 
 __all__ = [
@@ -761,9 +824,11 @@ __all__ = [
     "DIFFICULTIES",
     "LOOSE_OVERLAPS",
     "METRICS",
+    "MIN_RELIABLE_OBJECTS",
     "OFFICIAL_OVERLAPS",
     "KittiEvalResult",
     "KittiFrame",
+    "ap_ceiling",
     "ap_r11",
     "ap_r40",
     "evaluate_kitti",

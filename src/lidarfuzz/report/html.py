@@ -293,6 +293,7 @@ def context(summary: Mapping[str, Any], *, images: Mapping[int, bytes | str] | N
         "unfinished": unfinished,
         "headline": _headline(summary),
         "ap_tables": _ap_tables(summary),
+        "ap_warnings": list(summary.get("ap_warnings", [])),
         "has_ap": any(s.get("ap") for s in subtasks),
         "charts": {name: data_uri(png) for name, png in drawn.items()},
         "robustness": _robustness(summary),
