@@ -1,14 +1,17 @@
 """Training PillarNet on a KITTI-layout data set (the simulator's, or a user's own).
 
 Reproducible: one seed drives the initial weights, the order of frames and every
-augmentation (random flip about the x axis, rotation about z, global scaling — points
-and boxes together), with PyTorch's deterministic algorithms on the CPU. On a GPU
-``scatter`` and ``index_add`` accumulate in an order that varies, so GPU runs agree with
-each other to rounding, not bit for bit.
+augmentation, with PyTorch's deterministic algorithms on the CPU. On a GPU ``scatter``
+and ``index_add`` accumulate in an order that varies, so GPU runs agree with each other
+to rounding, not bit for bit. The augmentation is the domain randomisation of
+:mod:`lidarfuzz.suts.learned.augment` (ground warps, real intensity statistics,
+drop-outs, plus flip, rotation and scaling), which is what lets weights trained on the
+simulator work on real scans; ``augment="none"`` turns all of it off.
 
 Frames are loaded once, in parallel, reduced to what the network sees (points in the
 camera's view, the boxes of the trained classes) and kept in memory (on the device when
-training on a GPU).
+training on a GPU), with the ring channel beside them (−1 where the data has none) for
+the per-beam augmentations.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lidarfuzz.io.kitti import open_kitti
+from lidarfuzz.suts.learned.augment import Augmentation, augment
 from lidarfuzz.suts.learned.sut import import_torch
 
 FrameArrays = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]
@@ -41,10 +45,16 @@ class TrainConfig:
     lr: float = 3e-3
     weight_decay: float = 0.01
     seed: int = 0
-    flip: bool = True
-    rotation: float = math.pi / 8
-    scale: tuple[float, float] = (0.95, 1.05)
     grad_clip: float = 10.0
+    augment: str = "default"
+
+    def augmentation(self) -> Augmentation | None:
+        """The per-frame augmentation this run uses (``None``: frames as they are)."""
+        return Augmentation.preset(self.augment)
+
+    def to_json(self) -> dict[str, Any]:
+        augmentation = self.augmentation()
+        return {**asdict(self), "augmentation": augmentation.to_json() if augmentation else None}
 
 
 _DATASET: Any = None
@@ -57,20 +67,33 @@ def _init_worker(root: str, classes: tuple[str, ...]) -> None:
     _CLASSES = classes
 
 
-def _frame_arrays(frame_id: str) -> FrameArrays:
-    scene = _DATASET.load(frame_id)
-    points = np.ascontiguousarray(scene.points.data[:, :4], dtype=np.float32)
+def frame_arrays(scene: Any, classes: Sequence[str]) -> FrameArrays:
+    """(points in the camera's view N×5 ``x y z intensity ring``, boxes M×7, class indices M) of one scene.
+
+    The ring is −1 where the data has no ring channel; boxes of other classes and DontCare
+    regions are left out.
+    """
+    classes = tuple(classes)
+    cloud = scene.points
+    ring = cloud.channel("ring") if cloud.has("ring") else np.full(len(cloud), -1.0, np.float32)
+    points = np.ascontiguousarray(np.column_stack([cloud.data[:, :4], ring]), dtype=np.float32)
     if scene.calib is not None and len(points):
         points = points[scene.calib.in_view(points[:, :3])]
     boxes = scene.boxes
-    keep = np.isin(boxes.labels, _CLASSES) & boxes.has_geometry
+    keep = np.isin(boxes.labels, classes) & boxes.has_geometry
     geometry = boxes.as_array()[keep].astype(np.float32)
-    classes = np.asarray([_CLASSES.index(c) for c in boxes.labels[keep]], dtype=np.int64)
-    return points, geometry, classes
+    labels = np.asarray([classes.index(c) for c in boxes.labels[keep]], dtype=np.int64)
+    return points, geometry, labels
+
+
+def _frame_arrays(frame_id: str) -> FrameArrays:
+    return frame_arrays(_DATASET.load(frame_id), _CLASSES)
+
+
 
 
 def load_frames(root: Path, frame_ids: Sequence[str], classes: Sequence[str], workers: int = 2) -> list[FrameArrays]:
-    """(points in view N×4, boxes M×7, class indices M) of each frame, loaded in parallel."""
+    """(points in view N×5, boxes M×7, class indices M) of each frame (:func:`frame_arrays`), loaded in parallel."""
     classes = tuple(classes)
     if workers <= 1:
         _init_worker(str(root), classes)
@@ -86,24 +109,11 @@ def split_ids(root: Path, split: str) -> list[str]:
     return path.read_text().split()
 
 
-def _augment(torch: Any, points: Any, boxes: Any, generator: Any, cfg: TrainConfig) -> tuple[Any, Any]:
-    """One frame's random flip, rotation and scaling; points and boxes (heading included) together."""
-    points, boxes = points.clone(), boxes.clone()
-    draws = torch.rand(3, generator=generator, device="cpu").tolist()
-    if cfg.flip and draws[0] < 0.5:
-        points[:, 1] = -points[:, 1]
-        boxes[:, 1] = -boxes[:, 1]
-        boxes[:, 6] = -boxes[:, 6]
-    angle = (2 * draws[1] - 1) * cfg.rotation
-    cos, sin = math.cos(angle), math.sin(angle)
-    rot = torch.tensor([[cos, -sin], [sin, cos]], dtype=points.dtype, device=points.device)
-    points[:, :2] = points[:, :2] @ rot.T
-    boxes[:, :2] = boxes[:, :2] @ rot.T
-    boxes[:, 6] = torch.remainder(boxes[:, 6] + angle + math.pi, 2 * math.pi) - math.pi
-    scale = cfg.scale[0] + draws[2] * (cfg.scale[1] - cfg.scale[0])
-    points[:, :3] *= scale
-    boxes[:, :6] *= scale
-    return points, boxes
+def _with_ring(points: NDArray[np.float32]) -> NDArray[np.float32]:
+    """N×4 frames (from older callers) get an unknown ring (−1) as fifth column."""
+    if points.shape[1] >= 5:
+        return points[:, :5]
+    return np.column_stack([points, np.full(len(points), -1.0, np.float32)]).astype(np.float32)
 
 
 def train(
@@ -142,9 +152,11 @@ def train(
         net.load_state_dict(initial)
     net = net.to(device)
     data = [
-        (torch.from_numpy(p).to(device), torch.from_numpy(b).to(device), torch.from_numpy(c).to(device))
+        (torch.from_numpy(_with_ring(p)).to(device), torch.from_numpy(b).to(device), torch.from_numpy(c).to(device))
         for p, b, c in frames
     ]
+    augmentation = cfg.augmentation()
+    x_max = float(net.config.x_range[1])
     steps_per_epoch = max(1, len(data) // cfg.batch_size)
     plan = {"epochs": cfg.epochs}
     optimiser = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -171,8 +183,9 @@ def train(
             batch = [data[i] for i in order[step * cfg.batch_size:(step + 1) * cfg.batch_size]]
             pts, bxs, cls, pidx, bidx = [], [], [], [], []
             for b, (p, bx, c) in enumerate(batch):
-                p, bx = _augment(torch, p, bx, generator, cfg)
-                pts.append(p)
+                if augmentation is not None:
+                    p, bx, _ = augment(torch, p, bx, generator, augmentation, x_max=x_max)
+                pts.append(p[:, :4])
                 bxs.append(bx)
                 cls.append(c)
                 pidx.append(torch.full((len(p),), b, dtype=torch.long, device=device))
