@@ -2,8 +2,12 @@
 
 Usage (the committed weights' recipe; one GPU, 16 cores, under 10 minutes in all)::
 
-    PYTHONPATH=src python scripts/train_pillars.py --out-dir OUT --workers 16 \\
-        --deadline-minutes 9 --real /path/to/kitti/training
+    PYTHONPATH=src python scripts/train_pillars.py --out-dir OUT --data-dir /tmp/pillars-data \\
+        --workers 16 --deadline-minutes 8.5 [--real /path/to/kitti/training]
+
+    # the real-frame figures of weights trained elsewhere (no training; a few minutes on a CPU)
+    .venv/bin/python scripts/train_pillars.py --out-dir OUT --eval-only OUT/pillars-sim.pt \\
+        --real ../shared/realdata/kitti/training
 
     .venv/bin/python scripts/train_pillars.py --out-dir /tmp/w --train-frames 16 --epochs 1 --no-eval   # a smoke run
 
@@ -38,7 +42,6 @@ import argparse
 import dataclasses
 import json
 import platform
-import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -123,13 +126,48 @@ def build_profile(weights: Path, root: Path, frame_ids: list[str], out_dir: Path
     return profile.save(out_dir / f"{fingerprint}.npz")
 
 
+def evaluate_weights(weights: Path, train_root: Path | None, eval_root: Path, real_root: Path | None, out_dir: Path,
+                     log: Callable[[str], None], start: float) -> dict[str, Any]:
+    """Profile (over ``train_root``'s first frames, when given), simulator val AP and real-frame figures
+    of a weights file, next to the previous built-in weights and the classic pipeline; writes ``figures.json``."""
+    torch = import_torch()
+    threads = max(1, min(16, torch.get_num_threads()))
+    if train_root is not None:
+        profile = build_profile(weights, train_root, split_ids(train_root, "train")[:PROFILE_FRAMES], out_dir, threads)
+        log(f"profile {profile.name} after {time.perf_counter() - start:.0f} s")
+    figures: dict[str, Any] = {}
+    val = [open_kitti(eval_root).load(f) for f in split_ids(eval_root, "val")]
+    suts = [("pillars", PillarsDetector(weights=str(weights), threads=threads)), ("classic", ClassicPipeline())]
+    for name, sut in suts:
+        with sut:
+            figures.setdefault("simulator_val", {})[name] = split_ap(sut, val)
+    figures["simulator_val"]["data"] = f"simulator seed 0, {len(val) * 2} frames, val split (the last half)"
+    log("simulator val, AP|R40 moderate: " + json.dumps(
+        {k: v["ap_r40_moderate"] for k, v in figures["simulator_val"].items() if isinstance(v, dict)}))
+    if real_root is not None:
+        real = open_kitti(real_root)
+        scenes = [real.load(f) for f in real.frame_ids()]
+        figures["real"] = {"data": str(real_root), "frames": len(scenes)}
+        for name, sut in [("pillars", PillarsDetector(weights=str(weights), threads=threads)),
+                          ("pillars (built-in weights)", PillarsDetector(threads=threads)),
+                          ("classic", ClassicPipeline())]:
+            with sut:
+                figures["real"][name] = real_frame_figures(sut, scenes)
+            row = figures["real"][name]["score>=0.3"]
+            log(f"real {name}: recall BEV@0.5 {row['recall_bev_0.5']}, 3D@0.5 {row['recall_3d_0.5']}, "
+                f"3D@0.7 {row['recall_3d_0.7']} of {row['cars_in_range']} cars; "
+                f"false boxes/frame {row['false_boxes_per_frame']} (score >= 0.3)")
+    (out_dir / "figures.json").write_text(json.dumps(figures, indent=1))
+    return figures
+
+
 def main() -> None:
     start = time.perf_counter()
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--out-dir", type=Path, required=True, help="weights, history, log, profile, figures")
     parser.add_argument("--data-dir", type=Path, default=Path("bench-out/pillars-dr"),
                         help="rendered training and evaluation data (reused when complete)")
-    parser.add_argument("--train-frames", type=int, default=4000)
+    parser.add_argument("--train-frames", type=int, default=5000)
     parser.add_argument("--train-seed", type=int, default=1)
     parser.add_argument("--epochs", type=int, default=TrainConfig.epochs,
                         help="epochs (cut to what fits with --deadline-minutes)")
@@ -146,12 +184,19 @@ def main() -> None:
     parser.add_argument("--real", type=Path, default=None,
                         help="a KITTI-layout folder of real labelled frames to report recall and false boxes on")
     parser.add_argument("--no-eval", action="store_true", help="skip the profile and every evaluation")
+    parser.add_argument("--eval-only", type=Path, default=None, metavar="WEIGHTS",
+                        help="no training: evaluate these weights (simulator val, --real) into --out-dir/figures.json")
     args = parser.parse_args()
     torch = import_torch()
     args.out_dir.mkdir(parents=True, exist_ok=True)
-    log = Tee(args.out_dir / f"{STEM}.train.log")
+    log = Tee(args.out_dir / ("eval.log" if args.eval_only else f"{STEM}.train.log"))
     log(f"python {platform.python_version()}, torch {torch.__version__}, "
         f"cuda {torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'none'}")
+    eval_root = args.data_dir / "eval"
+    if args.eval_only is not None:
+        ensure_data(eval_root, args.eval_frames, 0, 0.5, args.workers, log)
+        evaluate_weights(args.eval_only, None, eval_root, args.real, args.out_dir, log, start)
+        return
 
     shards = realism_shards(args.train_frames, args.train_seed)
     roots = []
@@ -159,7 +204,6 @@ def main() -> None:
         root = args.data_dir / f"train-{index}"
         ensure_data(root, frames, seed, 0.0, args.workers, log, **extra)
         roots.append(root)
-    eval_root = args.data_dir / "eval"
     if not args.no_eval:
         ensure_data(eval_root, args.eval_frames, 0, 0.5, args.workers, log)
 
@@ -206,36 +250,10 @@ def main() -> None:
     if args.no_eval:
         return
 
-    threads = max(1, min(16, torch.get_num_threads()))
-    profile = build_profile(weights, roots[0], split_ids(roots[0], "train")[:PROFILE_FRAMES], args.out_dir, threads)
-    log(f"profile {profile.name} after {time.perf_counter() - start:.0f} s")
-    figures: dict[str, Any] = {}
-    val = [open_kitti(eval_root).load(f) for f in split_ids(eval_root, "val")]
-    suts = [("pillars", PillarsDetector(weights=str(weights), threads=threads)), ("classic", ClassicPipeline())]
-    for name, sut in suts:
-        with sut:
-            figures.setdefault("simulator_val", {})[name] = split_ap(sut, val)
-    figures["simulator_val"]["data"] = f"simulator seed 0, {args.eval_frames} frames, val split (the last half)"
-    log("simulator val, AP|R40 moderate: " + json.dumps(
-        {k: v["ap_r40_moderate"] for k, v in figures["simulator_val"].items() if isinstance(v, dict)}))
-    if args.real is not None:
-        real = open_kitti(args.real)
-        scenes = [real.load(f) for f in real.frame_ids()]
-        figures["real"] = {"data": str(args.real), "frames": len(scenes)}
-        for name, sut in [("pillars", PillarsDetector(weights=str(weights), threads=threads)),
-                          ("pillars (previous built-in)", PillarsDetector(threads=threads)),
-                          ("classic", ClassicPipeline())]:
-            with sut:
-                figures["real"][name] = real_frame_figures(sut, scenes)
-            row = figures["real"][name]["score>=0.3"]
-            log(f"real {name}: recall BEV@0.5 {row['recall_bev_0.5']}, 3D@0.5 {row['recall_3d_0.5']}, "
-                f"3D@0.7 {row['recall_3d_0.7']} of {row['cars_in_range']} cars; "
-                f"false boxes/frame {row['false_boxes_per_frame']} (score >= 0.3)")
+    figures = evaluate_weights(weights, roots[0], eval_root, args.real, args.out_dir, log, start)
     meta["figures"] = figures
     save_weights(net, weights, meta)
-    (args.out_dir / "figures.json").write_text(json.dumps(figures, indent=1))
     log(f"done in {time.perf_counter() - start:.0f} s")
-    shutil.rmtree(args.out_dir / "__pycache__", ignore_errors=True)
 
 
 if __name__ == "__main__":
