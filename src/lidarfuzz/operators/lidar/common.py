@@ -88,3 +88,29 @@ def intensity_scale(values: NDArray[np.floating]) -> float:
         if top <= scale:
             return scale
     return top
+
+#: Integer intensity types a reader may record instead of a number (LAS: ``"uint16"``).
+_TYPE_SCALES = {"uint8": 255.0, "uint16": 65535.0}
+
+
+def declared_intensity_scale(scene: Scene) -> float | None:
+    """The full scale a reader recorded in ``scene.metadata["intensity_scale"]`` (a positive
+    number, or an integer type name such as ``"uint16"``); None when absent or unusable."""
+    value = scene.metadata.get("intensity_scale")
+    if isinstance(value, str):
+        value = _TYPE_SCALES.get(value.strip().lower(), value)
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        return None
+    try:
+        scale = float(value)
+    except ValueError:
+        return None
+    return scale if np.isfinite(scale) and scale > 0 else None
+
+
+def scene_intensity_scale(scene: Scene) -> float:
+    """The frame's intensity full scale: the one its reader declared (1 for KITTI, 255 for
+    nuScenes, …) when there is one, else :func:`intensity_scale` inferred from the values — a
+    dark 8-bit frame whose readings all stay under 1 would otherwise pass for [0, 1] data."""
+    declared = declared_intensity_scale(scene)
+    return declared if declared is not None else intensity_scale(scene.points.intensity)

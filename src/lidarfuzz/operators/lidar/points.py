@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
-from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, intensity_scale, with_added_points
+from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, scene_intensity_scale, with_added_points
 from lidarfuzz.scene.geometry import points_in_boxes
 from lidarfuzz.scene.scene import Scene
 
@@ -276,15 +276,16 @@ class IntensityScaleParams(Params):
         return self.ratio == 0 or self.factor_low == self.factor_high == 1.0
 
 
-def _intensity_limit(values: np.ndarray) -> float:
-    # The data's own scale: [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255, 16-bit ones in 0–65535.
-    return intensity_scale(values)
+def _intensity_limit(scene: Scene) -> float:
+    # The data's own scale (declared by its reader, else inferred): [0, 1] clouds stay in [0, 1],
+    # 8-bit ones in 0–255, 16-bit ones in 0–65535.
+    return scene_intensity_scale(scene)
 
 
 class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParams]):
     """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
     a random share of the points get their intensity multiplied by a random factor each
-    (the thesis's UIM), clipped to the data's own scale ([0, 1], 0–255 or 0–65535, inferred).
+    (the thesis's UIM), clipped to the data's own scale ([0, 1], 0–255 or 0–65535; declared, else inferred).
     Positions are untouched."""
 
     name = "intensity_scaling"
@@ -311,7 +312,7 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
         rng = np.random.default_rng(params.seed)
         chosen = rng.choice(len(cloud), size=count, replace=False)
         intensity = cloud.intensity.astype(np.float64)
-        limit = _intensity_limit(intensity)
+        limit = _intensity_limit(sample)
         intensity[chosen] = np.clip(intensity[chosen] * rng.uniform(params.factor_low, params.factor_high, count),
                                     0.0, limit)
         return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
@@ -359,7 +360,7 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
         if not inside.any():
             return sample
         intensity = cloud.intensity.astype(np.float64)
-        limit = _intensity_limit(intensity)
+        limit = _intensity_limit(sample)
         intensity[inside] = np.clip(intensity[inside] * params.factor, 0.0, limit)
         return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
 

@@ -32,7 +32,7 @@ from pydantic import Field
 from scipy.signal import find_peaks, peak_prominences
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
-from lidarfuzz.operators.lidar.common import intensity_scale
+from lidarfuzz.operators.lidar.common import scene_intensity_scale
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -313,12 +313,12 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
 
     Exactly ``round(ratio · N)`` points (without replacement) move to a range drawn
     uniformly in [1 m, max range] along their own direction, with a low random intensity
-    (a share of the data's inferred intensity scale: 1, or 255 for 8-bit data); their
-    ``label`` becomes 0 (unlabelled) and ``instance`` −1, as they no longer lie on what
-    they hit. Ring and time are kept (same laser, same firing). Severity: ratio 0.4, 0.8,
-    1.2, 1.6, 2.0 % (3D_Corruptions_AD; Robo3D uses 0.6–1.0 %). Unlike those tools, which
-    add 3 m Gaussian noise to every column (intensity included), the false return stays
-    on its beam. Small ratios are expected to leave a correct detector's output unchanged;
+    (a share of the data's intensity scale: the frame's declared one, else inferred: 1, or
+    255 for 8-bit data); their ``label`` becomes 0 (unlabelled) and ``instance`` −1, as they
+    no longer lie on what they hit. Ring and time are kept (same laser, same firing).
+    Severity: ratio 0.4, 0.8, 1.2, 1.6, 2.0 % (3D_Corruptions_AD; Robo3D uses 0.6–1.0 %).
+    Unlike those tools, which add 3 m Gaussian noise to every column (intensity included),
+    the false return stays on its beam. Small ratios are expected to leave a correct detector's output unchanged;
     the relation is degrading because large ones may not. Boxes are kept.
     """
 
@@ -337,7 +337,7 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
         cloud = sample.points
         farthest = float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max()) if len(cloud) else 100.0
         high = max(self.config.max_range_m or farthest, 1.0)
-        scale = intensity_scale(cloud.intensity)
+        scale = scene_intensity_scale(sample)
         lo, hi = self.config.intensity_range
         return CrosstalkParams(ratio=uniform(rng, self.config.ratio_range), range_low=min(1.0, high), range_high=high,
                                intensity_low=lo * scale, intensity_high=hi * scale, seed=draw_seed(rng))
@@ -618,7 +618,7 @@ class QuantisationConfig(Config):
 class QuantisationParams(Params):
     levels: int = Field(ge=0)
     threshold: float = Field(ge=0, le=1)
-    scale: float = Field(gt=0, description="the data's intensity full scale (inferred: 1, 255, …)")
+    scale: float = Field(gt=0, description="the data's intensity full scale (declared, else inferred: 1, 255, …)")
 
     def is_identity(self) -> bool:
         return self.levels == 0
@@ -626,8 +626,9 @@ class QuantisationParams(Params):
 
 class IntensityQuantisation(Operator[Scene, QuantisationConfig, QuantisationParams]):
     """A coarse intensity ADC: intensity quantised to ``levels`` values evenly spaced over
-    [0, scale], where ``scale`` is inferred from the data (1 for [0, 1] data, 255 for
-    8-bit, 65535 for 16-bit). A value goes to level ``clip(⌊v / step + 1 − threshold⌋)``, so
+    [0, scale], where ``scale`` is the frame's declared intensity scale
+    (``scene.metadata["intensity_scale"]``), else inferred from the data (1 for [0, 1] data,
+    255 for 8-bit, 65535 for 16-bit). A value goes to level ``clip(⌊v / step + 1 − threshold⌋)``, so
     threshold 0.5 rounds to the nearest level; the threshold (the comparator offset) is
     drawn. Severity: 64, 32, 16, 8, 4 levels. Positions, the other channels, boxes and map
     are untouched.
@@ -646,7 +647,7 @@ class IntensityQuantisation(Operator[Scene, QuantisationConfig, QuantisationPara
     def sample(self, rng: np.random.Generator, sample: Scene) -> QuantisationParams:
         return QuantisationParams(levels=max(0, _draw_int(rng, self.config.levels_range)),
                                   threshold=uniform(rng, self.config.threshold_range),
-                                  scale=intensity_scale(sample.points.intensity))
+                                  scale=scene_intensity_scale(sample))
 
     def apply(self, sample: Scene, params: QuantisationParams) -> Scene:
         cloud = sample.points
@@ -668,7 +669,7 @@ class SaturationConfig(Config):
 class SaturationParams(Params):
     gain: float = Field(ge=0)
     level: float = Field(gt=0, description="saturation level, as a share of scale")
-    scale: float = Field(gt=0, description="the data's intensity full scale (inferred: 1, 255, …)")
+    scale: float = Field(gt=0, description="the data's intensity full scale (declared, else inferred: 1, 255, …)")
 
     def is_identity(self) -> bool:
         return self.gain == 1 and self.level >= 1
@@ -678,10 +679,10 @@ class IntensitySaturation(Operator[Scene, SaturationConfig, SaturationParams]):
     """A saturating receiver (too much gain, retro-reflectors, short range): intensity
     multiplied by a gain and clipped at a saturation level, ``min(gain · v, level)``.
 
-    The level is a share of the data's inferred scale (1 for [0, 1] data, 255 for 8-bit,
-    65535 for 16-bit), stored in the params with the scale. Severity (gain, level): (1.0–1.25,
-    0.8), (1.25–1.5, 0.6), (1.5–2, 0.4), (2–3, 0.3), (3–4, 0.2). Positions, the other
-    channels, boxes and map are untouched.
+    The level is a share of the data's scale (the frame's declared one, else inferred: 1 for
+    [0, 1] data, 255 for 8-bit, 65535 for 16-bit), stored in the params with the scale.
+    Severity (gain, level): (1.0–1.25, 0.8), (1.25–1.5, 0.6), (1.5–2, 0.4), (2–3, 0.3),
+    (3–4, 0.2). Positions, the other channels, boxes and map are untouched.
     """
 
     name = "intensity_saturation"
@@ -697,7 +698,7 @@ class IntensitySaturation(Operator[Scene, SaturationConfig, SaturationParams]):
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> SaturationParams:
         return SaturationParams(gain=uniform(rng, self.config.gain_range), level=uniform(rng, self.config.level_range),
-                                scale=intensity_scale(sample.points.intensity))
+                                scale=scene_intensity_scale(sample))
 
     def apply(self, sample: Scene, params: SaturationParams) -> Scene:
         cloud = sample.points

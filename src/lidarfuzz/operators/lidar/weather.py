@@ -6,23 +6,40 @@ A return that now comes from the air keeps its ``ring``, ``time`` and any foreig
 (it is the same laser firing), but gets ``label`` 0 (unlabelled) and ``instance`` −1: it no
 longer hits the surface or object it was labelled with.
 
+Which returns are lost: every operator here decides it with the power model of
+:mod:`lidarfuzz.operators.lidar.power`. A reported return was detected, so its clear-weather
+power was at least the receiver's threshold whatever its intensity reads; its margin over the
+threshold comes from the LiDAR equation, the sensor's range specification (default: the
+HDL-64E's, ``detection_threshold`` 0.4 = 10 % reflectivity at 50 m) and the reading where the
+reading resolves it (zero and refuted readings: a seeded draw over what the detection admits).
+A return is lost when the attenuation at its range outweighs that margin, so losses grow
+smoothly with range and with the severity, on real intensities (many zeros) as on the
+simulator's.
+
 Intensity units: the models work on a physical scale (received power or reflectivity in
 [0, 1]). Each operator converts with an explicit ``intensity_scale`` — given in the config,
-or inferred from the frame at sampling time (1 for [0, 1] data, 255 for 8-bit, 65535 for
-16-bit) and stored in the params — and converts back, so a [0, 1] frame and the same frame in 0–255
-give the same result up to the scale.
+else the one the frame's reader declared (``scene.metadata["intensity_scale"]``: 1 for KITTI,
+255 for nuScenes), else inferred from the values (1 for [0, 1] data, 255 for 8-bit, 65535 for
+16-bit) — stored in the params, and converts back, so a [0, 1] frame and the same frame in
+0–255 give the same result up to the scale.
 """
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
-from lidarfuzz.operators.lidar.common import intensity_scale
+from lidarfuzz.operators.lidar.common import intensity_scale, scene_intensity_scale
+from lidarfuzz.operators.lidar.power import (
+    HDL64E_DETECTION_THRESHOLD,
+    effective_reflectivity,
+    power_draws,
+    power_margin,
+)
 from lidarfuzz.scene.points import CHANNEL_DEFAULTS, PointCloud
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.scene.semantics import GROUND_CLASSES, SEMANTIC_ID
@@ -32,9 +49,13 @@ POINTS = frozenset({Target.POINTS})
 F64 = NDArray[np.float64]
 
 SPEED_OF_LIGHT = 299_792_458.0  # m/s
-#: A frame's point whose signal puts it under the receiver threshold was still
-#: detected: its clear-weather signal is taken as this multiple of the threshold (LISA's 1.2/0.9).
-EDGE_MARGIN = 4.0 / 3.0
+
+
+def _detection_threshold() -> Any:
+    """The receiver's sensitivity (see :mod:`~lidarfuzz.operators.lidar.power`); the params default
+    to it too, so params stored before it existed still replay."""
+    return Field(HDL64E_DETECTION_THRESHOLD, gt=0, description="weakest effective reflectivity detected at 100 m "
+                 "(HDL-64E: 0.4, i.e. 10 % at 50 m; the lidarfuzz simulator's: 0.05)")
 
 
 def infer_intensity_scale(cloud: PointCloud) -> float:
@@ -42,23 +63,36 @@ def infer_intensity_scale(cloud: PointCloud) -> float:
     return intensity_scale(cloud.intensity)
 
 
-def _scale(configured: float | None, cloud: PointCloud) -> float:
-    return float(configured) if configured is not None else infer_intensity_scale(cloud)
+def _scale(configured: float | None, scene: Scene) -> float:
+    return float(configured) if configured is not None else scene_intensity_scale(scene)
+
+
+def _ranges(cloud: PointCloud) -> F64:
+    """Each point's range: x² + y² + z² column by column in float32 (a float64 copy of the
+    strided N×3 view costs more than the whole sum), the square root in float64."""
+    xyz = cloud.xyz
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return np.sqrt((x * x + y * y + z * z).astype(np.float64))
 
 
 def _rescaled(cloud: PointCloud, keep: NDArray[np.bool_], ranges: F64, new_range: F64, intensity: F64,
               in_air: NDArray[np.bool_]) -> PointCloud:
-    """The cloud with each kept point moved along its own beam to ``new_range`` and given a new
-    intensity; points whose return now comes from the air lose their label and instance."""
-    data = cloud.data.astype(np.float64)
-    factor = np.divide(new_range, ranges, out=np.ones_like(ranges), where=ranges > 0)
-    data[:, :3] *= factor[:, None]
-    data[:, 3] = intensity
+    """The kept points, each moved along its own beam to ``new_range`` and given a new intensity;
+    points whose return now comes from the air lose their label and instance. One float32 copy
+    of the kept rows; only the points whose range changed are rescaled (in float64)."""
+    rows = np.flatnonzero(keep)
+    data = cloud.data[rows]
+    moved = np.flatnonzero(new_range[rows] != ranges[rows])
+    if len(moved):
+        source = rows[moved]
+        factor = np.divide(new_range[source], ranges[source], out=np.ones(len(source)), where=ranges[source] > 0)
+        data[moved, :3] = data[moved, :3] * factor[:, None]
+    data[:, 3] = intensity[rows]
+    air = np.flatnonzero(in_air[rows])
     for name in ("label", "instance"):
-        if cloud.has(name):
-            column = data[:, cloud.index(name)]
-            column[in_air] = CHANNEL_DEFAULTS[name]
-    return PointCloud(data[keep].astype(np.float32), cloud.channels)
+        if cloud.has(name) and len(air):
+            data[air, cloud.index(name)] = CHANNEL_DEFAULTS[name]
+    return PointCloud(data, cloud.channels)
 
 
 # =========================================================================== fog
@@ -76,15 +110,17 @@ FOG_RETURN_JITTER = 10.0
 class FogConfig(Config):
     mor_range: Range | None = Field((200.0, 200.0), description="meteorological optical range, metres; None: no fog")
     tau_h_ns: float = Field(20.0, gt=0, description="half-power width of the transmitted pulse, ns")
-    threshold: float = Field(0.5 / 255, ge=0, description="receiver threshold, as a fraction of full intensity")
-    intensity_scale: float | None = Field(None, gt=0,
-                                          description="full-scale intensity; None: inferred (1, 255 or 65535)")
+    threshold: float = Field(0.5 / 255, ge=0, description="threshold of a fog return, as a fraction of full intensity")
+    detection_threshold: float = _detection_threshold()
+    intensity_scale: float | None = Field(None, gt=0, description="full-scale intensity; None: the frame's "
+                                          "declared scale, else inferred (1, 255 or 65535)")
 
 
 class FogParams(Params):
     alpha: float = Field(ge=0, description="extinction coefficient, 1/m (= ln 20 / MOR)")
     tau_h_ns: float = Field(gt=0)
     threshold: float = Field(ge=0)
+    detection_threshold: float = _detection_threshold()
     intensity_scale: float = Field(gt=0)
     seed: int
 
@@ -136,16 +172,35 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
     transmitter and receiver from 0.9 m to 1 m — and is scaled, as in the paper, by the beam's
     system constant inferred from the return's clear-weather intensity with the reference
     reflectivity Γ = 10⁻⁶. Where the fog's return beats the attenuated hard return and the
-    receiver threshold, the point moves along its beam to the fog's range (plus the paper's
-    ``10 · Beta(2, 20)`` m jitter) with the fog's intensity; a hard return below the threshold
-    with no fog return in its place is lost (a frame's point counts as detected in clear weather:
-    at least 4/3 of the threshold).
+    receiver threshold (a fraction of full scale, default 0.5/255, one 8-bit step), the point
+    moves along its beam to the fog's range (plus the paper's ``10 · Beta(2, 20)`` m jitter) with
+    the fog's intensity.
 
-    Intensity is read as received power on the scale ``intensity_scale`` (inferred: 1 for [0, 1]
-    data, 255 for 0–255 data) and written back on it; the threshold is a fraction of full scale
-    (default 0.5/255, one 8-bit step). The public tool rounds attenuated intensities as if they
-    were 0–255 integers, so on [0, 1] data it zeroes every hard return and turns nearly the whole
-    cloud into fog; here both scales give the same result.
+    Which hard returns are lost does not follow the paper, which reads intensity as received power
+    — so a zero reading has none, and its public tool turns almost every KITTI or Waymo point with
+    a dark reading into fog or deletes it. Here a return is lost when ``m · exp(−2 α R) < 1``, with
+    ``m`` its clear-weather power margin from :func:`~lidarfuzz.operators.lidar.power.power_margin`
+    (the LiDAR equation, the sensor's range specification ``detection_threshold``, the reading
+    where it resolves the reflectivity, a seeded draw over ``[ρ_det(R), 1]`` where it does not):
+    losses grow smoothly with range and with falling MOR, zero readings included.
+
+    Against the published curves: the two-way extinction is Hahner et al.'s (and every fog
+    simulator's), so the loss differs from theirs only through the margin. Their model keeps a
+    return while ``i · exp(−2αR)`` stays above one 8-bit step, independent of range otherwise: a
+    reading of 0.3 survives to ``2αR = ln(0.3 · 510)``, 42 m at MOR 50 m and 630 m at MOR 750 m,
+    while a zero is lost at any range under any fog. With the power margin, a target of effective
+    reflectivity ρ is seen to the range R where ``(R / 100 m)² exp(2αR) = ρ / d``; for the HDL-64E
+    (d = 0.4), ρ = 0.1 / 0.9: clear 50 / 150 m, MOR 750 m 42 / 100 m, MOR 200 m 31 / 61 m,
+    MOR 50 m 17.5 / 28 m, MOR 20 m 10.5 / 15 m. Bijelic et al. ("A Benchmark for Lidar Sensors in
+    Fog: Is Detection Breaking Down?", IV 2018) measured the HDL-64 S3D and the VLP-32 in the
+    CEREMA fog chamber (targets within its 30 m) and found the maximum viewing distance shrinking
+    steadily as the MOR falls, dark targets first; the curve values themselves could not be
+    retrieved here to check these figures against.
+
+    Intensity is read on the scale ``intensity_scale`` (the frame's declared scale, else inferred:
+    1 for [0, 1] data, 255 for 0–255 data) and written back on it. The public tool rounds
+    attenuated intensities as if they were 0–255 integers, so on [0, 1] data it zeroes every hard
+    return and turns nearly the whole cloud into fog; here both scales give the same result.
 
     Severity (MOR): 1: 600–900 m (haze, just under the 1 km that defines fog), 2: 300–500 m,
     3: 150–250 m, 4: 80–120 m, 5: 40–60 m (the densest fog of the paper's chamber data).
@@ -167,7 +222,8 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
         cfg = self.config
         alpha = 0.0 if cfg.mor_range is None else float(np.log(20.0) / uniform(rng, cfg.mor_range))
         return FogParams(alpha=alpha, tau_h_ns=cfg.tau_h_ns, threshold=cfg.threshold,
-                         intensity_scale=_scale(cfg.intensity_scale, sample.points), seed=draw_seed(rng))
+                         detection_threshold=cfg.detection_threshold,
+                         intensity_scale=_scale(cfg.intensity_scale, sample), seed=draw_seed(rng))
 
     def apply(self, sample: Scene, params: FogParams) -> Scene:
         cloud = sample.points
@@ -177,18 +233,20 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
         beta = FOG_BACKSCATTER_PER_MOR * alpha / np.log(20.0)
         r0_grid, integral, distance = fog_soft_response(alpha, params.tau_h_ns * 1e-9)
 
-        xyz = cloud.xyz.astype(np.float64)
-        ranges = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+        ranges = _ranges(cloud)
         power = np.clip(cloud.intensity.astype(np.float64) / scale, 0.0, None)  # clear-weather power, full scale 1
-        hard = power * np.exp(-2.0 * alpha * ranges)
+        transmittance = np.exp(-2.0 * alpha * ranges)
+        hard = power * transmittance
         gain = beta * np.pi / FOG_REFERENCE_REFLECTIVITY * (2.0 / SPEED_OF_LIGHT)
         soft = np.minimum(power * ranges**2 * gain * np.interp(ranges, r0_grid, integral), 1.0)
         fog_range = np.interp(ranges, r0_grid, distance)
 
         in_fog = (soft > hard) & (soft > params.threshold) & (fog_range < ranges)
-        # Every point of the frame was detected in clear weather: it is lost only when fog pushes it under.
-        detected = np.maximum(power, EDGE_MARGIN * params.threshold) * np.exp(-2.0 * alpha * ranges)
-        keep = in_fog | (detected >= params.threshold)
+        # Every point of the frame was detected in clear weather: it is lost only when the fog's
+        # extinction outweighs its power margin.
+        margin = power_margin(cloud.intensity, ranges, scale=scale, detection_threshold=params.detection_threshold,
+                              draws=power_draws(params.seed, len(cloud)))
+        keep = in_fog | (margin * transmittance >= 1.0)
         if not in_fog.any() and keep.all() and np.array_equal(hard, power):
             return sample
         rng = np.random.default_rng(params.seed)
@@ -215,9 +273,10 @@ class PrecipitationConfig(Config):
     rate_range: Range = Field((5.0, 5.0), description="precipitation rate (water equivalent), mm/h")
     beam_divergence: float = Field(3e-3, gt=0, description="full beam divergence, rad (LISA)")
     min_range: float = Field(1.5, ge=0, description="blind zone of the bistatic optics, metres: no particle returns")
-    detection_threshold: float = Field(0.05, gt=0, description="weakest detectable reflectivity at 100 m")
+    detection_threshold: float = _detection_threshold()
     range_accuracy: float = Field(0.04, ge=0, description="range error at the threshold's SNR, metres (LISA's dR)")
-    intensity_scale: float | None = Field(None, gt=0, description="intensity of reflectivity 1; None: inferred")
+    intensity_scale: float | None = Field(None, gt=0, description="intensity of reflectivity 1; None: the frame's "
+                                          "declared scale, else inferred")
 
 
 class PrecipitationParams(Params):
@@ -264,7 +323,7 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
         return PrecipitationParams(rate=uniform(rng, cfg.rate_range), beam_divergence=cfg.beam_divergence,
                                    min_range=cfg.min_range, detection_threshold=cfg.detection_threshold,
                                    range_accuracy=cfg.range_accuracy,
-                                   intensity_scale=_scale(cfg.intensity_scale, sample.points), seed=draw_seed(rng))
+                                   intensity_scale=_scale(cfg.intensity_scale, sample), seed=draw_seed(rng))
 
     def apply(self, sample: Scene, params: PrecipitationParams) -> Scene:
         cloud = sample.points
@@ -277,13 +336,12 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
         theta = np.tan(params.beam_divergence)
         p_min = params.detection_threshold / 100.0**2
 
-        xyz = cloud.xyz.astype(np.float64)
-        ranges = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
-        safe = np.maximum(ranges, 1e-6)
-        rho = np.clip(cloud.intensity.astype(np.float64) / params.intensity_scale, 0.0, 1.0)
-        # Every point of the frame was detected, so its clear-weather signal is above the threshold
-        # (LISA gives returns without a usable reflectivity 4/3 of it).
-        clear = np.maximum(rho / safe**2, EDGE_MARGIN * p_min)
+        ranges = _ranges(cloud)
+        # Every point of the frame was detected: its clear-weather signal (ρ_e / r², the units of
+        # p_min) is its power margin times the threshold.
+        clear = p_min * power_margin(cloud.intensity, ranges, scale=params.intensity_scale,
+                                     detection_threshold=params.detection_threshold,
+                                     draws=power_draws(params.seed, len(cloud)))
         hard = clear * np.exp(-2.0 * alpha * ranges)
         bar = np.maximum(hard, p_min)  # what a particle's return must beat
 
@@ -348,10 +406,13 @@ class Rain(_Precipitation):
     their Poisson statistics over the beam's cone — not one by one — and the strongest one
     replaces the hard return (a spurious near return, low intensity, label 0). A hard return
     whose attenuated signal falls below the threshold, with no drop in its place, is lost; the
-    rest get the extra range noise of their lower SNR. ``intensity / intensity_scale`` is read
-    as reflectivity in [0, 1]; the receiver threshold is a reflectivity of 0.05 at 100 m (the
-    simulator's), and every point in the frame counts as detected in clear weather (at least 4/3 of the
-    threshold, LISA's margin for returns without a usable reflectivity).
+    rest get the extra range noise of their lower SNR. A hard return's clear-weather signal is its
+    power margin (:func:`~lidarfuzz.operators.lidar.power.power_margin`: every frame point was
+    detected; ``intensity / intensity_scale`` is its effective reflectivity where the reading
+    resolves it, a seeded draw over what the detection admits where it does not — zeros, for one)
+    times the receiver threshold, ``detection_threshold`` (default the HDL-64E's: reflectivity 0.4
+    at 100 m, i.e. 10 % at 50 m). LISA instead gives every return without a usable reflectivity 4/3
+    of the threshold, so all of them at a range share one fate: none is lost, then all are.
 
     Severity (rain rate): 1: 0.5 mm/h (drizzle), 2: 2 (light), 3: 5 (moderate), 4: 15 (heavy),
     5: 40 mm/h (violent), each ±20 %. Points are moved, re-intensified or removed; the rest of
@@ -449,14 +510,16 @@ def ground_mask(cloud: PointCloud) -> NDArray[np.bool_]:
 
 class WetGroundConfig(Config):
     wetness_range: Range = Field((0.5, 0.5), description="share of the ground under a continuous water film, 0–1")
-    detection_threshold: float = Field(0.05, gt=0, description="weakest detectable reflectivity at 100 m")
-    intensity_scale: float | None = Field(None, gt=0, description="intensity of reflectivity 1; None: inferred")
+    detection_threshold: float = _detection_threshold()
+    intensity_scale: float | None = Field(None, gt=0, description="intensity of reflectivity 1; None: the frame's "
+                                          "declared scale, else inferred")
 
 
 class WetGroundParams(Params):
     wetness: float = Field(ge=0, le=1)
     detection_threshold: float = Field(gt=0)
     intensity_scale: float = Field(gt=0)
+    seed: int = Field(0, description="draws of the reflectivities the readings leave open")
 
     def is_identity(self) -> bool:
         return self.wetness == 0
@@ -470,10 +533,13 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
     beams — far ground — lose most), and the diffuse light under the film is partly trapped
     by total internal reflection, darkening the surface (Lekner & Dorf 1988:
     ``ρ_wet = ρ e / (1 − ρ (1 − e))``, escape share ``e = 0.93 / n²``, n = 1.33). Intensity
-    becomes ``(1 − w) I + w I_wet``; a ground return whose signal ``ρ / r²`` falls below the
-    receiver threshold (reflectivity 0.05 at 100 m; every frame point counts as detected in
-    clear weather, at least 4/3 of the threshold) drops out. ``intensity / intensity_scale`` is
-    read as reflectivity.
+    becomes ``(1 − w) I + w I_wet``, i.e. it is multiplied by the film's factor ``f``; a ground
+    return drops out when ``m · f < 1``, ``m`` its clear-weather power margin over the receiver
+    threshold (:func:`~lidarfuzz.operators.lidar.power.power_margin`: the reading as effective
+    reflectivity where it resolves it, a seeded draw over what the detection admits where it does
+    not — a zero reading is a detected return, not a return without power; ``detection_threshold``
+    defaults to the HDL-64E's, reflectivity 0.4 at 100 m). So dark and far ground goes first, and
+    the share lost grows smoothly with the wetness.
 
     Ground points: the ``label`` channel (road, lane-marking, sidewalk, other-ground, terrain)
     when present, else points within 0.2 m of a robust least-squares ground plane. Incidence is
@@ -495,7 +561,7 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
     def sample(self, rng: np.random.Generator, sample: Scene) -> WetGroundParams:
         cfg = self.config
         return WetGroundParams(wetness=uniform(rng, cfg.wetness_range), detection_threshold=cfg.detection_threshold,
-                               intensity_scale=_scale(cfg.intensity_scale, sample.points))
+                               intensity_scale=_scale(cfg.intensity_scale, sample), seed=draw_seed(rng))
 
     def apply(self, sample: Scene, params: WetGroundParams) -> Scene:
         cloud = sample.points
@@ -507,17 +573,22 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
         g = cloud.xyz[index]
         ranges = np.maximum(np.sqrt(np.einsum("ij,ij->i", g, g)), np.float32(1e-6))
         cos_i = np.abs(g @ normal.astype(np.float32)) / ranges
-        rho = np.clip(cloud.intensity[index] / np.float32(params.intensity_scale), 0.0, 1.0)
+        rho, floor = effective_reflectivity(cloud.intensity[index], ranges, scale=params.intensity_scale,
+                                            detection_threshold=params.detection_threshold,
+                                            draws=power_draws(params.seed, len(index)))
         escape = 0.93 / WATER_INDEX**2
-        darkening = escape / (1.0 - rho * (1.0 - escape))
+        darkening = escape / (1.0 - np.minimum(rho, 1.0) * (1.0 - escape))
         factor = (1.0 - params.wetness) + params.wetness * (1.0 - _fresnel(cos_i)) ** 2 * darkening
-        p_min = params.detection_threshold / 100.0**2
-        clear = np.maximum(rho / ranges**2, EDGE_MARGIN * p_min)
-        data = cloud.data.copy()
-        data[index, 3] *= factor.astype(np.float32)
-        dropped = index[clear * factor < p_min]
-        if len(dropped):
-            data = np.delete(data, dropped, axis=0)
+        intensity = cloud.intensity.copy()
+        intensity[index] *= factor.astype(np.float32)
+        dropped = index[rho * factor < floor]  # margin ρ_e / ρ_det times the film's factor under 1
+        if len(dropped):  # one copy of the kept rows
+            keep = np.ones(len(cloud), bool)
+            keep[dropped] = False
+            data, intensity = cloud.data[keep], intensity[keep]
+        else:
+            data = cloud.data.copy()
+        data[:, 3] = intensity
         return sample.with_points(PointCloud(data, cloud.channels))
 
 
