@@ -21,6 +21,7 @@ from lidarfuzz.io.common import NonFinitePolicy
 from lidarfuzz.io.frames import FRAME_FORMATS, write_frame
 from lidarfuzz.io.kitti import KittiWriter
 from lidarfuzz.io.open import open_dataset
+from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.scene.scene import Scene
 
 LOG_TARGETS = ("ros1", "ros2", "mcap")
@@ -61,15 +62,17 @@ def convert(
     nonfinite: NonFinitePolicy = "drop",
     on_frame: Callable[[int, int], None] | None = None,
     transform: Callable[[Scene], Scene] | None = None,
+    options: DatasetOptions | None = None,
 ) -> ConvertResult:
-    """Convert ``src`` into ``dst``; ``on_frame(done, total)`` reports progress; ``transform``
-    (e.g. a mutation operator) maps each scene on the way."""
+    """Convert ``src`` (read with data-set ``options``: layout, …) into ``dst``;
+    ``on_frame(done, total)`` reports progress; ``transform`` (e.g. a mutation operator) maps
+    each scene on the way."""
     src_path, dst_path = Path(src), Path(dst)
     src_abs, dst_abs = src_path.resolve(), dst_path.resolve()
     if dst_abs == src_abs or src_abs in dst_abs.parents:
         raise DataFormatError(dst_path, "the destination is the source or inside it; originals are never modified")
     target = destination_kind(dst_path, to)
-    dataset = open_dataset(src_path, topic=topic, nonfinite=nonfinite)
+    dataset = open_dataset(src_path, topic=topic, nonfinite=nonfinite, options=options)
     total = len(dataset)
 
     def scenes() -> Iterator[Scene]:

@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.common import Problem
-from lidarfuzz.scene.scene import Sample
+from lidarfuzz.io.options import DatasetMap, DatasetOptions
+from lidarfuzz.scene.scene import Sample, Scene
 
 S = TypeVar("S", bound=Sample)
 
@@ -41,6 +42,42 @@ class Dataset(ABC, Generic[S]):
         self.path = Path(path)
         self.name = name or self.path.name
         self._problems: list[Problem] = []
+        self.options = DatasetOptions()
+        self._map: DatasetMap | None = None
+
+    def configure(self, options: DatasetOptions) -> None:
+        """Apply data-set options to every frame loaded from now on (the ROI map is read now, so a
+        malformed one fails when the data set is opened, not mid-campaign)."""
+        self.options = options
+        self._map = options.dataset_map()
+
+    def _finish(self, scene: S) -> S:
+        """What the data-set options add to a loaded frame: the data-set ROI map where the frame
+        has none of its own (``roi_source``: ``dataset_map``; a frame's own: ``frame_map``) and
+        the intensity scale the user gave."""
+        if not isinstance(scene, Scene):
+            return scene
+        meta = dict(scene.metadata)
+        roi = scene.roi
+        if roi is not None:
+            meta.setdefault("roi_source", "frame_map")
+        elif self._map is not None:
+            roi = self._map.for_scene(scene)
+            meta["roi_source"] = "dataset_map"
+        if self.options.intensity_scale is not None:
+            meta["intensity_scale"] = self.options.intensity_scale
+        if roi is scene.roi and meta == scene.metadata:
+            return scene
+        return scene.replace(roi=roi, metadata=meta)  # type: ignore[return-value]
+
+    def has_labels(self) -> bool:
+        """Whether the data set carries box labels at all (a KITTI ``label_2/``)."""
+        return False
+
+    def unlabelled_ids(self) -> list[str]:
+        """Frames without labels in a data set that has them (campaigns score AP on the others
+        only when allowed); empty when every frame is labelled or the data set has no labels."""
+        return []
 
     @abstractmethod
     def frame_ids(self) -> Sequence[str]:

@@ -20,6 +20,7 @@ from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.common import NonFiniteWarning, Problem
 from lidarfuzz.io.dataset import Log
 from lidarfuzz.io.open import open_dataset, source_kind
+from lidarfuzz.io.options import DatasetOptions
 
 
 @dataclass
@@ -52,6 +53,7 @@ class DatasetReport:
     channels: dict[str, ChannelStats] = field(default_factory=dict)
     classes: Counter[str] = field(default_factory=Counter)
     labelled_frames: int = 0
+    unlabelled_frames: int = 0  # no label file in a data set that has labels
     calibrated_frames: int = 0
     roi_frames: int = 0
     dropped_nonfinite: int = 0
@@ -77,6 +79,7 @@ class DatasetReport:
             "channels": {k: {"min": v.minimum, "max": v.maximum} for k, v in self.channels.items()},
             "classes": dict(sorted(self.classes.items())),
             "labelled_frames": self.labelled_frames,
+            "unlabelled_frames": self.unlabelled_frames,
             "calibrated_frames": self.calibrated_frames,
             "roi_frames": self.roi_frames,
             "dropped_nonfinite": self.dropped_nonfinite,
@@ -88,8 +91,11 @@ class DatasetReport:
         }
 
 
-def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit: int | None = None) -> DatasetReport:
-    """Inspect anything :func:`~lidarfuzz.io.open_dataset` opens; problems are collected, not raised.
+def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit: int | None = None,
+                   options: DatasetOptions | None = None) -> DatasetReport:
+    """Inspect anything :func:`~lidarfuzz.io.open_dataset` opens (with data-set ``options``);
+    problems are collected, not raised. Frames without labels in a labelled data set are
+    counted (a warning: only AP needs labels); doubts about a layout the user chose are warnings.
 
     Raises:
         DataFormatError: Only when the source cannot be opened at all.
@@ -101,7 +107,7 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
         from lidarfuzz.io.logs.bags import inspect_bag
 
         log_info = inspect_bag(path)
-    dataset = open_dataset(path, topic=topic, strict=False)
+    dataset = open_dataset(path, topic=topic, strict=False, options=options)
     report = DatasetReport(
         path=str(path), kind=kind, format=dataset.format, frames=len(dataset), ordered=dataset.ordered, log=log_info
     )
@@ -121,7 +127,8 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
                 warnings.simplefilter("ignore", NonFiniteWarning)
                 scene = dataset.load(frame_id)
         except DataFormatError as exc:
-            report.problems.append(Problem("error", str(exc.path), exc.message, exc.line))
+            hint = f" ({exc.hint})" if exc.hint else ""  # e.g. the layout that fits a misread scan
+            report.problems.append(Problem("error", str(exc.path), exc.message + hint, exc.line))
             report.unreadable += 1
             continue
         report.inspected += 1
@@ -134,6 +141,12 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
         if len(scene.boxes):
             report.labelled_frames += 1
             report.classes.update(str(c) for c in scene.boxes.labels)
+        report.unlabelled_frames += scene.metadata.get("labelled") is False and dataset.has_labels()
+        doubts = scene.metadata.get("layout_doubts")
+        if doubts:
+            report.problems.append(Problem("warning", str(scene.metadata.get("source", path)),
+                                           f"read as {scene.metadata.get('layout')} although "
+                                           + "; ".join(str(d) for d in doubts)))
         report.calibrated_frames += scene.calib is not None
         report.roi_frames += scene.roi is not None
         dropped = int(scene.metadata.get("dropped_nonfinite", 0))

@@ -26,6 +26,7 @@ shortest exact form so files read back bit-for-bit.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Iterable, Sequence
 from os import PathLike
@@ -39,6 +40,7 @@ from lidarfuzz.io.atomic import write_bytes, write_text
 from lidarfuzz.io.common import NonFinitePolicy, Problem
 from lidarfuzz.io.dataset import Dataset, Log
 from lidarfuzz.io.formats import bin as bin_format
+from lidarfuzz.io.layouts import LAYOUTS, PointLayout, layout_from_structure, parse_layout
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.geometry import box_corners
@@ -237,6 +239,12 @@ def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
 
 
 # --------------------------------------------------------------------------- data set
+def unlabelled_note(ids: Sequence[str], total: int, shown: int = 5) -> str:
+    """``2 of 5 frame(s) have no label file in label_2/ (000003, 000004)``: counted and named."""
+    names = ", ".join(ids[:shown]) + (f", … ({len(ids) - shown} more)" if len(ids) > shown else "")
+    return f"{len(ids)} of {total} frame(s) have no label file in label_2/ ({names}): unlabelled"
+
+
 def find_kitti_root(path: str | PathLike[str], split: str = "training") -> Path | None:
     """The folder holding ``velodyne/`` (``path`` itself or ``path/<split>``), if any."""
     path = Path(path)
@@ -259,6 +267,13 @@ class KittiDataset(Dataset[Scene]):
             :meth:`problems` (this is what ``lidarfuzz info`` does).
         nonfinite: Policy for NaN/Inf coordinates (see :mod:`lidarfuzz.io.common`).
         classes: Class names accepted in label files.
+        layout: The scans' point layout (a name or column spec, :mod:`lidarfuzz.io.layouts`);
+            by default the folder's structure says (a SemanticKITTI sequence), else KITTI's.
+
+    A data set with ``label_2/`` may have frames without a label file: they are *unlabelled*
+    (``scene.metadata["labelled"]`` False, no boxes — unlike a labelled frame with no objects),
+    listed by :meth:`unlabelled_ids` and reported as a warning; commands that need labels
+    (AP) refuse them unless told to leave them out.
     """
 
     def __init__(
@@ -270,6 +285,7 @@ class KittiDataset(Dataset[Scene]):
         strict: bool = True,
         nonfinite: NonFinitePolicy = "drop",
         classes: Iterable[str] = KITTI_CLASSES,
+        layout: PointLayout | str | None = None,
     ) -> None:
         root = find_kitti_root(path, split)
         if root is None:
@@ -277,6 +293,9 @@ class KittiDataset(Dataset[Scene]):
         super().__init__(root, name=Path(path).resolve().name)
         self.root = root
         self.nonfinite: NonFinitePolicy = nonfinite
+        # a chosen layout is passed to every read (the user's word); else each scan's path decides
+        self._layout_option: PointLayout | None = parse_layout(layout) if isinstance(layout, str) else layout
+        self.layout = self._layout_option or layout_from_structure(root / "velodyne") or LAYOUTS["kitti"]
         self.classes = tuple(classes)
         self.subset = subset
         self._scan(Path(path), subset)
@@ -302,21 +321,24 @@ class KittiDataset(Dataset[Scene]):
         others = sorted(p.name for p in velodyne.iterdir() if p.is_file() and p.suffix != ".bin")
         if others:
             self._problem("warning", velodyne, f"{len(others)} file(s) that are not .bin ignored, e.g. {others[0]}")
-        self._has_labels = (root / "label_2").is_dir()
+        labels: set[str] = set()
+        if (root / "label_2").is_dir():
+            labels = {p.stem for p in (root / "label_2").glob("*.txt")}
+            if not labels:
+                self._problem("warning", root / "label_2", "empty: the data set has no labels")
+        self._label_ids = labels
+        self._has_labels = bool(labels)
         self._has_calib = (root / "calib").is_dir()
         frame_set = set(frames)
         if self._has_labels:
-            labels = {p.stem for p in (root / "label_2").glob("*.txt")}
             for stem in sorted(labels - frame_set):
                 self._problem("error", root / "label_2" / f"{stem}.txt", "label file without a point-cloud frame")
-            for stem in sorted(frame_set - labels):
-                self._problem("error", velodyne / f"{stem}.bin", "frame without a label file in label_2/")
-            if not self._has_calib and labels:
+            if not self._has_calib:
                 self._problem("error", root, "label_2/ present but no calib/ folder: labels cannot be placed")
         if self._has_calib:
             calibs = {p.stem for p in (root / "calib").glob("*.txt")}
             for stem in sorted(frame_set - calibs):
-                self._problem("error" if self._has_labels else "warning",
+                self._problem("error" if stem in labels else "warning",
                               velodyne / f"{stem}.bin", "frame without a calib file in calib/")
 
         if subset is not None:
@@ -342,12 +364,18 @@ class KittiDataset(Dataset[Scene]):
             frames = chosen
         self._frames = frames
         self._frame_set = set(frames)
+        self._unlabelled = [f for f in frames if f not in labels] if self._has_labels else []
+        if self._unlabelled:
+            self._problem("warning", root / "label_2", unlabelled_note(self._unlabelled, len(frames)))
 
         self._timestamps: dict[str, NDArray[np.float64]] | None = None
         self._poses: dict[str, NDArray[np.float64]] | None = None
         for name, width, attr in (("timestamps.txt", 1, "_timestamps"), ("poses.txt", 12, "_poses")):
             side = root / name
-            if side.is_file():
+            if side.is_file() and self.layout.point_labels:
+                # SemanticKITTI's poses.txt: one camera-frame pose per line, no frame ids
+                self._problem("warning", side, "SemanticKITTI's camera-frame poses are not read")
+            elif side.is_file():
                 try:
                     values = _read_keyed_lines(side, width)
                 except DataFormatError as exc:
@@ -364,6 +392,12 @@ class KittiDataset(Dataset[Scene]):
 
     def _id_set(self) -> set[str]:
         return self._frame_set
+
+    def has_labels(self) -> bool:
+        return self._has_labels
+
+    def unlabelled_ids(self) -> list[str]:
+        return list(self._unlabelled)
 
     def points_path(self, frame_id: str) -> Path:
         return self.root / "velodyne" / f"{frame_id}.bin"
@@ -418,19 +452,26 @@ class KittiDataset(Dataset[Scene]):
         return objects if isinstance(objects, dict) else None
 
     def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
-        cloud, dropped = bin_format.read_points(self.points_path(frame_id), nonfinite=self.nonfinite)
+        scan = self.load_scan(frame_id)
+        return scan.cloud, scan.dropped
+
+    def load_scan(self, frame_id: str) -> bin_format.ScanRead:
+        """The frame's scan (with its ``velodyne_extra/`` channels) and what reading it learnt."""
+        scan = bin_format.read_scan(self.points_path(frame_id), layout=self.layout, nonfinite=self.nonfinite,
+                                    user_chosen=self._layout_option is not None)
         extra = self.root / "velodyne_extra" / f"{frame_id}.npz"
         if extra.is_file():
-            cloud = _attach_extra(cloud, extra, dropped)
-        return cloud, dropped
+            scan = dataclasses.replace(scan, cloud=_attach_extra(scan.cloud, extra, scan.dropped))
+        return scan
 
     def load(self, frame_id: str) -> Scene:
         if frame_id not in self._frame_set:
             raise KeyError(f"{self.root}: no frame with id {frame_id!r}")
-        cloud, dropped = self.load_points(frame_id)
+        scan = self.load_scan(frame_id)
         calib = self.load_calib(frame_id)
-        boxes = self.load_labels(frame_id, calib) if self._has_labels else Boxes3D.empty()
-        objects = self._object_extras(frame_id) if self._has_labels else None
+        labelled = frame_id in self._label_ids
+        boxes = self.load_labels(frame_id, calib) if labelled else Boxes3D.empty()
+        objects = self._object_extras(frame_id) if labelled else None
         roi_path = self.root / "roi" / f"{frame_id}.json"
         roi = None
         if roi_path.is_file():
@@ -443,12 +484,14 @@ class KittiDataset(Dataset[Scene]):
         if self._poses and frame_id in self._poses:
             pose = np.eye(4)
             pose[:3, :] = self._poses[frame_id].reshape(3, 4)
-        meta: dict[str, object] = {"source": str(self.points_path(frame_id)), "format": "kitti"}
-        if dropped:
-            meta["dropped_nonfinite"] = dropped
+        meta: dict[str, object] = {"source": str(self.points_path(frame_id)), "format": "kitti",
+                                   "labelled": labelled, **scan.metadata()}
+        if roi is not None:
+            meta["roi_source"] = "frame_map"
         if objects:
             meta["objects"] = objects
-        return Scene(cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose, roi=roi, metadata=meta)
+        return self._finish(Scene(scan.cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose,
+                                  roi=roi, metadata=meta))
 
 
 def _attach_extra(cloud: PointCloud, path: Path, dropped: int) -> PointCloud:

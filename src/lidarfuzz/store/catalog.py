@@ -5,29 +5,58 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, select
 
+from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.store.models import Dataset, Model, Task
 from lidarfuzz.store.store import Store, StoreError
 
+if TYPE_CHECKING:
+    from lidarfuzz.io.dataset import Dataset as OpenedDataset
 
-def add_dataset(store: Store, name: str, path: str | PathLike[str], notes: str = "") -> Dataset:
-    """Open the data at ``path`` (any supported source; it is validated, never modified) and record it."""
+
+def add_dataset(store: Store, name: str, path: str | PathLike[str], notes: str = "",
+                options: DatasetOptions | None = None) -> Dataset:
+    """Open the data at ``path`` (any supported source; it is validated, never modified) with
+    ``options`` and record it with them, so every later opening reads it the same way."""
     from lidarfuzz.io.open import open_dataset
 
     source = Path(path).resolve()
-    dataset = open_dataset(source)
+    options = (options or DatasetOptions()).resolved()
+    dataset = open_dataset(source, options=options)
     frames = len(dataset.frame_ids())
     if frames == 0:
         raise StoreError(f"{source}: no frames to test")
+    dataset[dataset.frame_ids()[0]]  # a layout that does not fit fails now, not mid-campaign
     with store.session() as s:
         if s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
             raise StoreError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
-        row = Dataset(name=name, path=str(source), format=dataset.format, frame_count=frames, notes=notes)
+        row = Dataset(name=name, path=str(source), format=dataset.format, frame_count=frames, notes=notes,
+                      options=options.stored())
         s.add(row)
     return row
+
+
+def dataset_options(row: Dataset) -> DatasetOptions:
+    """The options a registered data set was recorded with."""
+    return DatasetOptions.from_stored(row.options)
+
+
+def open_registered(row: Dataset, **kwargs: Any) -> OpenedDataset[Any]:
+    """Open a registered data set as it was recorded (its path, read with its options)."""
+    from lidarfuzz.io.open import open_dataset
+
+    return open_dataset(row.path, options=dataset_options(row), **kwargs)
+
+
+def options_at(store: Store, path: str | PathLike[str]) -> DatasetOptions:
+    """The options of the data set registered at ``path`` (the defaults when none is), for code
+    that knows a data set only by its path (the web app's frame views)."""
+    with store.session() as s:
+        row = s.scalars(select(Dataset).where(Dataset.path == str(path)).order_by(Dataset.id)).first()
+        return dataset_options(row) if row is not None else DatasetOptions()
 
 
 def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None = None, notes: str = "") -> Model:

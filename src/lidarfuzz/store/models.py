@@ -61,6 +61,9 @@ class Dataset(Base):
     frame_count: Mapped[int] = mapped_column(Integer)
     notes: Mapped[str] = mapped_column(Text, default="")
     added_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+    # how to read it (lidarfuzz.io.options.DatasetOptions: layout, allow_unlabelled, intensity_scale,
+    # roi_map), honoured wherever it is opened again
+    options: Mapped[dict[str, Any]] = mapped_column(default=dict)
 
 
 class Model(Base):

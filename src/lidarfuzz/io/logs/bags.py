@@ -671,7 +671,7 @@ class BagLog(Log[Scene]):
                 f"topic {self._topic.name!r}, message {index} is no longer where the index found it",
                 hint="the log changed since it was opened; open it again",
             )
-        return self._scene(index, entry.log_time, matches[entry.rank])
+        return self._finish(self._scene(index, entry.log_time, matches[entry.rank]))
 
     def __iter__(self) -> Iterator[Scene]:
         """Stream every frame in one pass over the log."""
@@ -684,7 +684,7 @@ class BagLog(Log[Scene]):
                     item = next(messages, None)
                 if item is None:
                     return
-                yield self._scene(index, *item)
+                yield self._finish(self._scene(index, *item))
                 index += 1
         finally:
             backend.close()
