@@ -29,6 +29,9 @@ from numpy.typing import NDArray
 
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.geometry import box_corners
+from lidarfuzz.scene.labels import image_boxes as _boxes2d
+from lidarfuzz.scene.labels import image_coverage as _image_coverage
+from lidarfuzz.scene.labels import occlusion_level
 
 if TYPE_CHECKING:
     from lidarfuzz.sim.meshes import Mesh
@@ -40,14 +43,6 @@ class LabelConfig:
     dontcare_range: float = 80.0
     min_points: int = 5
     min_height_px: float = 12.0
-
-
-_GRID = np.stack(np.meshgrid(*[np.linspace(-0.45, 0.45, 5)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-def occlusion_level(visibility: NDArray[np.float64]) -> NDArray[np.int64]:
-    """KITTI occlusion state from the visible share of an object."""
-    return np.where(visibility >= 0.8, 0, np.where(visibility >= 0.4, 1, 2)).astype(np.int64)
 
 
 def label_actors(
@@ -126,44 +121,6 @@ def label_actors(
         },
     }
     return result, extras
-
-
-def _image_coverage(calib: Any, boxes: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[NDArray[np.float64]]]:
-    """Share of each box's volume samples that project into the image; the in-front samples' pixels."""
-    n = len(boxes)
-    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
-    local = _GRID[None, :, :] * boxes[:, None, 3:6]  # n × 125 × 3
-    world = np.empty_like(local)
-    world[..., 0] = c[:, None] * local[..., 0] - s[:, None] * local[..., 1] + boxes[:, None, 0]
-    world[..., 1] = s[:, None] * local[..., 0] + c[:, None] * local[..., 1] + boxes[:, None, 1]
-    world[..., 2] = local[..., 2] + boxes[:, None, 2]
-    rect = calib.lidar_to_rect(world.reshape(-1, 3))
-    uv, depth = calib.rect_to_image(rect)
-    uv = uv.reshape(n, -1, 2)
-    depth = depth.reshape(n, -1)
-    height, width = calib.image_shape
-    front = depth > 0.1
-    inside = front & (uv[..., 0] >= 0) & (uv[..., 0] < width) & (uv[..., 1] >= 0) & (uv[..., 1] < height)
-    return inside.mean(axis=1), [uv[i][front[i]] for i in range(n)]
-
-
-def _boxes2d(calib: Any, boxes: NDArray[np.float64], front_uv: list[NDArray[np.float64]]) -> NDArray[np.float64]:
-    """The devkit's 2D boxes (projected corners, clipped) for boxes wholly in front of the camera;
-    for the others, the clipped extent of their in-front volume samples (NaN when none)."""
-    n = len(boxes)
-    corners = box_corners(boxes).reshape(-1, 3)
-    _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
-    in_front = np.all(depth.reshape(n, 8) > 0.1, axis=1)
-    out = np.full((n, 4), np.nan)
-    if in_front.any():
-        out[in_front] = calib.boxes_to_image(boxes[in_front])
-    height, width = calib.image_shape
-    for i in np.flatnonzero(~in_front):
-        if len(front_uv[i]):
-            lo, hi = front_uv[i].min(axis=0), front_uv[i].max(axis=0)
-            out[i] = [np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
-                      np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)]
-    return out
 
 
 def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.intp]:

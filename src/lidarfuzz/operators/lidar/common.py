@@ -7,7 +7,7 @@ from numpy.typing import NDArray
 
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
-from lidarfuzz.scene.geometry import box_corners
+from lidarfuzz.scene.labels import camera_labels
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -41,23 +41,21 @@ def in_axis_box(xyz: NDArray[np.floating], center: tuple[float, float, float],
 
 
 def relabel_in_image(boxes: Boxes3D, calib: KittiCalibration | None) -> Boxes3D:
-    """After a geometric change: alpha and the 2D box recomputed by projection (as the devkit does
-    for LiDAR-only boxes); a box not wholly in front of the camera gets no 2D box and truncation 1.
-    Occlusion is kept: it describes the source frame."""
+    """After a geometric change: truncation, 2D box and alpha recomputed as the simulator labels a
+    box (:func:`lidarfuzz.scene.labels.camera_labels`: truncation is the share of the box outside
+    the image or behind the camera, the 2D box the devkit's clipped projection). A box with no area
+    in the image gets truncation 1 and no 2D box: KITTI labels exist only in the camera's view, so
+    the devkit ignores it instead of counting an object no camera-based label could have.
+    Occlusion is kept: it describes the source frame (callers that know better set it)."""
     if calib is None or len(boxes) == 0:
         return boxes
     geometric = boxes.has_geometry
-    arr = boxes.as_array()
+    if not geometric.any():
+        return boxes
+    index = np.flatnonzero(geometric)
+    fields = camera_labels(calib, boxes.as_array()[index])
     alpha, bbox2d, truncation = boxes.alpha.copy(), boxes.bbox2d.copy(), boxes.truncation.copy()
-    if geometric.any():
-        corners = box_corners(arr[geometric]).reshape(-1, 3)
-        _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
-        in_front = np.all(depth.reshape(-1, 8) > 0.1, axis=1)
-        index = np.flatnonzero(geometric)
-        alpha[index] = calib.alpha(arr[index])
-        bbox2d[index[in_front]] = calib.boxes_to_image(arr[index[in_front]])
-        bbox2d[index[~in_front]] = np.nan
-        truncation[index[~in_front]] = 1.0
+    alpha[index], bbox2d[index], truncation[index] = fields.alpha, fields.bbox2d, fields.truncation
     return boxes.replace(alpha=alpha, bbox2d=bbox2d, truncation=truncation)
 
 

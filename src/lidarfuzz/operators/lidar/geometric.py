@@ -1,8 +1,12 @@
 """Geometric operators: the whole scene moved, labels moved with it.
 
 Points, boxes (heading included) and the drivable-area map move together; the camera
-calibration stays, so each label's alpha and 2D box are recomputed by projection. The
-transform T is exposed, so detections on the follow-up can be compared with T applied
+calibration stays, so each label is re-derived from it as the simulator labels a box
+(``relabel_in_image``): alpha, the 2D box clipped to the image and the truncation (the share
+of the box outside the image). KITTI labels exist only in the camera's view, so a box moved
+out of the image gets truncation 1 and no 2D box, and the devkit ignores it rather than
+counting an object no label could have (a perfect detector keeps AP 100 at any rotation).
+The transform T is exposed, so detections on the follow-up can be compared with T applied
 to detections on the source (the equivariance relation).
 """
 
@@ -44,7 +48,8 @@ def _rotation(angle_deg: float) -> NDArray[np.float64]:
 class RotateZ(Operator[Scene, RotationConfig, RotationParams]):
     """The scene rotated about the sensor's vertical axis (the thesis's RAR, 0–180°): the same
     world seen with the car turned. Points, boxes (headings too) and the ROI rotate; labels
-    get new alpha and 2D boxes from the unchanged camera."""
+    get new alpha, 2D boxes and truncation from the unchanged camera (truncation 1 and no 2D
+    box for a box turned out of the image)."""
 
     name = "rotate_z"
     aliases = ("RAR",)
@@ -127,7 +132,7 @@ class TranslationParams(Params):
 
 class GlobalTranslate(Operator[Scene, TranslationConfig, TranslationParams]):
     """The whole scene shifted (a sensor mounted elsewhere on the car): points, boxes and the ROI
-    move by one offset; labels get new alpha and 2D boxes from the unchanged camera."""
+    move by one offset; labels get new alpha, 2D boxes and truncation from the unchanged camera."""
 
     name = "global_translate"
     family = "geometric"
