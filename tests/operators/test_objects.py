@@ -317,7 +317,8 @@ def test_insertion_adds_a_labelled_occluding_object(hdl, library_path):
     assert points_in_boxes(mutant.points.xyz[new], box[None], margin=0.06).all()
     assert set(mutant.points.channel("label")[new].astype(int)) == {SEMANTIC_ID[mutant.boxes.labels[-1].lower()]}
     assert np.all(mutant.points.channel("ring")[new] >= 0)
-    assert np.isfinite(mutant.boxes.alpha[-1]) and mutant.boxes.occlusion[-1] == -1
+    assert np.isfinite(mutant.boxes.alpha[-1]) and mutant.boxes.occlusion[-1] in (0, 1, 2)
+    assert mutant.boxes.truncation[-1] <= 0.15  # labels are the camera's: placed in its view
     # Background returns are removed only behind the object: farther than its near side.
     kept = rows(mutant.points)
     gone = np.array([r[:3] for r in map(tuple, hdl.points.data.tolist()) if r not in kept]).reshape(-1, 3)
@@ -340,5 +341,5 @@ def test_insertion_checks_the_library_on_replay(vlp, library_path, sample_scenes
 def test_default_library_is_built_once_and_cached(tmp_path, monkeypatch):
     monkeypatch.setenv("LIDARFUZZ_CACHE", str(tmp_path))
     library = ObjectLibrary.default()
-    assert (tmp_path / "object_library_sim_v1.npz").exists() and len(library) > 5
+    assert (tmp_path / "object_library_sim_v2.npz").exists() and len(library) > 5
     assert ObjectLibrary.default().fingerprint() == library.fingerprint()

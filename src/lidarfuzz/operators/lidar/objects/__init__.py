@@ -13,10 +13,15 @@ Occlusion after a move or an insertion is recomputed with a spherical range imag
 object: one row per beam (from the ``ring`` channel, or elevation clusters when there is
 none) and the azimuth step between neighbouring returns of a beam. Only the wedge of
 azimuth around the object is rasterised: one cheap pass over the frame picks it out.
-Vacated space (a removed or moved object's footprint and shadow) can be filled with
-ground: the object's own rays are re-cast onto the local ground plane (a plane fitted
-to ground points in a ring around the box), which gives the density of the real scan
-pattern without any tuning.
+A moved object is judged against where the frame observed it: a grid estimated from a real
+scan (no ring channel, per-laser offsets) is coarser than the scan, so only what the move
+changes — points it packs into one beam and firing, returns it newly hides or is newly hidden
+by — is removed; a zero move changes nothing. The ground under a box is a plane fitted to
+the lowest return of each 0.5 m cell in a ring around it, obstacles (cars, walls, the
+pavement beyond a kerb) rejected pass by pass. Vacated space (a removed or moved
+object's footprint and shadow) can be filled with ground: the object's own rays are
+re-cast onto that plane, which gives the density of the real scan pattern without any
+tuning.
 
 Intensity: inserted and infilled points take intensities from the frame itself or
 from a library normalised to [0, 1] and rescaled to the frame's scale (0–255 when the

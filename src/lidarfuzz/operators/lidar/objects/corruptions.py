@@ -41,7 +41,7 @@ class ObjectRemovalParams(ObjectsParams):
 class ObjectRemoval(Operator[Scene, ObjectRemovalConfig, ObjectRemovalParams]):
     """Objects that are not there: each chosen object's points (inside its box grown by 5 cm,
     above the 15 cm ground band, see the module docs) are deleted and its label removed. With ``fill_ground`` the
-    rays that hit the object are re-cast onto the local ground plane (fitted in a 2.5 m ring
+    rays that hit the object are re-cast onto the local ground plane (fitted in a 2–12 m ring
     around the box), so the footprint and the near shadow get ground returns at the scan's own
     density (intensity and class drawn from the ring's ground points) instead of a tell-tale hole.
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,7 @@ from lidarfuzz.operators.base import Config, Operator, Params, Relation, uniform
 from lidarfuzz.operators.lidar.common import relabel_in_image
 from lidarfuzz.operators.lidar.objects.corruptions import _to_box_frame
 from lidarfuzz.operators.lidar.objects.support import (
+    _GROUND_MIN_CELLS,
     F64,
     POINTS_BOXES,
     Range,
@@ -35,6 +37,8 @@ from lidarfuzz.operators.lidar.objects.support import (
     _wedge_of,
 )
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.labels import camera_labels, occlusion_level
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.scene.semantics import OBJECT_SEMANTIC, SEMANTIC_ID
@@ -141,8 +145,8 @@ class ObjectLibrary:
     @classmethod
     def default(cls) -> ObjectLibrary:
         """A small library built from four simulated HDL-64E frames at first use, cached as
-        ``$LIDARFUZZ_CACHE/object_library_sim_v1.npz`` (default cache: ``~/.cache/lidarfuzz``)."""
-        path = _cache_dir() / "object_library_sim_v1.npz"
+        ``$LIDARFUZZ_CACHE/object_library_sim_v2.npz`` (default cache: ``~/.cache/lidarfuzz``)."""
+        path = _cache_dir() / "object_library_sim_v2.npz"
         if path.exists():
             return _load_cached(str(path))
         from lidarfuzz.sim import GenerationConfig, render_frames
@@ -167,6 +171,11 @@ def _load_cached(path: str) -> ObjectLibrary:
 
 
 # =========================================================================== insertion
+#: The most of an inserted object the image may cut off where labels are the camera's: KITTI's
+#: easy limit, so the new object counts at every difficulty its size and occlusion allow.
+MAX_INSERTED_TRUNCATION = 0.15
+
+
 class Insertion(BaseModel):
     """One inserted object: which library entry, where, at which heading, with which track id."""
 
@@ -186,29 +195,67 @@ class ObjectInsertionConfig(Config):
     distance_ratio_range: Range = Field((0.8, 1.25), description="new range / the entry's source range")
     azimuth_range: Range = Field((-180.0, 180.0), description="azimuths of the new positions, degrees")
     attempts: int = Field(40, ge=1, description="positions tried per object before giving up")
+    min_points: int = Field(5, ge=1, description="returns the sensor must get from an inserted object, or the "
+                                                 "place is refused")
+    in_camera_view: bool | None = Field(None, description="only places the camera sees (at most 15 % cut off by "
+                                                          "the image); None: when the frame has a calibration")
 
 
 class ObjectInsertionParams(Params):
     insertions: tuple[Insertion, ...]
     library: str = Field(description="fingerprint of the library the entries come from")
+    reason: str = Field("", description="why fewer objects were inserted than drawn ('' when none is missing)")
 
     def is_identity(self) -> bool:
         return not self.insertions
 
 
+@dataclass(frozen=True)
+class _Inserted:
+    """A frame with one more object's points: the new cloud, which of its rows are the object's,
+    and how many returns the sensor got from it alone (visibility's denominator)."""
+
+    cloud: PointCloud
+    keep_background: NDArray[np.bool_]
+    visible: int
+    sensed: int
+
+
+def _camera_azimuths(calib: KittiCalibration) -> tuple[float, float]:
+    """(lowest, highest) LiDAR azimuth, radians, of the image's left and right edges."""
+    height, width = calib.image_shape
+    edges = calib.image_to_lidar([[width - 1.0, height / 2], [0.0, height / 2]], [20.0, 20.0])
+    right, left = np.arctan2(edges[:, 1], edges[:, 0])
+    return float(right), float(left)
+
+
 class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionParams]):
     """Objects that were not there: entries of an :class:`ObjectLibrary` (cut out of labelled
-    frames) placed on free ground. The new position is on the drivable area when the frame has
-    an ROI map, at a range near the entry's source range (so its point density is plausible),
-    with the heading that shows the sensor the same side as in the source; the box sits at the
-    local ground height. Occlusion both ways with the range-image z-buffer: background points
-    behind the object are removed, and so are the object's points behind nearer returns; of
-    several object points in one beam and firing only the nearest is kept (a denser source is
-    thinned to the frame's resolution). New points get the ring and time of their beam and
-    azimuth, ``instance`` = a new track id and ``label`` = the class's semantic id when those
-    channels exist; intensity is rescaled to the frame's scale. The box label is added with
-    alpha and 2D box projected through the calibration, occlusion unknown. Existing points
-    elsewhere, boxes, calibration and map stay.
+    frames) placed where the sensor would see them, standing on the local ground.
+
+    Each object is tried at up to ``attempts`` places drawn from the seeded generator: at a range
+    near the entry's source range (so its point density is plausible), with the heading that shows
+    the sensor the same side as in the source, on the drivable area when the frame has an ROI map,
+    30 cm clear of other boxes and of anything standing there (a wall, a hedge, a pole). Its box's
+    bottom is put on the ground under the footprint, a plane fitted to the lowest returns around it
+    (and in it: nothing stands there; see ``_local_ground``: slopes and camber are followed, walls,
+    cars and kerbs rejected); a place where no ground was seen is refused. Where labels are the
+    camera's (``in_camera_view``; by default whenever the frame has a calibration, as KITTI's and
+    the simulator's labels are), the place must be in the image, at most 15 % of the box cut off.
+    Then the sensor must see it: the range-image z-buffer keeps the object's points in the frame's
+    beams, scanned columns (a camera-cropped scan has none beside the image) and range, one per beam
+    and firing (a denser source is thinned to the frame's resolution), not behind nearer returns;
+    fewer than ``min_points`` (default 5: the simulator's rule for a labelled object, and
+    OpenPCDet's KITTI database filter) and the place is refused; so is one that would hide an
+    earlier inserted object below it. When no place works, nothing more is inserted and ``reason``
+    in the params says why (an identity mutant when nothing is, never an object without points).
+
+    Occlusion both ways: background points behind the object are removed. New points get the
+    ring and time of their beam and azimuth, ``instance`` = a new track id and ``label`` = the
+    class's semantic id when those channels exist; intensity is rescaled to the frame's scale. The
+    box label is computed as the simulator's are: truncation, 2D box and alpha from the camera
+    (``lidarfuzz.scene.labels``), occlusion from the share of its sensed returns no nearer return
+    hides. Existing points elsewhere, boxes, calibration and map stay.
 
     The library is the config's ``library`` path, or a small one built from simulated frames at
     first use and cached (see :meth:`ObjectLibrary.default`); a library can also be passed to
@@ -237,6 +284,10 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
             self._library = _load_cached(path) if path is not None else ObjectLibrary.default()
         return self._library
 
+    def _in_view(self, sample: Scene) -> bool:
+        wanted = self.config.in_camera_view
+        return sample.calib is not None and (wanted is None or wanted)
+
     def sample(self, rng: np.random.Generator, sample: Scene) -> ObjectInsertionParams:
         count = _draw_count(rng, self.config.count_range)
         if count == 0:
@@ -245,45 +296,117 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         entries = np.arange(len(library))
         if self.config.classes is not None:
             entries = entries[np.isin(library.classes, list(self.config.classes))]
+        if len(entries) == 0:
+            return ObjectInsertionParams(insertions=(), library=library.fingerprint(),
+                                         reason=f"the library has no entries of classes {self.config.classes}")
+        boxes = sample.boxes
+        ids = np.concatenate([boxes.track_ids, sample.points.channel("instance").astype(np.int64)
+                              if sample.points.has("instance") and len(sample.points) else []])
+        next_id = int(ids.max(initial=-1)) + 1
         inserted: list[Insertion] = []
-        if count and len(entries):
-            boxes = sample.boxes
-            ids = np.concatenate([boxes.track_ids, sample.points.channel("instance").astype(np.int64)
-                                  if sample.points.has("instance") and len(sample.points) else []])
-            next_id = int(ids.max(initial=-1)) + 1
-            placed: list[F64] = []
-            for _ in range(count):
-                found = self._place(rng, sample, entries, placed, next_id)
-                if found is not None:
-                    inserted.append(found)
-                    placed.append(self._box(found))
-                    next_id += 1
-        return ObjectInsertionParams(insertions=tuple(inserted), library=library.fingerprint())
+        refused: Counter[str] = Counter()
+        cloud, owner = sample.points, np.full(len(sample.points), -1, np.int64)
+        for _ in range(count):
+            found = self._place(rng, sample, cloud, owner, entries, inserted, next_id, refused)
+            if found is None:
+                break  # the next object would meet the same crowded frame
+            insertion, step = found
+            inserted.append(insertion)
+            owner = np.concatenate([owner[step.keep_background], np.full(step.visible, len(inserted) - 1)])
+            cloud = step.cloud
+            next_id += 1
+        reason = ""
+        if len(inserted) < count:
+            tried = ", ".join(f"{why} {n}" for why, n in refused.most_common())
+            reason = (f"inserted {len(inserted)} of {count}: no place among {self.config.attempts} tried "
+                      f"({tried or 'none'})")
+        return ObjectInsertionParams(insertions=tuple(inserted), library=library.fingerprint(), reason=reason)
 
     def _box(self, insertion: Insertion) -> F64:
         return np.array([*insertion.center, *self.library.sizes[insertion.entry], insertion.yaw])
 
-    def _place(self, rng: np.random.Generator, sample: Scene, entries: NDArray[np.intp], placed: list[F64],
-               track_id: int) -> Insertion | None:
-        library, pts = self.library, _Pts(sample.points.xyz)
-        others = Boxes3D.from_array(np.array(placed).reshape(-1, 7), ["Car"] * len(placed))
+    def _place(self, rng: np.random.Generator, sample: Scene, cloud: PointCloud, owner: NDArray[np.int64],
+               entries: NDArray[np.intp], placed: list[Insertion], track_id: int,
+               refused: Counter[str]) -> tuple[Insertion, _Inserted] | None:
+        """A place for one more object in ``cloud`` (the frame with ``placed`` already inserted,
+        ``owner`` their rows), or None; ``refused`` counts why places were turned down."""
+        library, pts, origin = self.library, _Pts(sample.points.xyz), _Pts(cloud.xyz)
+        others = Boxes3D.from_array(np.array([self._box(p) for p in placed]).reshape(-1, 7), ["Car"] * len(placed))
         occupied = Boxes3D.concat([sample.boxes, others])
         lo, hi = np.deg2rad(self.config.azimuth_range)
+        in_view = self._in_view(sample)
+        if in_view:
+            right, left = _camera_azimuths(sample.calib)  # type: ignore[arg-type]
+            lo, hi = max(lo, right), min(hi, left)
+            if lo >= hi:
+                refused["azimuth_range outside the camera's view"] += self.config.attempts
+                return None
+        min_points = self.config.min_points
         for _ in range(self.config.attempts):
             entry = int(rng.choice(entries))
             distance = library.ranges[entry] * uniform(rng, self.config.distance_ratio_range)
             azimuth = uniform(rng, (float(lo), float(hi)))
             yaw = float(wrap_angle(library.views[entry] + azimuth))
             box = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), 0.0, *library.sizes[entry], yaw])
-            if not _on_roi(sample, box) or not _footprint_free(occupied, box, skip=-1, margin=0.3):
+            if not _on_roi(sample, box):
+                refused["off the drivable area"] += 1
+                continue
+            if not _footprint_free(occupied, box, skip=-1, margin=0.3):
+                refused["on another object"] += 1
                 continue
             ground = _local_ground(pts, box, free=True)
-            box[2] = float(ground.height(box[None, :2])[0]) + library.ground_offsets[entry] + box[5] / 2
-            if _clutter(pts, box, ground, np.zeros(0, np.intp)) > 3:
+            if ground.cells < _GROUND_MIN_CELLS:
+                refused["no ground seen there"] += 1
                 continue
-            return Insertion(entry=entry, source=str(library.sources[entry]), center=tuple(float(v) for v in box[:3]),  # type: ignore[arg-type]
-                             yaw=yaw, track_id=track_id)
+            box[2] = float(ground.height(box[None, :2])[0]) + box[5] / 2
+            clearance = box.copy()
+            clearance[3:5] += 2 * 0.3  # the same 30 cm clearance as from other boxes
+            if _clutter(pts, clearance, ground, np.zeros(0, np.intp)) > 3:
+                refused["something stands there"] += 1
+                continue
+            if in_view and camera_labels(sample.calib, box).truncation[0] > MAX_INSERTED_TRUNCATION:  # type: ignore[arg-type]
+                refused["outside the camera's view"] += 1
+                continue
+            insertion = Insertion(entry=entry, source=str(library.sources[entry]),
+                                  center=tuple(float(v) for v in box[:3]), yaw=yaw,  # type: ignore[arg-type]
+                                  track_id=track_id)
+            step = self._insert(cloud, origin, insertion)
+            if step.visible < min_points:
+                refused[f"fewer than {min_points} points seen (hidden or out of the sensor's view)"] += 1
+                continue
+            survivors = np.bincount(owner[step.keep_background][owner[step.keep_background] >= 0],
+                                    minlength=len(placed))
+            if len(placed) and survivors.min() < min_points:
+                refused["would hide an object inserted before"] += 1
+                continue
+            return insertion, step
         return None
+
+    def _insert(self, cloud: PointCloud, pts: _Pts, ins: Insertion) -> _Inserted:
+        """``cloud`` with the entry's points placed as ``ins`` says, occlusion applied both ways."""
+        library = self.library
+        local = library.entry_points(ins.entry).astype(np.float64)
+        new_xyz = local[:, :3] @ _rotation_z(ins.yaw).T + np.asarray(ins.center)
+        steps = library.angular_steps[ins.entry]
+        ratio = library.ranges[ins.entry] / max(float(np.hypot(*ins.center[:2])), 1e-3)
+        occlusion = _occlude(cloud, pts, new_xyz, ratio, (float(steps[0]), float(steps[1])))
+        channels = cloud.channels
+        data = np.zeros((len(new_xyz), len(channels)), np.float32)
+        data[:, :3] = new_xyz
+        data[:, 3] = local[:, 3] * _intensity_scale(cloud)
+        if cloud.has("ring"):
+            data[:, cloud.index("ring")] = occlusion.ring
+        if cloud.has("time"):
+            data[:, cloud.index("time")] = occlusion.time if occlusion.time is not None else 0.0
+        if cloud.has("label"):
+            semantic = OBJECT_SEMANTIC.get(str(library.classes[ins.entry]))
+            data[:, cloud.index("label")] = SEMANTIC_ID.get(semantic, 0) if semantic else 0
+        if cloud.has("instance"):
+            data[:, cloud.index("instance")] = ins.track_id
+        merged = PointCloud(np.concatenate([_rows(cloud.data, occlusion.keep_background),
+                                            _rows(data, occlusion.keep_new)]), channels)
+        return _Inserted(merged, occlusion.keep_background, int(np.count_nonzero(occlusion.keep_new)),
+                         int(np.count_nonzero(occlusion.sensed)))
 
     def apply(self, sample: Scene, params: ObjectInsertionParams) -> Scene:
         if params.is_identity():
@@ -292,39 +415,26 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         if params.library != library.fingerprint():
             raise ValueError(f"{self.name}: params were drawn from object library {params.library}, "
                              f"this operator has {library.fingerprint()} (configure the same library path)")
-        cloud, boxes = sample.points, sample.boxes
-        scale = _intensity_scale(cloud)
-        channels = cloud.channels
-        for ins in params.insertions:
+        cloud = sample.points
+        owner = np.full(len(cloud), -1, np.int64)
+        sensed = []
+        for k, ins in enumerate(params.insertions):
             if not (0 <= ins.entry < len(library)) or library.sources[ins.entry] != ins.source:
                 raise ValueError(f"{self.name}: library entry {ins.entry} is not {ins.source!r}")
-            local = library.entry_points(ins.entry).astype(np.float64)
-            new_xyz = local[:, :3] @ _rotation_z(ins.yaw).T + np.asarray(ins.center)
-            steps = library.angular_steps[ins.entry]
-            ratio = library.ranges[ins.entry] / max(float(np.hypot(*ins.center[:2])), 1e-3)
-            occlusion = _occlude(cloud, _Pts(cloud.xyz), new_xyz, ratio, (float(steps[0]), float(steps[1])))
-            data = np.zeros((len(new_xyz), len(channels)), np.float32)
-            data[:, :3] = new_xyz
-            data[:, 3] = local[:, 3] * scale
-            if cloud.has("ring"):
-                data[:, cloud.index("ring")] = occlusion.ring
-            if cloud.has("time"):
-                data[:, cloud.index("time")] = occlusion.time if occlusion.time is not None else 0.0
-            if cloud.has("label"):
-                semantic = OBJECT_SEMANTIC.get(str(library.classes[ins.entry]))
-                data[:, cloud.index("label")] = SEMANTIC_ID.get(semantic, 0) if semantic else 0
-            if cloud.has("instance"):
-                data[:, cloud.index("instance")] = ins.track_id
-            cloud = PointCloud(np.concatenate([_rows(cloud.data, occlusion.keep_background),
-                                               _rows(data, occlusion.keep_new)]),
-                               channels)
-            added = Boxes3D.from_array(self._box(ins)[None], [str(library.classes[ins.entry])],
-                                       track_ids=[ins.track_id], occlusion=[-1])
-            added = relabel_in_image(added, sample.calib)
-            if sample.calib is not None and np.isnan(added.truncation[0]):
-                added = added.replace(truncation=[0.0])
-            boxes = Boxes3D.concat([boxes, added])
-        return sample.replace(points=cloud, boxes=boxes)
+            step = self._insert(cloud, _Pts(cloud.xyz), ins)
+            owner = np.concatenate([owner[step.keep_background], np.full(step.visible, k)])
+            cloud = step.cloud
+            sensed.append(step.sensed)
+        # Occlusion as the simulator labels it: the share of the returns the object would give
+        # alone that it gives in the scene (later insertions may hide part of earlier ones).
+        visible = np.bincount(owner[owner >= 0], minlength=len(params.insertions))
+        visibility = visible / np.maximum(np.asarray(sensed), 1)
+        added = Boxes3D.from_array(np.array([self._box(ins) for ins in params.insertions]),
+                                   [str(library.classes[ins.entry]) for ins in params.insertions],
+                                   track_ids=[ins.track_id for ins in params.insertions],
+                                   occlusion=occlusion_level(visibility))
+        added = relabel_in_image(added, sample.calib)
+        return sample.replace(points=cloud, boxes=Boxes3D.concat([sample.boxes, added]))
 
     def spec(self) -> dict[str, Any]:
         if self._in_memory and self.config.library is None:

@@ -37,8 +37,9 @@ from lidarfuzz.scene.scene import Scene
 
 
 def _splice_box(scene: Scene, i: int, new_box: F64) -> Boxes3D:
-    """The frame's boxes with box ``i`` given a new geometry (alpha and 2D box re-projected,
-    occlusion unknown); every other box is kept exactly."""
+    """The frame's boxes with box ``i`` given a new geometry (alpha, 2D box and truncation
+    re-derived from the camera as the simulator labels a box, occlusion unknown); every other
+    box is kept exactly."""
     boxes = scene.boxes
     one = boxes.select([i])
     one = one.with_geometry(centers=new_box[None, :3], sizes=new_box[None, 3:6], yaw=new_box[None, 6])
@@ -53,17 +54,20 @@ def _splice_box(scene: Scene, i: int, new_box: F64) -> Boxes3D:
 
 def _move_points(cloud: PointCloud, pts: _Pts, old: NDArray[np.intp], new_xyz: F64, fill: PointCloud,
                  range_ratio: float) -> PointCloud:
-    """The frame with points ``old`` replaced by ``new_xyz`` (their other channels kept, ring and
-    time re-derived where they land), ``fill`` added, and occlusion recomputed both ways."""
-    occlusion = _occlude(cloud, pts, new_xyz, range_ratio, exclude=old, extra=fill)
+    """The frame with points ``old`` replaced by ``new_xyz`` (their other channels kept; ring and
+    time follow where they land), ``fill`` added, and occlusion recomputed both ways relative to
+    where the frame observed the object (see :func:`_occlude`: a zero move changes nothing)."""
+    occlusion = _occlude(cloud, pts, new_xyz, range_ratio, exclude=old, extra=fill,
+                         source_xyz=cloud.xyz[old].astype(np.float64))
     keep = occlusion.keep_background
     keep[old] = False
     moved = cloud.data[old].copy()
     moved[:, :3] = new_xyz
-    if cloud.has("ring") and np.any(occlusion.ring >= 0):
-        moved[:, cloud.index("ring")] = occlusion.ring
-    if cloud.has("time") and occlusion.time is not None:
-        moved[:, cloud.index("time")] = occlusion.time
+    if cloud.has("ring") and np.any(occlusion.ring >= 0) and occlusion.same_row is not None:
+        ring = cloud.index("ring")
+        moved[:, ring] = np.where(occlusion.same_row, moved[:, ring], occlusion.ring)
+    if cloud.has("time") and occlusion.time_shift is not None:
+        moved[:, cloud.index("time")] += occlusion.time_shift.astype(np.float32)
     data = np.concatenate([_rows(cloud.data, keep[:len(cloud)]), _rows(fill.data, keep[len(cloud):]),
                            _rows(moved, occlusion.keep_new)])
     return PointCloud(data, cloud.channels)
@@ -151,10 +155,13 @@ class ObjectTranslate(_ObjectMove, Operator[Scene, ObjectTranslateConfig, Object
     other object's or structure's points above the ground inside it, and, when the frame has an
     ROI map, an object on the drivable area stays wholly on it while one off it (a pedestrian on
     the pavement) stays off it. Occlusion is recomputed with the range-image z-buffer: points the
-    object now hides are removed, and so are its own points now behind something nearer; the
-    vacated rays are re-cast onto the ground (``fill_ground``). Ring and time of moved points
-    follow their new beam and azimuth. Not a global transform: other boxes, calibration and map
-    stay; the moved box gets a re-projected alpha and 2D box, occlusion unknown."""
+    object now hides are removed, and so are its own points now behind something nearer, both
+    relative to where the frame observed the object (a move of nothing changes nothing, a tiny
+    one keeps over 99 % of its points on real scans; see ``_occlude``); the vacated rays are
+    re-cast onto the ground (``fill_ground``). A moved point keeps its ring while it stays on its
+    beam's row and takes the row's otherwise; its time shifts with the head's sweep from its old
+    column to its new one. Not a global transform: other boxes, calibration and map stay; the
+    moved box is re-labelled from the camera (alpha, 2D box, truncation), occlusion unknown."""
 
     name = "object_translate"
     aliases = ("OBJ_SHIFT",)
@@ -221,7 +228,8 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
     box's vertical axis and the box's heading changes by the same angle. The turned footprint
     must be free (see ``object_translate``); occlusion is recomputed with the range-image
     z-buffer and the vacated rays are re-cast onto the ground. Other boxes, calibration and map
-    stay; the turned box gets a re-projected alpha and 2D box, occlusion unknown."""
+    stay; the turned box is re-labelled from the camera (alpha, 2D box, truncation), occlusion
+    unknown."""
 
     name = "object_rotate"
     aliases = ("OBJ_ROTATE",)
@@ -276,7 +284,7 @@ class ObjectScale(_ObjectMove, Operator[Scene, ObjectScaleConfig, ObjectScalePar
     box's bottom centre, so it stays on the ground, and the box's length, width and height scale
     by the same factor. A grown footprint must be free (see ``object_translate``); occlusion is
     recomputed with the range-image z-buffer. Other boxes, calibration and map stay; the scaled
-    box gets a re-projected alpha and 2D box, occlusion unknown."""
+    box is re-labelled from the camera (alpha, 2D box, truncation), occlusion unknown."""
 
     name = "object_scale"
     aliases = ("OBJ_SCALE",)

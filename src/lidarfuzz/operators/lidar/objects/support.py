@@ -35,14 +35,21 @@ DEPTH_MARGIN = 0.25
 class _Pts:
     """A frame's coordinates with contiguous x, y, z columns, for fast neighbourhood queries."""
 
-    __slots__ = ("x", "xyz", "y", "z")
+    __slots__ = ("_max_range", "x", "xyz", "y", "z")
 
     def __init__(self, xyz: NDArray[np.floating]) -> None:
         self.xyz = xyz
         self.x, self.y, self.z = np.ascontiguousarray(np.asarray(xyz).T).reshape(3, -1)
+        self._max_range: float | None = None
 
     def __len__(self) -> int:
         return len(self.xyz)
+
+    def max_range(self) -> float:
+        """The farthest return's range: the sensor returns nothing beyond it in this frame."""
+        if self._max_range is None:
+            self._max_range = float(np.sqrt((self.x ** 2 + self.y ** 2 + self.z ** 2).max(initial=0.0)))
+        return self._max_range
 
     def near(self, cx: float, cy: float, reach: float) -> NDArray[np.intp]:
         """Indices of the points in the axis-aligned square of half-edge ``reach`` around (cx, cy)."""
@@ -63,57 +70,126 @@ def _in_box(pts: _Pts, box: F64, margin: float = 0.0) -> NDArray[np.intp]:
     return near[inside]
 
 
+#: Edge of the cells whose lowest return samples the ground around a box, metres.
+GROUND_CELL = 0.5
+#: (above, below) tolerances of the successive ground fits, metres: a cell's lowest return above the
+#: plane by more is an obstacle's (a car's flank, a wall, the pavement beyond a kerb), below by
+#: more a stray return. The first passes reach out along a slope from the starting level.
+_GROUND_PASSES = ((0.2, 0.25), (0.15, 0.2), (0.15, 0.2), (0.1, 0.15), (0.06, 0.12))
+#: Fewest ground cells a fit is believed from.
+_GROUND_MIN_CELLS = 6
+#: Distance from the footprint (m) at which a ground cell counts half as much as one beside it.
+_GROUND_NEAR = 1.0
+
+
 @dataclass(frozen=True)
 class _Ground:
-    """A local ground plane z = a·x + b·y + c and the ground points it was fitted to."""
+    """A local ground plane z = a·x + b·y + c, the ground points near it and how many ground
+    cells supported the fit (0: no ground was seen; the plane is then a guess)."""
 
     a: float
     b: float
     c: float
     inliers: NDArray[np.intp]
+    cells: int = 0
 
     def height(self, xy: NDArray[np.floating]) -> F64:
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
         return self.a * xy[:, 0] + self.b * xy[:, 1] + self.c
 
 
-def _local_ground(pts: _Pts, box: F64, free: bool = False) -> _Ground:
-    """Plane fitted to the lowest points in a ring around the box's footprint.
+def _lowest_per_cell(dx: F64, dy: F64, z: F64, cell: float) -> NDArray[np.intp]:
+    """Index of the lowest point of each occupied ``cell`` × ``cell`` square (one sort, no loop)."""
+    ix, iy = np.floor(dx / cell).astype(np.int64), np.floor(dy / cell).astype(np.int64)
+    key = (ix - ix.min(initial=0)) * (int(iy.max(initial=0) - iy.min(initial=0)) + 1) + (iy - iy.min(initial=0))
+    order = np.lexsort((z, key))
+    first = np.ones(len(order), bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    return order[first]
 
-    The ring is 2.5 m wide, widened to 6 and 12 m while it holds fewer than ten candidates (a
-    sparse sensor far away); candidates lie within a metre of the box's bottom, and the plane
-    is fitted by least squares to those within 20 cm of the candidates' 10th height percentile,
-    then again to the points within 10 cm of that fit. For a box that stands there (not
-    ``free``) a plane more than 0.3 m off the box's bottom is not believed, and the ground is
-    taken flat at the bottom, as it is without candidates. For a ``free`` place (an insertion)
-    the bottom is unknown, so the ring's 10th height percentile stands in for it."""
-    inner = float(np.hypot(box[3], box[4])) / 2 + 0.2
+
+def _fit_ground(dx: F64, dy: F64, z: F64, weight: F64, level: float) -> F64 | None:
+    """Plane ``[a, b, c]`` (z = a·dx + b·dy + c) through the ground among cell minima, or None.
+
+    The fit starts flat at ``level`` (the caller's best prior for the ground under the
+    footprint) and is refitted by weighted least squares to the cells within tolerances that
+    shrink pass by pass (:data:`_GROUND_PASSES`, asymmetric: far more obstacles stand above the
+    ground than stray returns lie below it), so walls, cars and the pavement beyond a kerb drop
+    out while a slope or a camber is followed outwards. A small ridge keeps the slope finite when
+    the cells line up (a camera-cropped or half-hidden ring); a road is never steeper than 20 %."""
+    if len(z) < _GROUND_MIN_CELLS:
+        return None
+    coef = np.array([0.0, 0.0, level])
+    design = np.column_stack([dx, dy, np.ones(len(z))])
+    ridge = np.diag([1.0, 1.0, 0.0])
+    for above, below in _GROUND_PASSES:
+        resid = z - design @ coef
+        ok = (resid <= above) & (resid >= -below)
+        if np.count_nonzero(ok) < _GROUND_MIN_CELLS:
+            return None
+        d, w = design[ok], weight[ok]
+        coef = np.linalg.solve((d * w[:, None]).T @ d + ridge, (d * w[:, None]).T @ z[ok])
+        coef[:2] = np.clip(coef[:2], -0.2, 0.2)
+    support = np.abs(z - design @ coef) <= _GROUND_PASSES[-1][0]
+    return coef if np.count_nonzero(support) >= _GROUND_MIN_CELLS else None
+
+
+def _local_ground(pts: _Pts, box: F64, free: bool = False) -> _Ground:
+    """Ground plane under a box's footprint from the frame's own returns around it.
+
+    The returns in a ring around the footprint (its rectangle grown by 0.2 m, out to 2 m beyond its
+    corners, widened to 4, 8 and 12 m while the fit finds too little ground: a sparse sensor far
+    away; the nearer the ring, the less a bent ground departs from a plane in it) are binned into
+    :data:`GROUND_CELL` squares; each square's lowest return samples the ground or whatever stands
+    on it, and :func:`_fit_ground` keeps the ground, cells near the footprint counting most. A
+    camera-cropped or half-hidden ring simply has fewer cells. The fit starts at the box's bottom
+    for a box that stands there; for a ``free`` place (an insertion), where nothing stands, the
+    footprint's own returns count too, the fit starts at their median lowest return (the ring's
+    lower quartile when the footprint holds too few), and the plane is finally moved by the
+    footprint cells' median departure from it (the ground right there, where it bends). For a box
+    that stands there a plane more than 0.3 m off its bottom is not believed, and the ground is
+    taken flat at the bottom, as it is when no ground was seen (``cells`` = 0)."""
+    half_diagonal = float(np.hypot(box[3], box[4])) / 2
     bottom = float(box[2] - box[5] / 2)
-    xyz = pts.xyz
+    c, s = np.cos(box[6]), np.sin(box[6])
+    coef: F64 | None = None
     ring = np.zeros(0, np.intp)
-    for width in (2.5, 6.0, 12.0):
-        near = pts.near(box[0], box[1], inner + width)
-        if free and len(near):
-            bottom = float(np.percentile(pts.z[near], 10))
-        near = near[np.abs(pts.z[near] - bottom) <= 1.0]
-        r = np.hypot(pts.x[near] - box[0], pts.y[near] - box[1])
-        ring = near[(r >= inner) & (r <= inner + width)]
-        if len(ring) >= 10:
+    for width in (2.0, 4.0, 8.0, 12.0):
+        near = pts.near(box[0], box[1], half_diagonal + width)
+        dx = pts.x[near].astype(np.float64) - box[0]
+        dy = pts.y[near].astype(np.float64) - box[1]
+        # distance beyond the footprint's rectangle (0 inside it)
+        along = np.maximum(np.abs(dx * c + dy * s) - box[3] / 2, 0.0)
+        across = np.maximum(np.abs(-dx * s + dy * c) - box[4] / 2, 0.0)
+        beyond = np.hypot(along, across)
+        use = (np.hypot(dx, dy) <= half_diagonal + width) & ((beyond > 0.2) | free)
+        ring, dx, dy, beyond = near[use], dx[use], dy[use], beyond[use]
+        lowest = _lowest_per_cell(dx, dy, pts.z[ring].astype(np.float64), GROUND_CELL)
+        z = pts.z[ring[lowest]].astype(np.float64)
+        level = bottom
+        if free and len(z):
+            under = beyond[lowest] == 0.0
+            level = float(np.median(z[under])) if np.count_nonzero(under) >= 3 else float(np.percentile(z, 25))
+        weight = 1.0 / (1.0 + (beyond[lowest] / _GROUND_NEAR) ** 2)
+        coef = _fit_ground(dx[lowest], dy[lowest], z, weight, level)
+        if coef is not None:
+            if free:
+                # Where the sensor saw the footprint itself, its returns say how far a bent ground
+                # (a camber's crown or trough) departs from the plane right there.
+                under = beyond[lowest] == 0.0
+                resid = z[under] - (coef[0] * dx[lowest][under] + coef[1] * dy[lowest][under] + coef[2])
+                resid = resid[np.abs(resid) <= _GROUND_PASSES[-1][0]]
+                if len(resid) >= 3:
+                    coef[2] += float(np.median(resid))
             break
-    if len(ring) >= 5:
-        z = pts.z[ring].astype(np.float64)
-        low = ring[z <= np.percentile(z, 10) + 0.2]  # the ground, not kerbs, walls or legs
-        for _ in range(2):
-            if len(low) < 3:
-                break
-            design = np.column_stack([xyz[low, :2].astype(np.float64) - box[:2], np.ones(len(low))])
-            coef, *_ = np.linalg.lstsq(design, pts.z[low].astype(np.float64), rcond=None)
-            coef[:2] = np.clip(coef[:2], -0.2, 0.2)  # a road is never steeper than 20 %
-            fitted = np.column_stack([xyz[ring, :2] - box[:2], np.ones(len(ring))]) @ coef
-            low = ring[np.abs(fitted - pts.z[ring]) <= 0.1]
-        if len(low) >= 3 and (free or abs(coef[2] - bottom) <= 0.3):
-            a, b = float(coef[0]), float(coef[1])
-            return _Ground(a, b, float(coef[2] - a * box[0] - b * box[1]), low)
+    if coef is not None and (free or abs(coef[2] - bottom) <= 0.3):
+        a, b = float(coef[0]), float(coef[1])
+        ground = _Ground(a, b, float(coef[2] - a * box[0] - b * box[1]), ring)
+        near_plane = np.abs(pts.z[ring] - ground.height(pts.xyz[ring, :2])) <= 0.1
+        lowest = _lowest_per_cell(pts.x[ring].astype(np.float64), pts.y[ring].astype(np.float64),
+                                  pts.z[ring].astype(np.float64), GROUND_CELL)
+        cells = int(np.count_nonzero(near_plane[lowest]))
+        return _Ground(ground.a, ground.b, ground.c, ring[near_plane], cells)
     return _Ground(0.0, 0.0, bottom, ring[np.abs(pts.z[ring] - bottom) <= 0.1])
 
 
@@ -187,12 +263,17 @@ class _Wedge:
 
     def pixels(self, xyz: NDArray[np.floating]) -> tuple[NDArray[np.intp], NDArray[np.intp], F64]:
         az, elev, depth = _spherical(xyz, self.centre)
+        row, col = self.cells(az, elev)
+        return row, col, depth
+
+    def cells(self, az: F64, elev: F64) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """(row, column) of directions given by azimuth (relative to ``centre``) and elevation."""
         pos = np.clip(np.searchsorted(self.elevations, elev), 1, max(len(self.elevations) - 1, 1))
         lower = self.elevations[np.maximum(pos - 1, 0)]
         upper = self.elevations[np.minimum(pos, len(self.elevations) - 1)]
         row = np.where(np.abs(elev - lower) <= np.abs(elev - upper), pos - 1, pos)
         row = np.clip(row, 0, len(self.elevations) - 1).astype(np.intp)
-        return row, np.floor(az / self.az_step).astype(np.intp), depth
+        return row, np.floor(az / self.az_step).astype(np.intp)
 
 
 def _spherical(xyz: NDArray[np.floating], centre: float) -> tuple[F64, F64, F64]:
@@ -266,34 +347,75 @@ def _azimuth_span(xyz: NDArray[np.floating]) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class _Occlusion:
-    keep_background: NDArray[np.bool_]  # over the frame's points
+    keep_background: NDArray[np.bool_]  # over the frame's points, then extra's
     keep_new: NDArray[np.bool_]  # over the new points
+    sensed: NDArray[np.bool_]  # new points the sensor would return were nothing else there
     ring: F64  # of the new points (−1 unknown)
     time: F64 | None  # of the new points, from their column
+    same_row: NDArray[np.bool_] | None = None  # a moved point still on its source beam's row
+    time_shift: F64 | None = None  # a moved point's time change, from its source column to its new one
+
+
+def _silhouette(key: NDArray[np.intp], depth: F64, shape: tuple[int, int],
+                size: tuple[int, int]) -> tuple[NDArray[np.bool_], F64]:
+    """Pixels an object's points cover (holes up to ``size`` closed) and the depth behind which
+    the object hides what is there (its nearest return in a pixel, its farthest nearby one in a
+    filled hole), both flattened."""
+    nearest = np.full(shape[0] * shape[1], np.inf)
+    np.minimum.at(nearest, key, depth)
+    image = np.where(np.isfinite(nearest), nearest, 0.0).reshape(shape)
+    filled = ndimage.binary_closing(image > 0, structure=np.ones(size, bool), border_value=0) | (image > 0)
+    occluder = np.where(image > 0, image, ndimage.maximum_filter(image, size=size)).ravel()
+    return filled.ravel() & (occluder > 0), occluder
+
+
+def _closing_size(spacing: tuple[float, float]) -> tuple[int, int]:
+    return int(np.clip(np.ceil(spacing[0]) + 1, 2, 15)), int(np.clip(np.ceil(spacing[1]) + 1, 2, 15))
 
 
 def _occlude(cloud: PointCloud, pts: _Pts, new_xyz: F64, range_ratio: float,
              source_steps: tuple[float, float] | None = None, exclude: NDArray[np.intp] | None = None,
-             extra: PointCloud | None = None) -> _Occlusion:
+             extra: PointCloud | None = None, source_xyz: F64 | None = None) -> _Occlusion:
     """Z-buffer of new points (a moved or inserted object) against the frame's points.
 
-    The new points' angular spacing, in the frame's pixels, is ``range_ratio`` (source range /
-    new range) times the source sensor's (elevation, azimuth) steps over the frame's (the frame's
-    own when ``source_steps`` is None); holes that wide in the object's silhouette are closed
-    before the background points behind it are removed. Of several new points in one pixel
-    only the nearest survives, as a scan gives one return per beam and firing.
+    A new point is *sensed* when the sensor could return it with nothing else there: its
+    elevation within the frame's beams, its azimuth among the columns the frame has returns in
+    (a camera-cropped scan has none beside the image), its range within the frame's farthest
+    return; of several sensed points in one pixel (beam and firing) only the nearest is, as a
+    scan gives one return per ray. A sensed point is kept unless a nearer existing return hides
+    it. Background points behind the object's silhouette (holes as wide as the new points'
+    spacing closed: ``range_ratio`` (source range / new range) times the source sensor's
+    (elevation, azimuth) steps over the frame's, the frame's own when ``source_steps`` is None)
+    are removed.
+
+    ``source_xyz`` (the same points where the object stands in the frame: a move) makes each
+    test differential, because the frame *observed* the object there: the pixel grid estimated
+    from a real scan (no ring channel, per-laser offsets, motion correction) is coarser and less
+    regular than the scan, so it puts distinct returns in one pixel and nearer neighbours in front
+    of observed points, and its hole closing covers ground seen under a car. So of the moved
+    points that share a pixel, as many are kept (pro rata) as the grid merged where the object
+    was observed — the object loses only the returns its move packs closer together, as when
+    it moves away — a moved point is hidden only if it was not already "hidden" where it was
+    observed, and a frame point is removed only if the old silhouette did not already cover it.
+    A zero move then changes nothing; a real move removes what the move newly hides.
 
     The background is the frame's points less ``exclude`` (the object's old points) plus
-    ``extra`` (ground infill); ``keep_background`` covers the frame's points, then ``extra``'s."""
+    ``extra`` (ground infill; synthetic rays through the object's points, hidden behind any
+    object return in their pixel); ``keep_background`` covers the frame's points, then ``extra``'s."""
     extra = extra if extra is not None else PointCloud.empty(cloud.channels)
     keep_bg = np.ones(len(cloud) + len(extra), bool)
     if len(new_xyz) == 0:
-        return _Occlusion(keep_bg, np.zeros(0, bool), np.zeros(0), None)
-    centre, half = _azimuth_span(new_xyz)
+        return _Occlusion(keep_bg, np.zeros(0, bool), np.zeros(0, bool), np.zeros(0), None)
+    moving = source_xyz is not None and len(source_xyz) == len(new_xyz)
+    span = np.concatenate([new_xyz, source_xyz]) if moving else new_xyz  # type: ignore[list-item]
+    centre, half = _azimuth_span(span)
     index = _wedge_index(pts, centre, half + np.deg2rad(3.0))
-    if exclude is not None and len(exclude):
-        index = index[~np.isin(index, exclude)]
     extra_index = _wedge_index(_Pts(extra.xyz), centre, half + np.deg2rad(3.0)) if len(extra) else index[:0]
+    in_frame = np.concatenate([np.ones(len(index), bool), np.zeros(len(extra_index), bool)])
+    is_bg = in_frame.copy()
+    if exclude is not None and len(exclude):
+        is_bg[:len(index)] = ~np.isin(index, exclude)
+    is_bg[len(index):] = True
     ring = time_values = None
     if cloud.has("ring"):
         ring = np.concatenate([cloud.channel("ring")[index], extra.channel("ring")[extra_index]])
@@ -301,44 +423,83 @@ def _occlude(cloud: PointCloud, pts: _Pts, new_xyz: F64, range_ratio: float,
         time_values = np.concatenate([cloud.channel("time")[index], extra.channel("time")[extra_index]])
     wedge = _wedge_of(np.concatenate([cloud.xyz[index], extra.xyz[extra_index]]), ring,
                       np.concatenate([index, len(cloud) + extra_index]), centre)
-    row, col, depth = wedge.pixels(new_xyz)
+    az, elev, depth = _spherical(new_xyz, centre)
+    row, col = wedge.cells(az, elev)
+    cols_in = [col, wedge.col]
+    if moving:
+        src_az, src_elev, src_depth = _spherical(source_xyz, centre)  # type: ignore[arg-type]
+        src_row, src_col = wedge.cells(src_az, src_elev)
+        cols_in.append(src_col)
+    col_lo = min(int(c.min()) for c in cols_in if len(c)) - 16
+    cols = max(int(c.max()) for c in cols_in if len(c)) - col_lo + 17
+    shape = (len(wedge.elevations), cols)
+    key = row * cols + (col - col_lo)
+    bg_key = wedge.row * cols + (wedge.col - col_lo)
+
+    # What the sensor returns from the object alone: in its beams, columns and range, one per pixel.
+    half_step = wedge.elev_step / 2
+    scanned = np.unique(wedge.col[in_frame])
+    sensed = ((elev >= wedge.elevations[0] - half_step) & (elev <= wedge.elevations[-1] + half_step)
+              & (depth <= pts.max_range() + DEPTH_MARGIN)
+              & (np.isin(col, scanned) | np.isin(col - 1, scanned) | np.isin(col + 1, scanned)))
+    candidates = np.flatnonzero(sensed)
+    order = candidates[np.lexsort((depth[candidates], key[candidates]))]
+    first = np.ones(len(order), bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    alone = np.zeros(len(new_xyz), bool)
+    alone[order[first]] = True
+    if moving:
+        # The grid already merged some of the observed returns where the object stood: as many
+        # (pro rata) of the points sharing a new pixel are kept, those that shared their source
+        # pixel with the pixel's nearest point first, then the nearer.
+        src_key = src_row * cols + (src_col - col_lo)
+        merged_at_source = len(new_xyz) - len(np.unique(src_key))
+        extra_points = order[~first]
+        budget = min(len(extra_points), round(merged_at_source * len(candidates) / len(new_xyz)))
+        if budget:
+            group_start = np.flatnonzero(first)[np.cumsum(first) - 1]
+            nearest = order[group_start]
+            rank = (np.arange(len(order)) - group_start)[~first]
+            shared = (src_key[order] == src_key[nearest])[~first]
+            alone[extra_points[np.lexsort((rank, ~shared))[:budget]]] = True
+
+    def buffer(entries: NDArray[np.bool_]) -> F64:
+        nearest = np.full(shape[0] * cols, np.inf)
+        np.minimum.at(nearest, bg_key[entries], wedge.depth[entries])
+        return nearest
+
+    bg_depth = buffer(is_bg)
+    hidden = depth > bg_depth[key] + DEPTH_MARGIN
+    if moving:
+        frame_depth = buffer(is_bg & in_frame)
+        hidden &= ~(src_depth > frame_depth[src_key] + DEPTH_MARGIN)
+    keep_new = alone & ~hidden
+
+    # Background behind the object's new silhouette goes (behind its old one it was seen: stays).
     spacing = (range_ratio, range_ratio)
     if source_steps is not None:
         spacing = (range_ratio * source_steps[0] / wedge.elev_step, range_ratio * source_steps[1] / wedge.az_step)
-    col_lo = min(int(col.min()), int(wedge.col.min(initial=col.min()))) - 16
-    cols = max(int(col.max()), int(wedge.col.max(initial=col.max()))) - col_lo + 17
-    rows = len(wedge.elevations)
-    key = row * cols + (col - col_lo)
-    bg_key = wedge.row * cols + (wedge.col - col_lo)
-    # Nearest new point per pixel; then drop new points hidden behind a nearer existing one.
-    order = np.lexsort((depth, key))
-    first = np.ones(len(order), bool)
-    first[1:] = key[order][1:] != key[order][:-1]
-    keep_new = np.zeros(len(new_xyz), bool)
-    keep_new[order[first]] = True
-    bg_depth = np.full(rows * cols, np.inf)
-    np.minimum.at(bg_depth, bg_key, wedge.depth)
-    keep_new &= depth <= bg_depth[key] + DEPTH_MARGIN
-    # The object's silhouette, holes closed, with its farthest nearby depth in the filled pixels.
-    flat_image = np.zeros(rows * cols)
-    flat_image[key[keep_new]] = depth[keep_new]
-    image = flat_image.reshape(rows, cols)
-    size = (int(np.clip(np.ceil(spacing[0]) + 1, 2, 15)), int(np.clip(np.ceil(spacing[1]) + 1, 2, 15)))
-    filled = ndimage.binary_closing(image > 0, structure=np.ones(size, bool), border_value=0) | (image > 0)
-    occluder = np.where(image > 0, image, ndimage.maximum_filter(image, size=size)).ravel()
-    covered = filled.ravel()[bg_key] & (occluder[bg_key] > 0)
-    hidden = covered & (wedge.depth > occluder[bg_key] + DEPTH_MARGIN)
-    keep_bg[wedge.index[hidden]] = False
-    ring = wedge.ring_of_row[row] if wedge.ring_of_row is not None else np.full(len(new_xyz), -1.0)
-    time = None
-    if time_values is not None and len(wedge.index):
-        # A return's time follows the head's azimuth: the mean time of the column's existing returns.
-        bg_col = wedge.col - col_lo
+    covered, occluder = _silhouette(key[keep_new], depth[keep_new], shape, _closing_size(spacing))
+    behind = covered[bg_key] & (wedge.depth > occluder[bg_key] + np.where(in_frame, DEPTH_MARGIN, 0.0))
+    if moving:
+        old_covered, old_occluder = _silhouette(src_key, src_depth, shape, _closing_size((1.0, 1.0)))
+        behind &= ~(in_frame & old_covered[bg_key] & (wedge.depth > old_occluder[bg_key] + DEPTH_MARGIN))
+    keep_bg[wedge.index[behind & is_bg]] = False
+
+    ring_out = wedge.ring_of_row[row] if wedge.ring_of_row is not None else np.full(len(new_xyz), -1.0)
+    time = time_shift = None
+    if time_values is not None and np.any(in_frame):
+        # A return's time follows the head's azimuth: the mean time of the column's frame returns.
+        bg_col = wedge.col[in_frame] - col_lo
         counts = np.bincount(bg_col, minlength=cols)
-        sums = np.bincount(bg_col, time_values.astype(np.float64), minlength=cols)
+        sums = np.bincount(bg_col, time_values[in_frame].astype(np.float64), minlength=cols)
         seen = np.flatnonzero(counts)
-        time = np.interp(col - col_lo, seen, sums[seen] / counts[seen])
-    return _Occlusion(keep_bg, keep_new, ring, time)
+        mean_time = sums[seen] / counts[seen]
+        time = np.interp(col - col_lo, seen, mean_time)
+        if moving:
+            time_shift = time - np.interp(src_col - col_lo, seen, mean_time)
+    same_row = row == src_row if moving else None
+    return _Occlusion(keep_bg, keep_new, sensed & alone, ring_out, time, same_row, time_shift)
 
 
 def _recast_to_ground(rays: NDArray[np.floating], ground: _Ground, box: F64, reach: float) -> NDArray[np.intp]:
@@ -349,14 +510,20 @@ def _recast_to_ground(rays: NDArray[np.floating], ground: _Ground, box: F64, rea
     return np.flatnonzero(ok & near)
 
 
-def _ground_hits(rays: NDArray[np.floating], ground: _Ground) -> tuple[F64, NDArray[np.bool_]]:
+def _ground_hits(rays: NDArray[np.floating], ground: _Ground,
+                 roughness: F64 | None = None) -> tuple[F64, NDArray[np.bool_]]:
+    """Where the rays through ``rays`` meet the ground plane (raised by ``roughness`` per ray:
+    the hit slides along its ray, so it stays in its beam and firing), and which rays do so
+    beyond their point."""
     p = np.asarray(rays, np.float64)
     length = np.linalg.norm(p, axis=1)
     d = p / np.maximum(length, 1e-9)[:, None]
     denom = d[:, 2] - ground.a * d[:, 0] - ground.b * d[:, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = ground.c / denom
-    ok = np.isfinite(t) & (t >= length - 1e-6) & (denom < 0)
+        ok = np.isfinite(t) & (t >= length - 1e-6) & (denom < 0)
+        if roughness is not None:
+            t = np.where(ok, np.maximum(t + roughness / denom, length), t)
     return d * np.where(ok, t, 0.0)[:, None], ok
 
 
@@ -365,7 +532,7 @@ def _ground_infill(cloud: PointCloud, removed: NDArray[np.intp], box: F64, groun
     """Ground returns for the rays that hit a removed object: each ray re-cast onto the local
     ground plane (the footprint and the near part of the shadow, up to the fitted ring), with the
     ray's ring and time, an intensity and class drawn from the ring's ground points, and the
-    plane's residual scatter as range noise."""
+    plane's residual scatter as the surface's roughness (the hit slides along its ray)."""
     channels = cloud.channels
     if len(removed) == 0:
         return PointCloud.empty(channels)
@@ -373,17 +540,17 @@ def _ground_infill(cloud: PointCloud, removed: NDArray[np.intp], box: F64, groun
     ray_index = _recast_to_ground(cloud.xyz[removed], ground, box, reach)
     if len(ray_index) == 0:
         return PointCloud.empty(channels)
-    hits, _ = _ground_hits(cloud.xyz[removed[ray_index]], ground)
     data = cloud.data[removed[ray_index]].astype(np.float32).copy()
     donors = ground.inliers if len(ground.inliers) else np.arange(len(cloud))
+    roughness = np.zeros(len(ray_index))
     if len(donors):
         resid = cloud.xyz[donors, 2] - ground.height(cloud.xyz[donors, :2])
-        hits[:, 2] += rng.normal(0.0, float(min(np.std(resid), 0.05)), len(hits))
-        data[:, 3] = cloud.intensity[donors[rng.integers(0, len(donors), len(hits))]]
+        roughness = rng.normal(0.0, float(min(np.std(resid), 0.05)), len(ray_index))
+        data[:, 3] = cloud.intensity[donors[rng.integers(0, len(donors), len(ray_index))]]
         if cloud.has("label"):
             labels = cloud.channel("label")[donors].astype(np.int64)
             data[:, cloud.index("label")] = np.bincount(np.maximum(labels, 0)).argmax()
-    data[:, :3] = hits
+    data[:, :3], _ = _ground_hits(cloud.xyz[removed[ray_index]], ground, roughness)
     if cloud.has("instance"):
         data[:, cloud.index("instance")] = -1.0
     return PointCloud(data, channels)
