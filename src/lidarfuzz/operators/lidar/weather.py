@@ -349,11 +349,13 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
         # a drop of diameter D returns ρ_p exp(−2αr) min(D/D_b, 1)² / r², D_b = θ r the beam's width.
         reach = np.clip(np.minimum(ranges, _PARTICLE_REACH), params.min_range, None)
         r = params.min_range + (reach - params.min_range)[:, None] * _NODES[None, :]  # N × K nodes
-        need = bar[:, None] * r**2 * np.exp(2.0 * alpha * r) / rho_p  # (D/D_b)² needed
+        r2 = r * r
+        need = (bar / rho_p)[:, None] * r2 * np.exp((2.0 * alpha) * r)  # (D/D_b)² needed
         possible = need < 1.0
-        d_need = np.maximum(1e3 * theta * r * np.sqrt(np.minimum(need, 1.0)), MIN_DIAMETER)  # mm
-        area = np.pi * (theta * r / 2.0) ** 2  # m²
-        density = np.where(possible, area * (n0 / lam) * np.exp(-lam * d_need), 0.0)  # winners per metre
+        d_need = np.maximum((1e3 * theta) * r * np.sqrt(np.minimum(need, 1.0)), MIN_DIAMETER)  # mm
+        # Winners per metre: the beam's cross-section π (θ r / 2)² times the drops larger than d_need.
+        density = (np.pi * theta**2 / 4.0 * n0 / lam) * r2 * np.exp(-lam * d_need)
+        density[~possible] = 0.0
         steps = np.diff(r, axis=1)
         cells = 0.5 * (density[:, 1:] + density[:, :-1]) * steps
         expected = cells.sum(axis=1)
@@ -570,10 +572,12 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
         index, normal = _ground(cloud)
         if len(index) == 0:
             return sample
-        g = cloud.xyz[index]
-        ranges = np.maximum(np.sqrt(np.einsum("ij,ij->i", g, g)), np.float32(1e-6))
-        cos_i = np.abs(g @ normal.astype(np.float32)) / ranges
-        rho, floor = effective_reflectivity(cloud.intensity[index], ranges, scale=params.intensity_scale,
+        rows = np.take(cloud.data, index, axis=0)  # contiguous: ~8× faster than indexing the strided xyz view
+        x, y, z = rows[:, 0], rows[:, 1], rows[:, 2]
+        ranges = np.maximum(np.sqrt(x * x + y * y + z * z), np.float32(1e-6))
+        nx, ny, nz = normal.astype(np.float32)
+        cos_i = np.abs(x * nx + y * ny + z * nz) / ranges
+        rho, floor = effective_reflectivity(rows[:, 3], ranges, scale=params.intensity_scale,
                                             detection_threshold=params.detection_threshold,
                                             draws=power_draws(params.seed, len(index)))
         escape = 0.93 / WATER_INDEX**2
