@@ -55,8 +55,9 @@ class ObjectLibrary:
     Each entry holds its points in the box frame (centred, heading along +x), intensity
     normalised to [0, 1], with the class, box size, the source's range and observation angle
     (heading minus the azimuth of the centre: which side faced the sensor), the box bottom's
-    height above the local ground, the source sensor's angular resolution and a source id
-    ``frame_id:track_id``. Saved and loaded as one ``.npz``.
+    height above the local ground (a record of the source's labelling and fit, a few centimetres;
+    an inserted box's bottom is put on its new place's ground), the source sensor's angular
+    resolution and a source id ``frame_id:track_id``. Saved and loaded as one ``.npz``.
 
     Example:
         >>> library = ObjectLibrary.from_scenes(scenes)          # doctest: +SKIP
