@@ -18,7 +18,7 @@ from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.tasks import ORIGINAL
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
 from lidarfuzz.scene.boxes import Boxes3D
-from lidarfuzz.store.models import Finding, FrameResult, Subtask
+from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
 from lidarfuzz.store.store import Store, StoreError
 
 
@@ -60,9 +60,12 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
                 "message": finding.message, "frame_id": row.frame_id, "trial": row.trial, "subtask": sub.name,
                 "severity": sub.severity, "detail": finding.detail}
         replay = dict(finding.replay)
+        task = s.get(Task, finding.task_id)
+        dataset_options = dict(task.dataset.options or {}) if task is not None else {}
         follow_recorded = decode_boxes(row.boxes, row.labels)
         source_recorded = decode_boxes(original.boxes, original.labels) if original is not None else Boxes3D.empty()
-    context = WorkContext(replay["dataset"], replay["sut"], dict(replay.get("options") or {}), replay["fingerprint"])
+    context = WorkContext(replay["dataset"], replay["sut"], dict(replay.get("options") or {}), replay["fingerprint"],
+                          dataset_options=dataset_options)
     worker = Worker(context)
     try:
         fingerprint_now = worker.sut.fingerprint()

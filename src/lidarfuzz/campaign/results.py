@@ -64,7 +64,7 @@ def labelled_region(detections: Boxes3D, calib: Any, transform: NDArray[np.float
 
 
 def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
-                     operator: Any = None) -> dict[str, Any]:
+                     operator: Any = None, unlabelled: Iterable[str] = ()) -> dict[str, Any]:
     """Figures of one complete subtask from its frame results (rows of frame id, boxes, labels,
     gt boxes, gt labels, failure, relations, seconds, cached and, when ``operator`` is given, the
     params of its mutant).
@@ -72,7 +72,13 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     With an operator that moves the scene (an equivariant one with a transform), detections in the
     part of the view the source had no labels for are not scored (:func:`labelled_region`), and
     when no labelled object is left in view at all the subtask has no AP (``None``: not 0).
+
+    Frames in ``unlabelled`` (no label file in a labelled data set, run with ``--allow-unlabelled``)
+    are left out of AP — with no ground truth every detection there would count as a false
+    positive — and counted in ``ap_excluded``; their relations and failures still count.
     """
+    skipped = set(unlabelled)
+    excluded: list[str] = []
     frames, records = [], []
     labelled = moved = False
     failures = cached = 0
@@ -85,6 +91,9 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
             records.append(RelationRecord(item["relation"], "", 0, frame_id, outcome_from_dict(item)))
         if failure is not None and failure.get("kind") == "operator_error":
             continue  # no mutant: nothing to evaluate
+        if frame_id in skipped:
+            excluded.append(frame_id)
+            continue
         gt = decode_boxes(gt_boxes, gt_labels)
         calib = calibration(frame_id)
         transform = None
@@ -105,6 +114,10 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     out["ap"] = evaluate_kitti(frames).to_dict() if labelled and frames else None
     if out["ap"] is None and moved and frames:
         out["ap_note"] = "no AP: the operator moved every labelled object out of the camera's view"
+    if excluded:
+        unique = sorted(set(excluded))
+        out["ap_excluded"] = {"frames": len(unique), "examples": unique[:5],
+                              "reason": "no label file (unlabelled; run with --allow-unlabelled)"}
     out["violations"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"))]
     out["violations_per_object"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"),
                                                                           per="object")]
@@ -244,6 +257,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
                            "fingerprint": task.model.fingerprint},
                  "seed": task.seed, "trials": task.options.get("trials", 1),
                  "frames": len(task.options.get("frame_ids", [])), "relations": task.relations,
+                 "unlabelled_frames": len(task.options.get("unlabelled_frames", [])),
                  "created_at": task.created_at.isoformat() if task.created_at else None,
                  "started_at": task.started_at.isoformat() if task.started_at else None,
                  "finished_at": task.finished_at.isoformat() if task.finished_at else None,

@@ -288,7 +288,8 @@ class _Run:
                                          FrameResult.params).where(FrameResult.subtask_id == sub.id)))
             results = dict(row.results)
             operator = from_spec(row.operator) if row.operator else None
-            results.update(evaluate_subtask(rows, self.calibration, operator=operator))
+            results.update(evaluate_subtask(rows, self.calibration, operator=operator,
+                                            unlabelled=self.task.options.get("unlabelled_frames", ())))
             row.results = json_safe(results)
             row.status = Status.DONE
         self.stats.evaluate += time.perf_counter() - start
@@ -297,8 +298,10 @@ class _Run:
         if frame_id not in self._calibs:
             if self._dataset is None:
                 from lidarfuzz.io.open import open_dataset
+                from lidarfuzz.io.options import DatasetOptions
 
-                self._dataset = open_dataset(self.task.dataset.path)
+                self._dataset = open_dataset(self.task.dataset.path,
+                                             options=DatasetOptions.from_stored(self.task.dataset.options))
             load_calib = getattr(self._dataset, "load_calib", None)
             self._calibs[frame_id] = load_calib(frame_id) if load_calib else self._dataset.load(frame_id).calib
         return self._calibs[frame_id]
@@ -350,7 +353,8 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
     options = task.options
     context = WorkContext(task.dataset.path, task.model.spec, dict(task.model.options), task.model.fingerprint,
                           store_url=None if in_memory else store.url, isolate=bool(options.get("isolate")),
-                          timeout=float(options.get("timeout", 60.0)), save_mutants=options.get("save_mutants"))
+                          timeout=float(options.get("timeout", 60.0)), save_mutants=options.get("save_mutants"),
+                          dataset_options=dict(task.dataset.options or {}))
     executor = executor or ProcessExecutor(workers)
     run = _Run(store, task, executor, progress, stop)
     started = time.perf_counter()

@@ -78,9 +78,9 @@ class _SearchRun:
     def __init__(self, store: Store, task: Task, progress: Callable[[ProgressEvent], None] | None,
                  stop: Any) -> None:
         from lidarfuzz.coverage import ActivationRecorder
-        from lidarfuzz.io.open import open_dataset
         from lidarfuzz.oracles.relations.registry import from_spec
         from lidarfuzz.search.evaluate import SearchEvaluator
+        from lidarfuzz.store.catalog import open_registered
         from lidarfuzz.suts.registry import create
 
         self.store, self.task, self.progress, self.stop = store, task, progress, stop
@@ -92,7 +92,7 @@ class _SearchRun:
         module = torch_module(self.sut)
         self.criteria = build_criteria(self.config.criteria, module)
         relations = [from_spec(spec) for spec in self.sub.results.get("relation_specs", [])]
-        self.evaluator = SearchEvaluator(open_dataset(task.dataset.path), self.sut, relations,
+        self.evaluator = SearchEvaluator(open_registered(task.dataset), self.sut, relations,
                                          ActivationRecorder(module), keep_share=self.config.keep_share)
         self.search = make_search(self.config, task.options["frame_ids"], self.criteria, task.seed)
         state = self.sub.results.get("state")
@@ -188,10 +188,10 @@ class _SearchRun:
 def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] | None) -> None:
     """Evaluate both subtasks (AP over the generated tests too) and mark them done."""
     from lidarfuzz.campaign.results import evaluate_subtask
-    from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.store.catalog import open_registered
 
     task = get_task(store, task_id)
-    dataset = open_dataset(task.dataset.path)
+    dataset = open_registered(task.dataset)
 
     def calibration(frame_id: str) -> Any:
         load_calib = getattr(dataset, "load_calib", None)
@@ -204,7 +204,7 @@ def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] |
                                          FrameResult.relations, FrameResult.seconds, FrameResult.cached).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)))
             results = dict(sub.results)
-            results.update(evaluate_subtask(rows, calibration))
+            results.update(evaluate_subtask(rows, calibration, unlabelled=task.options.get("unlabelled_frames", ())))
             sub.results = json_safe(results)
             sub.total = sub.done = int(s.scalar(select(func.count()).select_from(FrameResult).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)) or 0)

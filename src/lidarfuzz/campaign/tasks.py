@@ -19,6 +19,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import defer, joinedload
 
 from lidarfuzz.campaign.spec import CampaignSpec
+from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store, StoreError
 
@@ -51,31 +52,55 @@ def relations_for(operator: Any, choice: Any) -> list[dict[str, Any]]:
     return [r.spec() for r in chosen if operator.relation in r.applies_to]
 
 
-def _dataset_row(s: Any, ref: str) -> Dataset:
-    row = s.scalar(select(Dataset).where(Dataset.name == ref))
-    if row is not None:
-        return row
-    path = Path(ref).expanduser()
-    if not path.exists():
-        raise StoreError(f"{ref}: neither a registered data set (lidarfuzz datasets list) nor a path")
+def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None) -> Dataset:
+    """The data set a campaign names: a registered one, or a path (registered now, with
+    ``options``). Options that change how a registered data set is read are refused: register
+    it again under another name (lidarfuzz datasets add)."""
     from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.store.catalog import dataset_options
 
-    resolved = path.resolve()
-    row = s.scalar(select(Dataset).where(Dataset.path == str(resolved)))
-    if row is not None:
-        return row
-    dataset = open_dataset(resolved)
-    frames = len(dataset.frame_ids())
-    if frames == 0:
-        raise StoreError(f"{resolved}: no frames to test")
-    name = resolved.name
-    while s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
-        name = f"{resolved.name}-{hashlib.sha256(str(resolved).encode()).hexdigest()[:6]}"
-    row = Dataset(name=name, path=str(resolved), format=dataset.format, frame_count=frames,
-                  notes="registered by a campaign")
-    s.add(row)
-    s.flush()
+    given = (options or DatasetOptions()).resolved()
+    row = s.scalar(select(Dataset).where(Dataset.name == ref))
+    if row is None:
+        path = Path(ref).expanduser()
+        if not path.exists():
+            raise StoreError(f"{ref}: neither a registered data set (lidarfuzz datasets list) nor a path")
+        resolved = path.resolve()
+        row = s.scalar(select(Dataset).where(Dataset.path == str(resolved)).order_by(Dataset.id))
+        if row is None:
+            dataset = open_dataset(resolved, options=given)
+            frames = len(dataset.frame_ids())
+            if frames == 0:
+                raise StoreError(f"{resolved}: no frames to test")
+            name = resolved.name
+            while s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
+                name = f"{resolved.name}-{hashlib.sha256(str(resolved).encode()).hexdigest()[:6]}"
+            row = Dataset(name=name, path=str(resolved), format=dataset.format, frame_count=frames,
+                          notes="registered by a campaign", options=given.stored())
+            s.add(row)
+            s.flush()
+            return row
+    stored = dataset_options(row)
+    for field in ("layout", "intensity_scale", "roi_map"):
+        value = getattr(given, field)
+        if value is not None and value != getattr(stored, field):
+            raise StoreError(f"data set {row.name!r} is registered with {field} {getattr(stored, field)!r}, not "
+                             f"{value!r}; register it again under another name (lidarfuzz datasets add)")
     return row
+
+
+def unlabelled_frames(dataset: Any, frame_ids: list[str], allow: bool, path: str) -> list[str]:
+    """The campaign's frames that have no labels in a labelled data set: refused (one line naming
+    them and ``--allow-unlabelled``) unless ``allow``; AP is then scored without them."""
+    from lidarfuzz.io.kitti import unlabelled_note
+
+    chosen = set(frame_ids)
+    missing = [f for f in dataset.unlabelled_ids() if f in chosen]
+    if missing and not allow:
+        raise StoreError(f"{path}: {unlabelled_note(missing, len(frame_ids))}; AP needs labels: pass "
+                         f"--allow-unlabelled to run every frame and score AP on the "
+                         f"{len(frame_ids) - len(missing)} labelled one(s)")
+    return missing
 
 
 def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
@@ -115,17 +140,26 @@ def _check_searchable(model: Model) -> None:
 
 
 def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None = None,
-                isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None) -> int:
-    """Plan ``spec`` as a new pending task; returns its id."""
-    from lidarfuzz.io.open import open_dataset
+                isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None,
+                dataset_options: DatasetOptions | None = None) -> int:
+    """Plan ``spec`` as a new pending task; returns its id.
+
+    ``dataset_options`` (the CLI's ``--layout``, ``--allow-unlabelled``) register a data set given
+    by path; ``allow_unlabelled`` also lets a registered one run with frames that have no labels.
+    """
     from lidarfuzz.operators.registry import get
+    from lidarfuzz.store.catalog import dataset_options as stored_options
+    from lidarfuzz.store.catalog import open_registered
 
     with store.session() as s:
-        dataset = _dataset_row(s, spec.dataset)
+        dataset = _dataset_row(s, spec.dataset, dataset_options)
         model = _model_row(s, spec.sut, dict(sut_options or {}))
-        frame_ids = list(open_dataset(dataset.path).frame_ids())
+        opened = open_registered(dataset)
+        frame_ids = list(opened.frame_ids())
         if spec.frames is not None:
             frame_ids = frame_ids[: spec.frames]
+        allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
+        unlabelled = unlabelled_frames(opened, frame_ids, allow, dataset.path)
         plans: list[tuple[dict[str, Any] | None, str, int, int, list[dict[str, Any]]]] = [
             (None, ORIGINAL, 0, -1, [])]
         search = spec.search_config() if spec.kind != "mutation" else None
@@ -156,6 +190,8 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
             r if isinstance(r, str) else r.model_dump() for r in spec.relations]
         options = {"frame_ids": frame_ids, "trials": spec.trials, "isolate": isolate, "timeout": timeout,
                    "save_mutants": save_mutants, "relations": relations_json, "kind": spec.kind}
+        if unlabelled:
+            options["unlabelled_frames"] = unlabelled  # run through the SUT, left out of AP
         if search is not None:
             options["search"] = search.model_dump(mode="json")
         task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,

@@ -39,6 +39,7 @@ class WorkContext:
     isolate: bool = False
     timeout: float = 60.0
     save_mutants: str | None = None  # a folder: each subtask's mutants as a KITTI data set
+    dataset_options: dict[str, Any] = field(default_factory=dict)  # DatasetOptions as the store keeps them
 
 
 @dataclass(frozen=True)
@@ -108,9 +109,10 @@ class Worker:
 
     def __init__(self, context: WorkContext) -> None:
         from lidarfuzz.io.open import open_dataset
+        from lidarfuzz.io.options import DatasetOptions
 
         self.context = context
-        self.dataset = open_dataset(context.dataset)
+        self.dataset = open_dataset(context.dataset, options=DatasetOptions.from_stored(context.dataset_options))
         self._digests: OrderedDict[str, str] = OrderedDict()
         self._scenes: OrderedDict[str, Scene] = OrderedDict()  # the runner sends units frame block by block
         self._operators: dict[str, Any] = {}

@@ -151,6 +151,12 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
         console.print("[yellow]the data set has no labels: no AP (relations still apply)[/]")
     else:
         console.print(table)
+    excluded = data["subtasks"][0].get("ap_excluded")
+    if data["task"].get("unlabelled_frames") and excluded:
+        console.print(f"[yellow]AP from the labelled frames only: {excluded['frames']} frame(s) without a label "
+                      f"file left out ({', '.join(excluded['examples'])}"
+                      f"{', …' if excluded['frames'] > len(excluded['examples']) else ''}); every frame ran "
+                      "through the system and the relations[/]")
     for note in data.get("ap_warnings", []):
         console.print(f"[yellow]AP warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
     rates = Table(title="metamorphic relations: frames violated / checked (rate)")
@@ -250,6 +256,11 @@ def register(app: typer.Typer) -> None:
         search_option: Annotated[list[str] | None, typer.Option(
             "--search", help="guided/fuzz: any search setting k=v, e.g. max_failed_tries=5, batch=4, keep_share=0.5 "
                              "(repeatable).")] = None,
+        layout: Annotated[str | None, typer.Option(help="Point layout of a data set given by path: kitti, nuscenes, "
+                                                        "… or columns such as x,y,z,intensity,ring:f4.")] = None,
+        allow_unlabelled: Annotated[bool, typer.Option(help="Run a labelled data set whose frames are not all "
+                                                             "labelled: every frame through the SUT and relations, AP "
+                                                             "from the labelled ones.")] = False,
         workspace: WorkspaceOption = WORKSPACE,
     ) -> None:
         """Create a campaign task and run it: originals and mutants through the SUT, AP, relations, report.
@@ -260,6 +271,7 @@ def register(app: typer.Typer) -> None:
         from lidarfuzz.campaign.spec import load_campaign, parse_campaign
         from lidarfuzz.campaign.tasks import create_task
         from lidarfuzz.cli.app import console
+        from lidarfuzz.io.options import options_from_flags
         from lidarfuzz.operators.mutate import parse_assignments
 
         if campaign is not None:
@@ -285,7 +297,8 @@ def register(app: typer.Typer) -> None:
                                   "command line")
         store = _store(workspace)
         task_id = create_task(store, spec, sut_options=parse_assignments(option or []), isolate=isolate,
-                              timeout=timeout, save_mutants=str(save_mutants.resolve()) if save_mutants else None)
+                              timeout=timeout, save_mutants=str(save_mutants.resolve()) if save_mutants else None,
+                              dataset_options=options_from_flags(layout, allow_unlabelled))
         if detach:
             console.print(f"created task {task_id}; run it with: lidarfuzz resume {task_id}")
             return

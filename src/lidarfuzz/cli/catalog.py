@@ -14,6 +14,12 @@ WORKSPACE = os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace")
 # A str, not a Path: a Path would fold the "//" of a database URL.
 WorkspaceOption = Annotated[str, typer.Option(help="Workspace folder (its SQLite store) or a database URL "
                                                     "(postgresql+psycopg://…); $LIDARFUZZ_WORKSPACE.")]
+LayoutOption = Annotated[str | None, typer.Option(
+    help="Point layout of headerless scans: kitti, kitti360, nuscenes, semantickitti, argoverse2, waymo, or the "
+         "columns, e.g. x,y,z,intensity,ring:f4 (default: what the data's structure says, else kitti).")]
+AllowUnlabelledOption = Annotated[bool, typer.Option(
+    help="Frames without a label file in a labelled data set are allowed: campaigns run them through the "
+         "system and relations and score AP on the labelled frames only.")]
 
 
 def _store(workspace: Path | str):
@@ -33,14 +39,25 @@ def register(app: typer.Typer) -> None:
         name: Annotated[str, typer.Argument(help="A name for it.")],
         path: Annotated[Path, typer.Argument(help="KITTI folder, folder of frames, frame file, bag or MCAP.")],
         notes: Annotated[str, typer.Option(help="Free text.")] = "",
+        layout: LayoutOption = None,
+        allow_unlabelled: AllowUnlabelledOption = False,
+        roi_map: Annotated[Path | None, typer.Option(help="GeoJSON drivable-area map for every frame without its "
+                                                          "own roi/ map (LiDAR frame; \"frame\": \"world\" for a "
+                                                          "log with poses).")] = None,
+        intensity_scale: Annotated[float | None, typer.Option(help="Intensity of the strongest return (1 or 255), "
+                                                                   "when the layout's is wrong.")] = None,
         workspace: WorkspaceOption = WORKSPACE,
     ) -> None:
-        """Validate a data set (never modified) and record it."""
+        """Validate a data set (never modified) and record it with how to read it."""
         from lidarfuzz.cli.app import console
+        from lidarfuzz.io.options import options_from_flags
         from lidarfuzz.store.catalog import add_dataset
 
-        row = add_dataset(_store(workspace), name, path, notes)
-        console.print(f"added data set {row.name}: {row.frame_count} frame(s), {row.format}, {row.path}")
+        options = options_from_flags(layout, allow_unlabelled, intensity_scale, roi_map)
+        row = add_dataset(_store(workspace), name, path, notes, options=options)
+        shown = ", ".join(f"{k} {v}" for k, v in row.options.items())
+        console.print(f"added data set {row.name}: {row.frame_count} frame(s), {row.format}, {row.path}"
+                      + (f" ({shown})" if shown else ""))
 
     @datasets.command("list")
     def datasets_list(workspace: WorkspaceOption = WORKSPACE) -> None:
@@ -48,10 +65,11 @@ def register(app: typer.Typer) -> None:
         from lidarfuzz.cli.app import console
         from lidarfuzz.store.catalog import list_datasets
 
-        table = Table("name", "frames", "format", "path", "added", "notes")
+        table = Table("name", "frames", "format", "path", "options", "added", "notes")
         for row in list_datasets(_store(workspace)):
-            table.add_row(row.name, str(row.frame_count), row.format, row.path, f"{row.added_at:%Y-%m-%d %H:%M}",
-                          row.notes)
+            options = ", ".join(f"{k}={v}" for k, v in (row.options or {}).items())
+            table.add_row(row.name, str(row.frame_count), row.format, row.path, options,
+                          f"{row.added_at:%Y-%m-%d %H:%M}", row.notes)
         console.print(table)
 
     @datasets.command("remove")

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.progress import Progress
 
+from lidarfuzz.cli.catalog import LayoutOption
 from lidarfuzz.io.convert import FOLDER_TARGETS, LOG_TARGETS, convert
 
 
@@ -23,9 +24,11 @@ def register(app: typer.Typer) -> None:
         overwrite: Annotated[bool, typer.Option(help="Replace an existing destination.")] = False,
         reject_nonfinite: Annotated[bool, typer.Option(help="Fail on NaN/Inf coordinates instead of dropping "
                                                        "them with a warning.")] = False,
+        layout: LayoutOption = None,
     ) -> None:
         """Convert between formats; the source is never modified and the destination is written atomically."""
         from lidarfuzz.cli.app import console
+        from lidarfuzz.io.options import options_from_flags
 
         if to is not None and to.lower() not in (*FOLDER_TARGETS, *LOG_TARGETS):
             raise typer.BadParameter(f"{to!r} is not one of {', '.join((*FOLDER_TARGETS, *LOG_TARGETS))}",
@@ -37,5 +40,6 @@ def register(app: typer.Typer) -> None:
                 progress.update(task, completed=done, total=total)
 
             result = convert(src, dst, to=to, topic=topic, overwrite=overwrite,
-                             nonfinite="reject" if reject_nonfinite else "drop", on_frame=on_frame)
+                             nonfinite="reject" if reject_nonfinite else "drop", on_frame=on_frame,
+                             options=options_from_flags(layout))
         console.print(f"wrote {result.frames} frame(s) to {result.destination} ({result.target})")

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from lidarfuzz.cli.catalog import AllowUnlabelledOption, LayoutOption
 from lidarfuzz.io.inspect import DatasetReport, inspect_source
 
 
@@ -38,6 +39,9 @@ def render(report: DatasetReport) -> None:
         for name, count in sorted(report.classes.items()):
             table.add_row(name, str(count))
         console.print(table)
+    if report.unlabelled_frames:
+        console.print(f"[yellow]unlabelled frames (no label file): {report.unlabelled_frames}[/] — info, detect, "
+                      "mutate and convert use them; run scores AP without them only with --allow-unlabelled")
     console.print(f"calibrated frames: {report.calibrated_frames}; "
                   f"frames with a drivable-area map: {report.roi_frames}")
     if report.log:
@@ -65,14 +69,21 @@ def register(app: typer.Typer) -> None:
         limit: Annotated[int | None, typer.Option(min=1, help="Inspect only the first N frames.")] = None,
         json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report as JSON to this file "
                                                       "('-' for standard output).")] = None,
+        layout: LayoutOption = None,
+        allow_unlabelled: AllowUnlabelledOption = False,
     ) -> None:
         """Summarise a frame, data set or log: counts, channels and ranges, classes, problems found.
 
-        Exits with code 1 when an error-level problem is found, so scripts can gate on it.
+        Exits with code 1 when an error-level problem is found, so scripts can gate on it. Frames
+        without a label file in a labelled data set are a warning (only AP needs labels); with
+        --allow-unlabelled they are counted without one.
         """
         from lidarfuzz.cli.app import console
+        from lidarfuzz.io.options import options_from_flags
 
-        report = inspect_source(path, topic=topic, limit=limit)
+        report = inspect_source(path, topic=topic, limit=limit, options=options_from_flags(layout, allow_unlabelled))
+        if allow_unlabelled:
+            report.problems = [p for p in report.problems if not p.message.endswith(": unlabelled")]
         if json_out is not None and str(json_out) == "-":
             console.print_json(json.dumps(report.as_dict()))
         else:

@@ -10,6 +10,7 @@ import typer
 from rich.progress import Progress
 from rich.table import Table
 
+from lidarfuzz.cli.catalog import LayoutOption
 from lidarfuzz.operators.catalogue import format_value, severity_rows
 
 
@@ -56,28 +57,31 @@ def register(app: typer.Typer) -> None:
         interleave: Annotated[bool, typer.Option(help="For a log: write a new log with each mutant after its "
                                                  "source frame (Neves et al.); with --op AVG, each average of "
                                                  "two consecutive frames between them.")] = False,
+        layout: LayoutOption = None,
     ) -> None:
         """Apply one operator to every frame; labels are updated with the points and each frame's
         concrete params are saved (mutations.jsonl) so every mutant replays exactly."""
         from lidarfuzz.cli.app import console
+        from lidarfuzz.io.options import options_from_flags
         from lidarfuzz.operators.lidar.log import FrameAverage
         from lidarfuzz.operators.mutate import build_operator, is_frame_average, mutate, mutate_log, parse_assignments
 
+        options = options_from_flags(layout)
         if is_frame_average(op):
             if not interleave:
                 raise typer.BadParameter("AVG combines consecutive frames of a log: add --interleave",
                                          param_hint="--op")
-            written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite)
+            written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite, options=options)
             console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
             return
         operator = build_operator(op, severity, parse_assignments(param or []))
         if interleave:
-            written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite)
+            written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options)
             console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
             return
         with Progress(console=console, transient=True) as progress:
             task = progress.add_task(f"mutating ({operator.name})", total=None)
-            result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite,
+            result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options,
                             on_frame=lambda done, total: progress.update(task, completed=done, total=total))
         console.print(f"wrote {result.conversion.frames} mutant(s) of {src} to {result.conversion.destination} "
                       f"({result.conversion.target}); params: {result.record}")

@@ -8,6 +8,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from lidarfuzz.cli.catalog import LayoutOption
+
 
 def register(app: typer.Typer) -> None:
     @app.command("suts")
@@ -40,6 +42,7 @@ def register(app: typer.Typer) -> None:
         all_boxes: Annotated[bool, typer.Option("--all", help="Keep detections outside the camera's field of "
                                                 "view (by default they are left out, as KITTI results and "
                                                 "OpenPCDet's are).")] = False,
+        layout: LayoutOption = None,
     ) -> None:
         """Run a system under test on every frame and write its detections as KITTI label files with
         scores (``OUT/<frame id>.txt``), ready for ``lidarfuzz eval``. Failures are listed, not fatal."""
@@ -49,11 +52,12 @@ def register(app: typer.Typer) -> None:
         from lidarfuzz.io.atomic import write_text
         from lidarfuzz.io.kitti import format_labels
         from lidarfuzz.io.open import open_dataset
+        from lidarfuzz.io.options import options_from_flags
         from lidarfuzz.scene.calib import KittiCalibration
         from lidarfuzz.suts.guard import IsolatedSut, run_guarded
         from lidarfuzz.suts.registry import create
 
-        dataset = open_dataset(src)
+        dataset = open_dataset(src, options=options_from_flags(layout))
         ids = list(dataset.frame_ids())[:limit]
         existing = [frame_id for frame_id in ids if (out / f"{frame_id}.txt").exists()]
         if existing and not overwrite:

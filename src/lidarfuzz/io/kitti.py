@@ -575,6 +575,7 @@ class KittiWriter:
         self._timestamps: dict[str, float] = {}
         self._poses: dict[str, NDArray[np.float64]] = {}
         self._labelled = False
+        self._unlabelled: set[str] = set()  # frames read without labels: they stay without a label file
 
     def __enter__(self) -> KittiWriter:
         return self
@@ -591,15 +592,18 @@ class KittiWriter:
         labelled = write_kitti_frame(self.root, scene, frame_id, overwrite=self.overwrite,
                                      complete_labels=self.complete_labels, durable=self.durable,
                                      labelled_set=self._labelled)
-        self.record(frame_id, scene.timestamp, scene.pose, labelled)
+        self.record(frame_id, scene.timestamp, scene.pose, labelled, unlabelled=scene.metadata.get("labelled") is False)
         return frame_id
 
     def record(self, frame_id: str, timestamp: float | None, pose: NDArray[np.float64] | None,
-               labelled: bool) -> None:
-        """Register a frame whose files were written by :func:`write_kitti_frame` (e.g. in a worker process)."""
+               labelled: bool, *, unlabelled: bool = False) -> None:
+        """Register a frame whose files were written by :func:`write_kitti_frame` (e.g. in a worker
+        process); ``unlabelled``: it was read without labels and keeps no label file."""
         if frame_id in self._ids:
             raise ValueError(f"duplicate frame id {frame_id!r}")
         self._labelled = self._labelled or labelled
+        if unlabelled:
+            self._unlabelled.add(frame_id)
         if timestamp is not None:
             self._timestamps[frame_id] = timestamp
         if pose is not None:
@@ -611,10 +615,11 @@ class KittiWriter:
         self.root.mkdir(parents=True, exist_ok=True)
         ow = self.overwrite
         if self._labelled:
-            # A labelled data set has a label file for every frame (possibly empty).
+            # A labelled data set has a label file for every frame (possibly empty), but for the
+            # frames that were read unlabelled: an empty file would make them frames with no objects.
             for frame_id in self._ids:
                 path = self.root / "label_2" / f"{frame_id}.txt"
-                if not path.exists():
+                if not path.exists() and frame_id not in self._unlabelled:
                     write_text(path, "", overwrite=ow)
         if self._timestamps:
             lines = [f"{f} {_num(self._timestamps[f])}" for f in self._ids if f in self._timestamps]
@@ -648,7 +653,8 @@ def write_kitti_frame(root: str | PathLike[str], scene: Scene, frame_id: str, *,
     """Write one frame's files into a KITTI layout; returns whether a label file was written.
 
     ``labelled_set`` says the data set has labels, so an empty label file is written for a
-    frame without objects. Log side files and ImageSets are written by :class:`KittiWriter`.
+    frame without objects — unless the scene was read unlabelled (``metadata["labelled"]``
+    False): it keeps no label file. Log side files and ImageSets are written by :class:`KittiWriter`.
     """
     root = Path(root)
     if any(sep in frame_id for sep in "/\\") or frame_id in (".", "..") or not frame_id:
@@ -664,7 +670,7 @@ def write_kitti_frame(root: str | PathLike[str], scene: Scene, frame_id: str, *,
         write_bytes(root / "velodyne_extra" / f"{frame_id}.npz", buffer.getvalue(), overwrite=ow, durable=du)
     if scene.calib is not None:
         write_text(root / "calib" / f"{frame_id}.txt", scene.calib.to_text(), overwrite=ow, durable=du)
-    labelled = bool(len(scene.boxes)) or labelled_set
+    labelled = (bool(len(scene.boxes)) or labelled_set) and scene.metadata.get("labelled") is not False
     if labelled:
         text = format_labels(scene.boxes, scene.calib, complete=complete_labels)
         write_text(root / "label_2" / f"{frame_id}.txt", text, overwrite=ow, durable=du)

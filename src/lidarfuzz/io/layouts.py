@@ -61,6 +61,9 @@ DTYPES: dict[str, str] = {
 }
 #: Below this many sampled rows a file is too small to judge (a few points can be anything).
 MIN_ROWS_TO_JUDGE = 32
+#: Another layout is suggested only on this many rows of evidence: a few hundred random values can
+#: fit a layout by chance, a scan's rows do not.
+MIN_ROWS_TO_VOUCH = 200
 #: Rows looked at, at most (runs of rows spread over the whole scan; 2,048 rows estimate a share
 #: of 10 % to ±1.3 points at 2 sigma).
 SAMPLE_ROWS = 2048
@@ -396,9 +399,8 @@ def check_plausible(path: str | PathLike[str], raw: NDArray[np.generic], layout:
         raw: Its bytes (any view: a memory map is sampled, not read whole).
         layout: The layout it is read with.
         chosen: The user named the layout: their word stands (the verdict's reasons are kept as
-            doubts) unless a reason is strong (:class:`Verdict`) and another layout fits. A
-            layout chosen by default is refused when another layout fits, or when a reason is
-            strong.
+            doubts) unless another layout fits. A layout chosen by default is refused then, and
+            also when a reason is strong (:class:`Verdict`).
 
     Returns:
         The verdict on ``layout`` (possibly with doubts the user overrode, and the intensity
@@ -420,14 +422,12 @@ def check_plausible(path: str | PathLike[str], raw: NDArray[np.generic], layout:
         if other.record_size == layout.record_size and other.channels == layout.channels:
             continue
         other_sample = sample_records(raw, other)
-        if other_sample is None or len(other_sample["x"]) < MIN_ROWS_TO_JUDGE:
+        if other_sample is None or len(other_sample["x"]) < MIN_ROWS_TO_VOUCH:
             continue
         other_verdict = judge(other_sample, other)
         if other_verdict.fits and other_verdict.judged:  # enough evidence to vouch for it
             better = other
             break
-    if chosen and not verdict.strong:
-        return verdict  # odd values, but nothing no scan shows: the user's word stands
     if better is None and (chosen or not verdict.strong):
         return verdict
     what = "; ".join(verdict.reasons)

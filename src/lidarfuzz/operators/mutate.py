@@ -22,6 +22,7 @@ from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.io.atomic import write_text
 from lidarfuzz.io.convert import ConvertResult, convert, destination_kind, write_scenes
 from lidarfuzz.io.open import open_dataset
+from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.operators.base import Operator, generator
 from lidarfuzz.operators.lidar.log import FrameAverage, interleave
 from lidarfuzz.operators.registry import get
@@ -87,8 +88,10 @@ class MutationResult:
 
 def mutate(src: str | PathLike[str], dst: str | PathLike[str], operator: Operator[Any, Any, Any], *, seed: int = 0,
            to: str | None = None, overwrite: bool = False,
-           on_frame: Callable[[int, int], None] | None = None) -> MutationResult:
-    """Write ``operator`` applied to every frame of ``src`` into ``dst`` (any format ``convert`` writes)."""
+           on_frame: Callable[[int, int], None] | None = None,
+           options: DatasetOptions | None = None) -> MutationResult:
+    """Write ``operator`` applied to every frame of ``src`` (read with data-set ``options``) into
+    ``dst`` (any format ``convert`` writes)."""
     records: list[str] = []
     spec = operator.spec()
 
@@ -99,7 +102,7 @@ def mutate(src: str | PathLike[str], dst: str | PathLike[str], operator: Operato
                                    "params": params.model_dump(mode="json")}))
         return mutant
 
-    result = convert(src, dst, to=to, overwrite=overwrite, on_frame=on_frame, transform=transform)
+    result = convert(src, dst, to=to, overwrite=overwrite, on_frame=on_frame, transform=transform, options=options)
     destination = Path(dst)
     record = destination / "mutations.jsonl" if destination.is_dir() else destination.with_name(
         destination.name + ".mutations.jsonl")
@@ -112,13 +115,14 @@ def is_frame_average(name: str) -> bool:
 
 
 def mutate_log(src: str | PathLike[str], dst: str | PathLike[str], operator: Operator[Any, Any, Any] | FrameAverage,
-               *, seed: int = 0, to: str | None = None, overwrite: bool = False) -> ConvertResult:
+               *, seed: int = 0, to: str | None = None, overwrite: bool = False,
+               options: DatasetOptions | None = None) -> ConvertResult:
     """A new log from an ordered source (a log, or a data set with timestamps): each mutant right
     after its source frame, or for AVG each averaged frame between its two sources (Neves et al.)."""
     src_path, dst_path = Path(src), Path(dst)
     if dst_path.resolve() == src_path.resolve() or src_path.resolve() in dst_path.resolve().parents:
         raise LidarfuzzError(f"{dst_path}: the destination is the source or inside it; originals are never modified")
-    dataset = open_dataset(src_path)
+    dataset = open_dataset(src_path, options=options)
     if not dataset.ordered:
         raise LidarfuzzError(f"{src_path}: not a log (no timestamps): --interleave needs ordered frames")
     return write_scenes(interleave(iter(dataset), operator, seed=seed), dst_path, destination_kind(dst_path, to),

@@ -34,7 +34,7 @@ from lidarfuzz.report.charts import figure_png
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.geometry import box_corners, transform_boxes
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.store.models import Finding, FrameResult, Subtask
+from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
 from lidarfuzz.store.store import Store
 
 if TYPE_CHECKING:
@@ -106,6 +106,7 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
             mutated again (e.g. the data set was moved).
     """
     from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.io.options import DatasetOptions
     from lidarfuzz.operators.registry import from_spec
 
     with store.session() as s:
@@ -120,6 +121,8 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
             Subtask.task_id == finding.task_id, Subtask.name == ORIGINAL, FrameResult.frame_id == row.frame_id,
             FrameResult.trial == 0))
         replay = dict(finding.replay)
+        task = s.get(Task, finding.task_id)
+        options = DatasetOptions.from_stored(task.dataset.options if task is not None else None)
         info = {"id": finding.id, "kind": finding.kind, "class": finding.cls, "message": finding.message,
                 "label": subtask_label(sub.name, sub.severity), "frame_id": row.frame_id, "trial": row.trial}
         violations = list(finding.detail.get("violations", []))
@@ -133,10 +136,11 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
 
     path = str(replay.get("dataset", ""))
     datasets = {} if datasets is None else datasets
+    key = f"{path}|{options.model_dump_json()}"  # one data set registered twice reads differently
     try:
-        if path not in datasets:
-            datasets[path] = open_dataset(path)
-        source = datasets[path].load(row.frame_id)
+        if key not in datasets:
+            datasets[key] = open_dataset(path, options=options)
+        source = datasets[key].load(row.frame_id)
     except Exception as exc:
         raise LidarfuzzError(f"frame {row.frame_id} of {path or 'an unknown data set'} cannot be loaded "
                              f"({type(exc).__name__}: {exc}); was the data set moved?") from exc

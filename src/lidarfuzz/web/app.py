@@ -75,12 +75,13 @@ class WebContext:
     def dataset(self, path: str) -> Any:
         """The data set at ``path``, opened once and kept (the 8 most recent)."""
         from lidarfuzz.io.open import open_dataset
+        from lidarfuzz.store.catalog import options_at
 
         with self._lock:
             if path in self._datasets:
                 self._datasets.move_to_end(path)
                 return self._datasets[path]
-        opened = open_dataset(path)
+        opened = open_dataset(path, options=options_at(self.store, path))
         with self._lock:
             self._datasets[path] = opened
             while len(self._datasets) > 8:
