@@ -13,6 +13,7 @@ from lidarfuzz.operators.lidar.weather import (
     WetGround,
     fog_soft_response,
     ground_mask,
+    ground_plane,
     infer_intensity_scale,
 )
 from lidarfuzz.scene.scene import Scene
@@ -77,7 +78,9 @@ def test_fog_attenuation_and_loss_grow_as_visibility_shrinks(hdl64):
 
 
 def test_fog_returns_are_near_the_sensor_and_keep_their_beam(hdl64):
-    mutant, _ = Fog(mor_range=(50.0, 50.0))(hdl64, rng())
+    # MOR 40 m, the densest of severity 5: with the simulator's KITTI-like (darker) intensities
+    # MOR 50 m leaves under a hundred fog returns to check.
+    mutant, _ = Fog(mor_range=(40.0, 40.0))(hdl64, rng())
     assert np.all(np.isfinite(mutant.points.data))
     index, before, after = origin(hdl64, mutant)
     fog = after < before - 0.5
@@ -198,12 +201,13 @@ def test_wet_ground_without_labels_uses_the_ground_plane(hdl64):
     mutant, _ = WetGround.at_severity(5)(unlabelled, rng())
     index = mutant.points.channel("index").astype(np.int64)
     changed = mutant.points.intensity != unlabelled.points.intensity[index]
-    z = unlabelled.points.xyz[:, 2]
-    ground_z = np.percentile(z, 5)
     assert changed.sum() > 0.2 * len(mutant.points)
-    assert np.abs(mutant.points.xyz[changed, 2] - ground_z).max() < 0.6
-    high = z[index] > ground_z + 1.0
-    assert not changed[high].any()
+    # The simulator's ground is not flat (grade, camber): judged by its labels and by the height
+    # above the fitted plane rather than by z. The plane's 0.2 m band holds ground, not walls or cars.
+    assert ground_mask(hdl64.points)[index][changed].mean() > 0.9
+    normal, offset = ground_plane(unlabelled.points.xyz.astype(np.float64))
+    height = unlabelled.points.xyz[index].astype(np.float64) @ normal - offset
+    assert not changed[np.abs(height) > 0.25].any()
     # Most labelled ground is found by the plane too.
     near_ground = ground_mask(hdl64.points) & (np.linalg.norm(hdl64.points.xyz, axis=1) < 20)
     assert np.mean(ground_mask(unlabelled.points)[near_ground]) > 0.8
