@@ -53,10 +53,11 @@ def _register() -> None:
         relations,
         serve,
         suts,
+        train,
     )
 
     for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign, coverage,
-                   serve):
+                   serve, train):
         module.register(app)
 
 

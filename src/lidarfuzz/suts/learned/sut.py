@@ -60,6 +60,21 @@ class PillarsOptions(BaseModel):
     threads: int = Field(2, ge=1, description="CPU threads PyTorch may use")
 
 
+def intensity_divisor(scene: Scene) -> float:
+    """What a scene's intensities are divided by for the network, which reads them in [0, 1].
+
+    A data set read with a 0–255 intensity scale (nuScenes, Argoverse 2) records it in
+    ``metadata["intensity_scale"]``; training and detection both divide by it, so a
+    network trained on one scale sees the same values on the other.
+    """
+    scale = scene.metadata.get("intensity_scale")
+    try:
+        value = float(scale) if scale is not None else 1.0
+    except (TypeError, ValueError):
+        return 1.0
+    return value if value > 1.0 else 1.0
+
+
 def rotated_nms(boxes: NDArray[np.float64], scores: NDArray[np.float64], iou_threshold: float) -> NDArray[np.intp]:
     """Greedy non-maximum suppression with rotated bird's-eye-view IoU; indices kept, best first."""
     if len(boxes) == 0:
@@ -139,6 +154,10 @@ class PillarsDetector(SystemUnderTest[Scene, Boxes3D]):
         points = np.ascontiguousarray(scene.points.data[:, :4], dtype=np.float32)
         if self.options.fov_only and scene.calib is not None and len(points):
             points = points[scene.calib.in_view(points[:, :3])]
+        divisor = intensity_divisor(scene)
+        if divisor != 1.0:
+            points = points.copy()
+            points[:, 3] /= np.float32(divisor)
         return points
 
     def batch_tensors(self, scenes: list[Scene]) -> tuple[Any, Any, int]:

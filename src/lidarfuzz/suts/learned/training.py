@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from lidarfuzz.io.kitti import open_kitti
 from lidarfuzz.suts.learned.augment import Augmentation, augment
-from lidarfuzz.suts.learned.sut import import_torch
+from lidarfuzz.suts.learned.sut import import_torch, intensity_divisor
 
 FrameArrays = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]
 
@@ -70,13 +70,15 @@ def _init_worker(root: str, classes: tuple[str, ...]) -> None:
 def frame_arrays(scene: Any, classes: Sequence[str]) -> FrameArrays:
     """(points in the camera's view N×5 ``x y z intensity ring``, boxes M×7, class indices M) of one scene.
 
-    The ring is −1 where the data has no ring channel; boxes of other classes and DontCare
-    regions are left out.
+    The ring is −1 where the data has no ring channel; intensities are brought to [0, 1]
+    (:func:`~lidarfuzz.suts.learned.sut.intensity_divisor`); boxes of other classes and
+    DontCare regions are left out.
     """
     classes = tuple(classes)
     cloud = scene.points
     ring = cloud.channel("ring") if cloud.has("ring") else np.full(len(cloud), -1.0, np.float32)
     points = np.ascontiguousarray(np.column_stack([cloud.data[:, :4], ring]), dtype=np.float32)
+    points[:, 3] /= np.float32(intensity_divisor(scene))
     if scene.calib is not None and len(points):
         points = points[scene.calib.in_view(points[:, :3])]
     boxes = scene.boxes
@@ -92,14 +94,32 @@ def _frame_arrays(frame_id: str) -> FrameArrays:
 
 
 
-def load_frames(root: Path, frame_ids: Sequence[str], classes: Sequence[str], workers: int = 2) -> list[FrameArrays]:
-    """(points in view N×5, boxes M×7, class indices M) of each frame (:func:`frame_arrays`), loaded in parallel."""
+def load_frames(
+    root: Path,
+    frame_ids: Sequence[str],
+    classes: Sequence[str],
+    workers: int = 2,
+    on_frame: Callable[[], None] | None = None,
+) -> list[FrameArrays]:
+    """(points in view N×5, boxes M×7, class indices M) of each frame (:func:`frame_arrays`), loaded in parallel.
+
+    ``on_frame()`` is called as each frame arrives (for a progress bar).
+    """
     classes = tuple(classes)
+    out: list[FrameArrays] = []
     if workers <= 1:
         _init_worker(str(root), classes)
-        return [_frame_arrays(f) for f in frame_ids]
+        for frame_id in frame_ids:
+            out.append(_frame_arrays(frame_id))
+            if on_frame is not None:
+                on_frame()
+        return out
     with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(str(root), classes)) as pool:
-        return list(pool.map(_frame_arrays, frame_ids, chunksize=8))
+        for arrays in pool.map(_frame_arrays, frame_ids, chunksize=8):
+            out.append(arrays)
+            if on_frame is not None:
+                on_frame()
+    return out
 
 
 def split_ids(root: Path, split: str) -> list[str]:
@@ -126,13 +146,18 @@ def train(
     budget_seconds: float | None = None,
     on_epoch: Callable[[Any, dict[str, Any]], None] | None = None,
     initial: Any = None,
+    on_step: Callable[[int, int, float], None] | None = None,
 ) -> tuple[Any, dict[str, Any]]:
-    """Train a fresh PillarNet on in-memory frames; returns (network in eval mode, history).
+    """Train a PillarNet on in-memory frames; returns (network in eval mode, history).
 
-    With ``budget_seconds`` the first epoch is timed and the number of epochs cut to what
-    fits (the learning-rate schedule follows); the history records the epochs run, so the
-    run can be repeated exactly with that number. ``on_epoch(net, row)`` is called after
-    every epoch (to keep a checkpoint).
+    The network starts from ``initial`` (a state dict: fine-tuning) or from seeded random
+    weights. With ``budget_seconds`` the first epoch is timed and the number of epochs cut
+    to what fits (the learning-rate schedule follows); the history records the epochs run,
+    so the run can be repeated exactly with that number. ``on_epoch(net, row)`` is called
+    after every epoch (to keep a checkpoint), ``on_step(step, total, loss)`` after every
+    step (a progress bar; ``total`` may shrink after the first epoch under a budget). The
+    history's ``first_step_loss`` is the loss of the very first batch, before any update:
+    what the initial weights score on it.
     """
     torch = import_torch()
     from lidarfuzz.suts.learned.network import PillarConfig, PillarNet, detection_loss
@@ -199,6 +224,10 @@ def train(
             optimiser.step()
             schedule.step()
             sums["loss"] += float(loss.detach())
+            if "first_step_loss" not in history:
+                history["first_step_loss"] = float(loss.detach())
+            if on_step is not None:
+                on_step(epoch * steps_per_epoch + step + 1, plan["epochs"] * steps_per_epoch, float(loss.detach()))
             sums["heatmap"] += parts["heatmap"]
             sums["regression"] += parts["regression"]
         row = {k: v / steps_per_epoch for k, v in sums.items()}
@@ -229,3 +258,88 @@ def save_weights(net: Any, path: Path, meta: dict[str, Any]) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(payload, tmp)
     os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- a user's own data
+INIT_CHOICES = ("builtin", "scratch")
+
+
+@dataclass(frozen=True)
+class TrainingData:
+    """The frames of a user's KITTI-layout data set that training will use.
+
+    Attributes:
+        root: The folder holding ``velodyne/``.
+        split: The ``ImageSets`` list used, or ``all``.
+        frame_ids: Labelled frames to train on, in data set order.
+        skipped: Frames left out because they have no label file (only with ``allow_unlabelled``).
+    """
+
+    root: Path
+    split: str
+    frame_ids: list[str]
+    skipped: list[str]
+
+
+def labelled_ids(dataset: Any) -> tuple[list[str], list[str]]:
+    """(labelled, unlabelled) frame ids; unlabelled ones are those without a ``label_2/<id>.txt``."""
+    ids = list(dataset.frame_ids())
+    listed = getattr(dataset, "unlabelled_ids", None)
+    if listed is not None:
+        unlabelled = set(listed())
+    else:  # readers that refuse unlabelled frames at opening never get here with any
+        unlabelled = {f for f in ids if not (dataset.root / "label_2" / f"{f}.txt").is_file()}
+    return [f for f in ids if f not in unlabelled], [f for f in ids if f in unlabelled]
+
+
+def open_training_data(path: str | Path, split: str, *, allow_unlabelled: bool = False) -> TrainingData:
+    """Check a KITTI-layout folder for training and list its usable frames.
+
+    Args:
+        path: The data set (the folder holding ``velodyne/``, or one with ``training/``).
+        split: ``ImageSets/<split>.txt`` to train on, or ``all`` for every frame.
+        allow_unlabelled: Leave frames without a label file out instead of refusing the data set.
+
+    Raises:
+        DataFormatError: One line naming the file: not a KITTI layout, no ``label_2/``, no such
+            split, frames without labels (named; unless ``allow_unlabelled``), no labelled frame.
+    """
+    from lidarfuzz.errors import DataFormatError
+    from lidarfuzz.io.kitti import find_kitti_root, unlabelled_note
+
+    path = Path(path)
+    if not path.exists():
+        raise DataFormatError(path, "no such data set folder")
+    root = find_kitti_root(path)
+    if root is None:
+        raise DataFormatError(path, "not a KITTI layout: no velodyne/ folder here or under training/")
+    if not (root / "label_2").is_dir():
+        raise DataFormatError(root / "label_2", "no labels: training needs label_2/ with a label file per frame")
+    subset = None if split == "all" else split
+    if subset is not None and not any((p / "ImageSets" / f"{subset}.txt").is_file() for p in (root, path)):
+        raise DataFormatError(root / "ImageSets" / f"{subset}.txt", f"no {subset!r} split in this data set",
+                              hint="name another with --split, or --split all for every frame")
+    dataset = open_kitti(path, subset=subset)
+    labelled, unlabelled = labelled_ids(dataset)
+    if unlabelled and not allow_unlabelled:
+        raise DataFormatError(root / "label_2", unlabelled_note(unlabelled, len(labelled) + len(unlabelled)),
+                              hint="add their labels, or pass --allow-unlabelled to train on the others")
+    if not labelled:
+        raise DataFormatError(root / "label_2", f"no labelled frame in the {split!r} split")
+    return TrainingData(dataset.root, split, labelled, unlabelled)
+
+
+def initial_weights(init: str) -> tuple[Any, dict[str, Any] | None, Path | None]:
+    """(network configuration, state dict or None, weights file or None) to start from.
+
+    ``builtin``: the committed weights (fine-tuning); ``scratch``: seeded random weights with
+    the default configuration; anything else: a weights file written by this module.
+    """
+    from lidarfuzz.suts.learned.network import PillarConfig
+    from lidarfuzz.suts.learned.sut import DEFAULT_WEIGHTS, load_weights
+
+    if init == "scratch":
+        return PillarConfig(), None, None
+    path = DEFAULT_WEIGHTS if init == "builtin" else Path(init)
+    net, _ = load_weights(path)
+    return net.config, net.state_dict(), path
