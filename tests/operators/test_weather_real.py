@@ -21,8 +21,8 @@ from lidarfuzz.scene.scene import Scene
 # Statistics of three real KITTI HDL-64E scans (object benchmark training 000000-000002, 362,543
 # points), measured locally: per range bin (0-10, 10-20, 20-40, 40-80 m) the share of the points,
 # the share reading exactly 0, and the mean and standard deviation of the non-zero readings.
-# Readings are hundredths; 0.01 and 0.02 almost never occur (a few dozen against thousands of
-# zeros per bin), so 0 is a clamp at the beam's calibration floor, not a dim measurement.
+# Readings are hundredths; 0.01 and 0.02 almost never occur (within 10 m, 40-55 per frame against
+# 2,900-8,600 zeros), so 0 is a clamp at the beam's calibration floor, not a dim measurement.
 RANGE_BINS = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
 BIN_SHARE = (0.689, 0.200, 0.090, 0.021)
 ZERO_SHARE = (0.079, 0.053, 0.159, 0.690)

@@ -33,11 +33,12 @@ quantity. A reading is *resolved* — it fixes ρ_e = ρ̂ — when it is at lea
 step (``q`` = 1/255 of full scale) and at least what the detection implies, ``ρ̂ ≥ ρ_det(R)``.
 
 **Readings that say nothing.** A zero (or sub-step) reading is a clamp, not a measurement:
-the three KITTI frames this was checked on (training 000000–000002) hold 2,000–8,600 zeros per
-range bin against a few dozen readings of 0.01–0.02, so a 0 tells only that the beam's
-calibrated value fell below its floor; and readings below ``ρ_det(R)`` are refuted by the
-detection itself (the KITTI HDL-64E's readings are range-compensated to about 25 m, then fall:
-the median is 0.3 at 5–20 m and 0 beyond 50 m, where 60–95 % read 0). For these returns all
+within 10 m the three KITTI frames this was checked on (training 000000–000002) hold 2,900–8,600
+zeros each against 40–55 readings of 0.01–0.02 (beyond 10 m, hundreds to thousands of zeros
+against a handful), so a 0 tells only that the beam's calibrated value fell below its floor.
+And readings below ``ρ_det(R)`` are refuted by the detection itself (the KITTI HDL-64E's
+readings are range-compensated to about 25 m, then fall: the median is 0.3 at 5–20 m and 0
+beyond 50 m, where 60–95 % read 0). For these returns all
 that is known is ``ρ_e ≥ ρ_det(R)``; ρ_e is drawn, per point and seeded, from a uniform prior
 over the admissible interval ``[ρ_det(R), 1]`` (1: a white diffuse target; brighter returns
 are retro-reflectors, whose readings are never at the floor). Reading the zero as a reflectivity
