@@ -39,11 +39,11 @@ Example:
 from __future__ import annotations
 
 import functools
+import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from os import PathLike
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -228,14 +228,11 @@ def parse_layout(text: str) -> PointLayout:
 
 
 # --------------------------------------------------------------------------- choosing one
-def _is_nuscenes_folder(folder: Path) -> bool:
-    return folder.name == "LIDAR_TOP" and folder.parent.name in ("samples", "sweeps")
-
-
-def is_semantickitti_sequence(folder: Path) -> bool:
+def is_semantickitti_sequence(folder: str | PathLike[str]) -> bool:
     """``…/sequences/NN`` holding ``velodyne/`` and ``labels/``: a SemanticKITTI sequence."""
-    return (folder.parent.name == "sequences" and (folder / "velodyne").is_dir()
-            and (folder / "labels").is_dir())
+    folder = os.fspath(folder)
+    return (os.path.basename(os.path.dirname(folder)) == "sequences" and os.path.isdir(os.path.join(folder, "velodyne"))
+            and os.path.isdir(os.path.join(folder, "labels")))
 
 
 def layout_from_structure(path: str | PathLike[str]) -> PointLayout | None:
@@ -245,16 +242,19 @@ def layout_from_structure(path: str | PathLike[str]) -> PointLayout | None:
     nuscenes; ``*.feather`` → argoverse2; a SemanticKITTI ``sequences/NN`` folder (with
     ``labels/``), or a scan in its ``velodyne/`` → semantickitti.
     """
-    path = Path(path)
-    name = path.name.lower()
+    # string operations, not pathlib: this runs on every scan read
+    text = os.fspath(path).rstrip("/") or "/"
+    name = os.path.basename(text).lower()
     if name.endswith(".pcd.bin"):
         return LAYOUTS["nuscenes"]
     if name.endswith(".feather"):
         return LAYOUTS["argoverse2"]
-    folder = path.parent if name.endswith(".bin") or not path.is_dir() else path
-    if _is_nuscenes_folder(folder):
+    folder = os.path.dirname(text) if name.endswith(".bin") or not os.path.isdir(text) else text
+    folder_name, parent = os.path.basename(folder), os.path.dirname(folder)
+    if folder_name == "LIDAR_TOP" and os.path.basename(parent) in ("samples", "sweeps"):
         return LAYOUTS["nuscenes"]
-    if is_semantickitti_sequence(folder) or (folder.name == "velodyne" and is_semantickitti_sequence(folder.parent)):
+    if (folder_name == "velodyne" and is_semantickitti_sequence(parent)) or (
+            os.path.basename(parent) == "sequences" and is_semantickitti_sequence(folder)):
         return LAYOUTS["semantickitti"]
     return None
 
