@@ -40,7 +40,7 @@ def test_outside_roi_scatter_never_lands_in_the_roi(scene, count):
     op = OutsideRoiScatter(count_range=(count, count))
     mutant, params = op(scene, rng())
     added = mutant.points.data[len(scene.points):]
-    assert len(added) == count and params.region == "roi"
+    assert len(added) == count and params.region == "frame_map"  # the simulator's own map
     assert not scene.roi.contains_xy(added[:, :2]).any()
     xyz = scene.points.xyz
     assert xyz[:, 2].min() <= added[:, 2].min() and added[:, 2].max() <= xyz[:, 2].max()
@@ -49,9 +49,11 @@ def test_outside_roi_scatter_never_lands_in_the_roi(scene, count):
     assert np.all(mutant.points.channel("instance")[len(scene.points):] == -1)  # no object's points
 
 
-def test_outside_roi_scatter_without_a_map_avoids_the_objects(scene):
+def test_outside_roi_scatter_boxes_region_avoids_the_objects(scene):
+    # the fallback before the estimated region, kept as region "boxes" (tests/operators/test_roi_estimate.py
+    # covers the estimate)
     no_map = scene.replace(roi=None)
-    mutant, scatter = OutsideRoiScatter(count_range=(2000, 2000))(no_map, rng())
+    mutant, scatter = OutsideRoiScatter(count_range=(2000, 2000), region="boxes")(no_map, rng())
     assert scatter.region == "boxes"
     from lidarfuzz.scene.geometry import points_in_boxes
 

@@ -55,7 +55,10 @@ def roi_mask(xy: NDArray[np.float32], roi: RoiMap | None, margin: float, cell: f
     if roi is None or n == 0:
         return np.ones(n, dtype=bool)
     area = roi.geometry.buffer(margin, quad_segs=4) if margin > 0 else roi.geometry
-    lo = xy.min(axis=0).astype(np.float64)
+    # the raster's cells sit on multiples of `cell`, not on the cloud's corner: a point's verdict
+    # must not depend on where the other points are (with the origin at the cloud's minimum, one
+    # point added far away shifted every cell and moved the boundary under points near the edge)
+    lo = np.floor(xy.min(axis=0).astype(np.float64) / cell) * cell
     hi = xy.max(axis=0).astype(np.float64)
     shape = tuple(int(v) for v in np.maximum(np.ceil((hi - lo) / cell).astype(int) + 1, 1))
     inside = rasterize(area, lo, cell, shape)  # type: ignore[arg-type]
