@@ -62,7 +62,7 @@ STEM = "pillars-sim"
 PROFILE_FRAMES = 300
 #: Seconds kept back from ``--deadline-minutes`` for everything after training (measured on the
 #: 16-core H100 machine: profile, two evaluations, the real frames; with room to spare).
-EVAL_RESERVE_S = 75.0
+EVAL_RESERVE_S = 90.0
 
 
 class Tee:
@@ -80,20 +80,27 @@ class Tee:
 def realism_shards(frames: int, seed: int) -> list[tuple[int, int, dict[str, Any]]]:
     """(frames, seed, extra GenerationConfig fields) of each shard of the training data.
 
-    The simulator's realism settings are per data set, so the training data is rendered
-    in shards that draw them differently; each shard has its own seed (so no scene repeats).
-    Only the fields this simulator's ``GenerationConfig`` has are set: on a simulator
-    without realism settings this is one shard of every frame.
+    Where the simulator has realism settings (``GenerationConfig.realism``), the training data
+    is rendered with its domain-randomisation ranges (``RealismConfig.randomised()``: every
+    frame's ground, sensor mounting, receiver, calibration and losses drawn from the frame's
+    seed); on a simulator without them, as it is. One shard today; the list leaves room for
+    mixing differently configured shards (each with its own seed, so no scene repeats).
     """
     names = {f.name for f in dataclasses.fields(GenerationConfig)}
     variants: list[dict[str, Any]] = [{}]
-    if "realism" in names:  # the simulator's per-frame randomisation of ground, intensity and drop-outs
-        variants = [{"realism": "random"}]
+    if "realism" in names:
+        from lidarfuzz.sim.realism import RealismConfig
+
+        variants = [{"realism": RealismConfig.randomised()}]
     count = len(variants)
     return [
         (frames // count + (1 if i < frames % count else 0), seed + 1000 * i, variant)
         for i, variant in enumerate(variants)
     ]
+
+
+def _jsonable(extra: dict[str, Any]) -> dict[str, Any]:
+    return {k: v.model_dump(mode="json") if hasattr(v, "model_dump") else v for k, v in extra.items()}
 
 
 def ensure_data(root: Path, frames: int, seed: int, val_fraction: float, workers: int,
@@ -103,7 +110,8 @@ def ensure_data(root: Path, frames: int, seed: int, val_fraction: float, workers
     if not is_complete(root, config):
         start = time.perf_counter()
         generate_dataset(root, config, workers=workers, overwrite=True)
-        log(f"rendered {frames} frames of seed {seed} {extra or ''} into {root} in {time.perf_counter() - start:.0f} s")
+        how = f" with {', '.join(extra)}" if extra else ""
+        log(f"rendered {frames} frames of seed {seed}{how} into {root} in {time.perf_counter() - start:.0f} s")
 
 
 def build_profile(weights: Path, root: Path, frame_ids: list[str], out_dir: Path, threads: int) -> Path:
@@ -234,7 +242,7 @@ def main() -> None:
     weights = args.out_dir / f"{STEM}.pt"
     meta: dict[str, Any] = {
         "data": {"simulator_seed": args.train_seed, "frames": len(frames_all), "split": "train", "objects": counts,
-                 "shards": [{"frames": f, "seed": s, **extra} for f, s, extra in shards]},
+                 "shards": [{"frames": f, "seed": s, **_jsonable(extra)} for f, s, extra in shards]},
         "train": {**config.to_json(), "device": history["device"], "seconds": history["seconds"],
                   "final_loss": history["epochs"][-1]["loss"] if history["epochs"] else None},
         "classes": list(CLASSES),
