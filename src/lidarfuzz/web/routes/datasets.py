@@ -41,6 +41,10 @@ UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-dat
     "type": "object", "required": ["name", "files"],
     "properties": {"name": {"type": "string", "description": "a name for the data set"},
                    "notes": {"type": "string"},
+                   "layout": {"type": "string", "description": "point layout of .bin scans: kitti, nuscenes, "
+                                                               "… or columns such as x,y,z,intensity,ring:f4"},
+                   "allow_unlabelled": {"type": "boolean", "description": "campaigns may run frames without "
+                                                                          "labels (AP from the labelled ones)"},
                    "files": {"type": "array", "items": {"type": "string", "format": "binary"},
                              "description": "one .zip; or frames (+ KITTI label and calib files); or one "
                                             ".bag / .mcap"}}}}}}}
@@ -49,7 +53,7 @@ UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-dat
 def dataset_row(row: Any, uploads: Path) -> dict[str, Any]:
     return {"name": row.name, "status": "ready", "format": row.format, "frame_count": row.frame_count,
             "path": row.path, "notes": row.notes, "added_at": iso(row.added_at),
-            "uploaded": within(Path(row.path), uploads)}
+            "uploaded": within(Path(row.path), uploads), "options": dict(row.options or {})}
 
 
 @router.get("/datasets")
@@ -142,11 +146,11 @@ def _relative(text: str, root: Path) -> str:
     return text
 
 
-def _inspect(root: Path, base: Path) -> tuple[list[dict[str, Any]], Any]:
+def _inspect(root: Path, base: Path, options: Any = None) -> tuple[list[dict[str, Any]], Any]:
     from lidarfuzz.io.inspect import inspect_source
 
     try:
-        report = inspect_source(root)
+        report = inspect_source(root, options=options)
     except DataFormatError as exc:
         return [{"severity": "error", "file": _relative(str(exc.path), base), "line": exc.line,
                  "message": _relative(exc.message, base)}], None
@@ -155,6 +159,18 @@ def _inspect(root: Path, base: Path) -> tuple[list[dict[str, Any]], Any]:
     if report.frames == 0:
         problems.append({"severity": "error", "file": ".", "line": None, "message": "no frames to test"})
     return problems, report
+
+
+def _options(form: Any) -> Any:
+    """Data-set options from the upload form's ``layout`` and ``allow_unlabelled`` fields."""
+    from lidarfuzz.errors import LidarfuzzError
+    from lidarfuzz.io.options import options_from_flags
+
+    allow = str(form.get("allow_unlabelled") or "").strip().lower() in ("1", "true", "yes", "on")
+    try:
+        return options_from_flags(str(form.get("layout") or "") or None, allow)
+    except LidarfuzzError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace("--layout", "layout", 1)) from None
 
 
 def _problem_line(problem: dict[str, Any]) -> str:
@@ -170,6 +186,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     form = await request.form(max_files=100_000, max_fields=20)
     name = str(form.get("name") or "")
     _name_free(ctx, name)
+    options = _options(form)
     files = [f for f in form.getlist("files") + form.getlist("file") if isinstance(f, UploadFile)]
     if not files:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "files: no file uploaded")
@@ -178,7 +195,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     try:
         root, names = await _store_files(ctx, files, folder)
         base = root if root.is_dir() else root.parent
-        problems, report = await run_in_threadpool(_inspect, root, base)
+        problems, report = await run_in_threadpool(_inspect, root, base, options)
         errors = [p for p in problems if p["severity"] == "error"]
         if errors:
             remove_tree(folder, ctx.uploads)
@@ -186,7 +203,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
                                 status_code=422)
         notes = str(form.get("notes") or "") or f"uploaded: {', '.join(names[:5])}" + (
             f" and {len(names) - 5} more" if len(names) > 5 else "")
-        row = await run_in_threadpool(add_dataset, ctx.store, name, root, notes)
+        row = await run_in_threadpool(add_dataset, ctx.store, name, root, notes, options)
     except BaseException:
         remove_tree(folder, ctx.uploads)
         raise
