@@ -8,6 +8,7 @@ import pytest
 from lidarfuzz.scene.geometry import points_in_boxes
 from lidarfuzz.sim import Renderer, compile_world, generate_scene
 from lidarfuzz.sim.materials import SEMANTIC_ID
+from lidarfuzz.sim.realism import RealismConfig
 from tests.sim.helpers import render
 
 # Seen from the sensor at the origin (azimuths in degrees): wall A covers ±8.5°, car 1 (±2.5°) hides
@@ -79,7 +80,9 @@ def test_labels_carry_kitti_geometry(staged):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_labelled_objects_points_lie_in_its_box_even_with_a_moving_ego(seed):
-    scene = Renderer(compile_world(generate_scene(seed, ego_speed=14.0))).render(0.0)
+    # Flat ground: a yaw-only box cannot hold a vehicle tilted against the ego vehicle by a
+    # grade change (tests/sim/test_realism.py checks boxes on sloping ground).
+    scene = Renderer(compile_world(generate_scene(seed, ego_speed=14.0, realism=RealismConfig.off()))).render(0.0)
     instance = scene.points.channel("instance")
     labelled = scene.boxes.select(scene.boxes.has_geometry)
     assert len(labelled) > 0

@@ -32,11 +32,15 @@ def test_rendered_beams_have_the_preset_elevations_and_timing(name):
     elevation = np.rad2deg(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
     expected = np.sort(sensor.elevations_deg)[ring]  # ring 0 is the lowest beam
     np.testing.assert_allclose(elevation, expected, atol=1e-3)
-    # Every beam that reaches the ground well within range returns; beams at or above the horizon do not.
+    # Every beam whose hit on the grass (reflectivity 0.42) is clearly above the detection
+    # threshold returns (signal = 0.42 · √cos(incidence) · (100 m / range)², cos = sin(−elevation));
+    # beams at or above the horizon do not.
     elevations = np.deg2rad(np.sort(sensor.elevations_deg))
     ground_range = np.where(elevations < 0, sensor.mount_height / np.sin(-np.minimum(elevations, -1e-9)), np.inf)
-    assert set(np.unique(ring)) == set(np.flatnonzero(ground_range < 0.5 * sensor.max_range)) | (
-        set(np.unique(ring)) & set(np.flatnonzero((ground_range >= 0.5 * sensor.max_range) & (elevations < 0))))
+    signal = 0.42 * np.sqrt(np.sin(np.maximum(-elevations, 1e-9))) * (100.0 / ground_range) ** 2
+    strong = set(np.flatnonzero((signal >= 1.2 * sensor.detection_threshold) & (ground_range < sensor.max_range)))
+    assert strong <= set(np.unique(ring)) <= set(np.flatnonzero(elevations < 0))
+    assert len(strong) >= sensor.beams // 3
     # Flat ground at z = 0: z is minus the mount height, up to the range noise.
     assert np.median(xyz[:, 2]) == pytest.approx(-sensor.mount_height, abs=0.01)
     distance = np.linalg.norm(xyz, axis=1)
@@ -72,7 +76,8 @@ def test_range_noise_has_the_preset_spread():
 
 def test_user_defined_beam_table(tmp_path):
     path = tmp_path / "sensor.yaml"
-    path.write_text("preset: VLP-16\nname: my-4-beam\nelevations_deg: [-2, -5, -10, -15]\nmount_height: 2.0\n")
+    # The highest beam (−3°) meets the grass 38 m away, within the detection threshold's reach.
+    path.write_text("preset: VLP-16\nname: my-4-beam\nelevations_deg: [-3, -5, -10, -15]\nmount_height: 2.0\n")
     sensor = load_sensor(path)
     assert sensor.beams == 4 and sensor.columns == 1800 and sensor.mount_height == 2.0
     scene = render({"sensor": sensor.model_dump(), "extent": 300})

@@ -40,6 +40,7 @@ from lidarfuzz.io.kitti import KittiWriter, write_kitti_frame
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.generate import SCENE_KINDS, generate_scene
 from lidarfuzz.sim.labels import LabelConfig
+from lidarfuzz.sim.realism import RealismConfig
 from lidarfuzz.sim.render import Renderer
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, load_sensor
 from lidarfuzz.sim.spec import SceneSpec
@@ -61,6 +62,9 @@ class GenerationConfig:
         kind: ``"urban"`` or ``"suburban"``; mixed when ``None``.
         val_fraction: Share of frames (the last ones) listed in ``ImageSets/val.txt``.
         labels: Which objects are labelled and which become DontCare.
+        realism: The ranges each generated scene's ground and sensor are drawn from, from
+            the scene's seed (:class:`~lidarfuzz.sim.realism.RealismConfig`; by default real
+            roads' slopes and camber, and KITTI's receiver). A scene file is rendered as written.
     """
 
     frames: int
@@ -71,6 +75,7 @@ class GenerationConfig:
     kind: str | None = None
     val_fraction: float = 0.5
     labels: LabelConfig = field(default_factory=LabelConfig)
+    realism: RealismConfig = field(default_factory=RealismConfig)
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -91,6 +96,7 @@ class GenerationConfig:
             "frames": self.frames, "seed": self.seed, "sequence": self.is_sequence, "kind": self.kind,
             "sensor": self.sensor, "val_fraction": self.val_fraction, "labels": asdict(self.labels),
             "scene": json.loads(self.scene.model_dump_json(by_alias=True)) if self.scene is not None else None,
+            "realism": self.realism.model_dump(mode="json"),
         }
 
 
@@ -128,19 +134,28 @@ def sequence_scene(config: GenerationConfig) -> SceneSpec:
     """The one scene of a sequence data set."""
     if config.scene is not None:
         spec = config.scene
-    else:
-        duration = config.frames * load_sensor(config.sensor or DEFAULT_SENSOR).period
-        spec = generate_scene(config.seed, kind=config.kind, duration=duration)  # type: ignore[arg-type]
-    if config.sensor is not None:
-        spec = spec.model_copy(update={"sensor": config.sensor})
-    return spec
+        if config.sensor is not None:
+            spec = spec.model_copy(update={"sensor": config.sensor})
+        return spec
+    duration = config.frames * load_sensor(config.sensor or DEFAULT_SENSOR).period
+    spec = generate_scene(config.seed, kind=config.kind, duration=duration,  # type: ignore[arg-type]
+                          realism=config.realism)
+    return _with_sensor(config, spec, config.seed)
 
 
 def _frame_scene(config: GenerationConfig, index: int) -> SceneSpec:
-    spec = generate_scene(frame_seed(config.seed, index), kind=config.kind)  # type: ignore[arg-type]
-    if config.sensor is not None:
-        spec = spec.model_copy(update={"sensor": config.sensor})
-    return spec
+    seed = frame_seed(config.seed, index)
+    spec = generate_scene(seed, kind=config.kind, realism=config.realism)  # type: ignore[arg-type]
+    return _with_sensor(config, spec, seed)
+
+
+def _with_sensor(config: GenerationConfig, spec: SceneSpec, seed: int) -> SceneSpec:
+    """A generated scene's sensor: the configured one, with the receiver and losses drawn from
+    ``config.realism`` from the scene's seed (the preset's name kept when nothing is drawn)."""
+    base = config.sensor if config.sensor is not None else spec.sensor
+    sensor = load_sensor(base)
+    drawn = config.realism.sample_sensor(sensor, np.random.default_rng(np.random.SeedSequence([seed, 0x5E4])))
+    return spec.model_copy(update={"sensor": base if drawn is sensor else drawn})
 
 
 def _frame_complete(root: Path, frame_id: str) -> bool:

@@ -12,9 +12,11 @@ The ego vehicle starts at the origin in the rightmost lane of a main road along 
 
 Vehicles in one lane move at that lane's speed (the ego lane's speed is the ego's),
 so a sequence does not drive cars through each other. Every object is placed on a
-free footprint; sizes follow :data:`~lidarfuzz.sim.actors.SIZE_STATS`. The result is
-a :class:`~lidarfuzz.sim.spec.SceneSpec`, so a generated scene can be saved, edited
-and rendered again. Deterministic per seed.
+free footprint; sizes follow :data:`~lidarfuzz.sim.actors.SIZE_STATS`. The ground is
+not flat: its grade, vertical curve, camber, cross-fall and undulation are drawn from
+the ranges of a :class:`~lidarfuzz.sim.realism.RealismConfig`, with dropped kerbs at
+zebra crossings and driveways. The result is a :class:`~lidarfuzz.sim.spec.SceneSpec`,
+so a generated scene can be saved, edited and rendered again. Deterministic per seed.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry import box as shapely_box
 
 from lidarfuzz.sim.actors import sample_size
+from lidarfuzz.sim.realism import RealismConfig
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor
 from lidarfuzz.sim.spec import Crosswalk, Road, SceneSpec
 from lidarfuzz.sim.world import footprint_of
@@ -44,6 +47,8 @@ class _Layout:
     drivable: Polygon | None = None  # static objects keep off the carriageway
     objects: list[dict[str, Any]] = field(default_factory=list)
     actors: list[dict[str, Any]] = field(default_factory=list)
+    ramps: list[dict[str, Any]] = field(default_factory=list)  # dropped kerbs
+    sidewalk_width: float = 0.0
 
     def free(self, footprint: Polygon, margin: float = 0.3) -> bool:
         if not self.occupied:
@@ -106,6 +111,7 @@ def generate_scene(
     ego_speed: float | None = None,
     duration: float = 0.0,
     name: str | None = None,
+    realism: RealismConfig | None = None,
 ) -> SceneSpec:
     """Sample a scene.
 
@@ -117,6 +123,8 @@ def generate_scene(
         duration: Seconds the scene must cover (a sequence's length): the world is
             extended along the route so the ego never drives off it.
         name: Scene name (default ``"<kind>-<seed>"``).
+        realism: The ranges the terrain is drawn from (default :class:`RealismConfig`'s);
+            ``RealismConfig.off()`` gives flat ground.
 
     Example:
         >>> spec = generate_scene(3)
@@ -124,8 +132,9 @@ def generate_scene(
         True
     """
     # Separate streams: fixing the kind or the ego's speed leaves the rest of the scene as the seed made it.
-    kind_rng, speed_rng, rng = (np.random.default_rng(np.random.SeedSequence([seed, 0x5CE7E, stream]))
-                                for stream in range(3))
+    kind_rng, speed_rng, rng, terrain_rng = (np.random.default_rng(np.random.SeedSequence([seed, 0x5CE7E, stream]))
+                                             for stream in range(4))
+    realism = realism if realism is not None else RealismConfig()
     drawn_kind: SceneKind = "urban" if kind_rng.random() < 0.7 else "suburban"
     drawn_speed = 0.0 if speed_rng.random() < 0.15 else float(speed_rng.uniform(4.0, 14.0))
     kind = kind or drawn_kind
@@ -165,19 +174,27 @@ def generate_scene(
                 if rng.random() < 0.7:
                     layout.objects.append({"kind": "crosswalk", "position": [_r(x), 0.0], "yaw": 0.0,
                                            "length": _r(2 * main.half_width), "width": 3.0})
+                    for side in (-1.0, 1.0):  # kerb ramps at both ends of the crossing
+                        layout.ramps.append({"position": [_r(x), _r(side * main.half_width)],
+                                             "yaw": 90.0 * side, "width": 3.0, "depth": 1.0})
     layout.drivable = shapely.union_all([LineString(r.centerline).buffer(r.half_width, cap_style="flat")
                                          for r in roads])
 
     kerb_line = main.half_width + sidewalk
+    layout.sidewalk_width = sidewalk
     _buildings(layout, kerb_line, x_lo, x_hi, urban, junction_x, roads)
     _street_furniture(layout, main, x_lo, x_hi, urban, junction_x)
     _road_users(layout, main, roads, ego_y, ego_speed, x_lo, x_hi, urban, junction_x)
+    terrain = realism.sample_terrain(terrain_rng)
+    if terrain and realism.ramps:
+        terrain["ramps"] = layout.ramps
 
     return SceneSpec.model_validate({
         "name": name or f"{kind}-{seed}",
         "seed": seed,
         "ground": "paving" if urban and rng.random() < 0.3 else "grass",
         "extent": 125.0,
+        "terrain": terrain,
         "roads": [r.model_dump() for r in roads],
         "objects": layout.objects,
         "actors": layout.actors,
@@ -249,6 +266,9 @@ def _front_garden(layout: _Layout, x: float, frontage: float, side: float, kerb:
         dy = side * (kerb + rng.uniform(3.0, max(near - 2.5, 3.5)))
         cls = "Car" if rng.random() < 0.8 else "Van"
         layout.add_actor(cls, dx, dy, np.pi / 2 * side + (np.pi if rng.random() < 0.5 else 0.0), parked=True)
+        edge = kerb - layout.sidewalk_width  # the driveway crosses the sidewalk: a dropped kerb
+        layout.ramps.append({"position": [_r(dx), _r(side * edge)], "yaw": 90.0 * side, "width": 3.0,
+                             "depth": 1.0})
 
 
 def _street_furniture(layout: _Layout, main: Road, x_lo: float, x_hi: float, urban: bool,

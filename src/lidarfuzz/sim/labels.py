@@ -17,6 +17,10 @@ front camera's image:
 Each box is placed where the sensor saw the object: at the instant the head swept
 over it, in the sensor frame of that instant — the frame its points are expressed
 in — so labels and points agree even for a moving ego vehicle and moving objects.
+On sloping ground the box's bottom is on the ground under the object and its heading
+is the object's, seen in the (tilted) sensor frame; as in KITTI, boxes turn about the
+vertical only, so a vehicle on a grade that differs from the ego vehicle's by a few
+per cent sticks out of its box by a few centimetres at its ends.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from lidarfuzz.scene.geometry import box_corners
 from lidarfuzz.scene.labels import image_boxes as _boxes2d
 from lidarfuzz.scene.labels import image_coverage as _image_coverage
 from lidarfuzz.scene.labels import occlusion_level
+from lidarfuzz.sim.terrain import frame_from_slopes
 
 if TYPE_CHECKING:
     from lidarfuzz.sim.meshes import Mesh
@@ -60,20 +65,21 @@ def label_actors(
     config: LabelConfig,
 ) -> tuple[Boxes3D, dict[str, Any]]:
     """Boxes (labelled objects, then DontCare regions) and per-box extras for the frame's metadata."""
-    world, sensor, calib = renderer.world, renderer.sensor, renderer.calib
+    world, calib = renderer.world, renderer.calib
     n = len(world.actors)
     if n == 0:
         return Boxes3D.empty(), {"objects": {"num_points": [], "visibility": []}}
 
-    # Each actor's box in the sensor frame of the instant it was seen.
-    ex, ey, _, eyaw = renderer.ego_pose(times)
-    dx, dy = actor_poses[:, 0] - ex, actor_poses[:, 1] - ey
-    c, s = np.cos(eyaw), np.sin(eyaw)
+    # Each actor's box in the sensor frame of the instant it was seen: its centre half its
+    # height above the ground along its own up (vehicles tilt with the ground), its heading
+    # projected onto the sensor's horizontal plane (KITTI boxes turn about the vertical only).
+    origin, rotation = renderer.sensor_pose(times)
     sizes = np.array([a.size for a in world.actors], dtype=np.float64)
-    boxes = np.column_stack([
-        c * dx + s * dy, -s * dx + c * dy, actor_poses[:, 2] + sizes[:, 2] / 2 - sensor.mount_height,
-        sizes, actor_poses[:, 3] - eyaw,
-    ])
+    body = frame_from_slopes(actor_poses[:, 3], actor_poses[:, 4], actor_poses[:, 5])
+    centre = actor_poses[:, :3] + body[:, :, 2] * (sizes[:, 2:3] / 2)
+    local_centre = np.einsum("nji,nj->ni", rotation, centre - origin)
+    local_forward = np.einsum("nji,nj->ni", rotation, body[:, :, 0])
+    boxes = np.column_stack([local_centre, sizes, np.arctan2(local_forward[:, 1], local_forward[:, 0])])
     num_points = np.bincount(points_owner[points_owner >= 0], minlength=n)[:n]
     geometric_hits = np.bincount(geometric_owner[geometric_owner >= 0], minlength=n)[:n]
 

@@ -11,19 +11,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from lidarfuzz.scene.semantics import OBJECT_SEMANTIC, SEMANTIC_CLASSES, SEMANTIC_ID
 
 
 @dataclass(frozen=True)
 class Material:
-    """A surface: diffuse reflectance at 905 nm, the semantic class of its points, and the
+    """A surface: diffuse reflectance at 905 nm, the semantic class of its points, the
     probability that a beam hitting it returns at all (glass mostly transmits or mirrors the
-    beam away: windows show as holes in real scans)."""
+    beam away: windows show as holes in real scans), and its gloss: the share of the beam a
+    glossy surface mirrors away instead of scattering back when hit at a grazing angle (see
+    :class:`~lidarfuzz.sim.sensor.Dropouts`), so glossy car bodies and glass lose returns at
+    grazing incidence as they do in real scans."""
 
     name: str
     reflectivity: float
     semantic: str
     returns: float = 1.0
+    gloss: float = 0.0
 
 
 _MATERIALS = (
@@ -36,7 +42,7 @@ _MATERIALS = (
     Material("soil", 0.25, "terrain"),
     Material("plaster", 0.50, "building"),
     Material("brick", 0.32, "building"),
-    Material("window", 0.06, "building", returns=0.3),
+    Material("window", 0.04, "building", returns=0.3, gloss=1.0),
     Material("concrete", 0.38, "wall"),
     Material("fence", 0.25, "wall"),
     Material("foliage", 0.55, "vegetation"),
@@ -44,8 +50,8 @@ _MATERIALS = (
     Material("bark", 0.22, "trunk"),
     Material("metal", 0.40, "pole"),
     Material("sign", 0.90, "traffic-sign"),
-    Material("tyre", 0.04, "car"),
-    Material("car-glass", 0.05, "car", returns=0.3),
+    Material("tyre", 0.03, "car"),
+    Material("car-glass", 0.03, "car", returns=0.3, gloss=1.0),
     Material("plate", 0.85, "car"),
     Material("light", 0.75, "car"),
     Material("cloth", 0.40, "pedestrian"),
@@ -55,8 +61,30 @@ _MATERIALS = (
 #: Materials by name; ``paint`` (vehicle body colour) is per object, see :data:`PAINT_REFLECTIVITY`.
 MATERIALS: dict[str, Material] = {m.name: m for m in _MATERIALS}
 
-#: Vehicle paint from black (0.05) to white (0.75): sampled per vehicle.
-PAINT_REFLECTIVITY = (0.05, 0.75)
+#: Vehicle paint from black (0.03: diffuse reflectance of black clear-coated paint at 905 nm is
+#: 2–5 %) to white (0.75).
+PAINT_REFLECTIVITY = (0.03, 0.75)
+#: Paint drawn per vehicle from the colours cars have (global shares, rounded from the paint
+#: makers' yearly colour-popularity reports: white ~35 %, black ~20 %, grey ~18 %, silver
+#: ~12 %, other colours ~15 %), each a range of reflectivity at 905 nm: (share, low, high).
+PAINT_COLOURS: tuple[tuple[float, float, float], ...] = (
+    (0.35, 0.50, 0.75),  # white
+    (0.20, 0.03, 0.06),  # black
+    (0.18, 0.08, 0.20),  # grey
+    (0.12, 0.30, 0.50),  # silver
+    (0.15, 0.15, 0.50),  # red, blue and the rest
+)
+
+
+def sample_paint(rng: np.random.Generator) -> float:
+    """A vehicle's paint reflectivity (:data:`PAINT_COLOURS`); two draws whatever the colour."""
+    pick, within = rng.random(2)
+    shares = np.cumsum([c[0] for c in PAINT_COLOURS])
+    _, low, high = PAINT_COLOURS[min(int(np.searchsorted(shares, pick * shares[-1])), len(PAINT_COLOURS) - 1)]
+    return float(low + (high - low) * within)
+
+#: Vehicle paint is clear-coated: half the beam is mirrored at grazing incidence.
+PAINT_GLOSS = 0.5
 
 def material(name: str) -> Material:
     try:
@@ -66,5 +94,6 @@ def material(name: str) -> Material:
 
 
 __all__ = [
-    "MATERIALS", "OBJECT_SEMANTIC", "PAINT_REFLECTIVITY", "SEMANTIC_CLASSES", "SEMANTIC_ID", "Material", "material",
+    "MATERIALS", "OBJECT_SEMANTIC", "PAINT_COLOURS", "PAINT_GLOSS", "PAINT_REFLECTIVITY", "SEMANTIC_CLASSES",
+    "SEMANTIC_ID", "Material", "material", "sample_paint",
 ]

@@ -15,10 +15,10 @@ from functools import cache
 import numpy as np
 import shapely
 import trimesh
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from shapely.geometry import MultiPolygon, Polygon
 
-from lidarfuzz.sim.materials import SEMANTIC_ID, material
+from lidarfuzz.sim.materials import PAINT_GLOSS, SEMANTIC_ID, material
 
 #: Reflectivity placeholder for "the object's own paint", replaced per instance.
 PAINT = -1.0
@@ -26,17 +26,21 @@ PAINT = -1.0
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """Triangles (vertices V×3, faces F×3) with per-face reflectivity and semantic class id."""
+    """Triangles (vertices V×3, faces F×3) with per-face reflectivity, semantic class id,
+    probability of a return and gloss (see :class:`~lidarfuzz.sim.materials.Material`)."""
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int32]
     reflectivity: NDArray[np.float32]
     semantic: NDArray[np.uint8]
     returns: NDArray[np.float32] = None  # type: ignore[assignment]  # probability of a return; all 1 if None
+    gloss: NDArray[np.float32] = None  # type: ignore[assignment]  # all 0 if None
 
     def __post_init__(self) -> None:
         if self.returns is None:
             object.__setattr__(self, "returns", np.ones(len(self.faces), np.float32))
+        if self.gloss is None:
+            object.__setattr__(self, "gloss", np.zeros(len(self.faces), np.float32))
 
     @staticmethod
     def empty() -> Mesh:
@@ -49,12 +53,13 @@ class Mesh:
         n = len(faces)
         returns = 1.0
         if material_name is None:
-            refl, sem = PAINT, SEMANTIC_ID[semantic or "unlabelled"]
+            refl, sem, gloss = PAINT, SEMANTIC_ID[semantic or "unlabelled"], PAINT_GLOSS
         else:
             mat = material(material_name)
-            refl, sem, returns = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic], mat.returns
+            refl, sem, returns, gloss = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic], mat.returns, mat.gloss
         return Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32),
-                    np.full(n, refl, np.float32), np.full(n, sem, np.uint8), np.full(n, returns, np.float32))
+                    np.full(n, refl, np.float32), np.full(n, sem, np.uint8), np.full(n, returns, np.float32),
+                    np.full(n, gloss, np.float32))
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -71,6 +76,7 @@ class Mesh:
             np.concatenate([p.reflectivity for p in parts]),
             np.concatenate([p.semantic for p in parts]),
             np.concatenate([p.returns for p in parts]),
+            np.concatenate([p.gloss for p in parts]),
         )
 
     def placed(self, x: float, y: float, yaw: float, z: float = 0.0) -> Mesh:
@@ -83,11 +89,18 @@ class Mesh:
         out[:, 2] = v[:, 2] + z
         return dataclasses.replace(self, vertices=out)
 
-    def painted(self, reflectivity: float, semantic: str | None = None) -> Mesh:
-        """Paint placeholders replaced by ``reflectivity``; every face relabelled when ``semantic`` is given."""
-        refl = np.where(self.reflectivity == PAINT, np.float32(reflectivity), self.reflectivity).astype(np.float32)
+    def posed(self, rotation: NDArray[np.float64], translation: ArrayLike) -> Mesh:
+        """The mesh rotated by the 3×3 ``rotation`` about its origin and moved by ``translation``."""
+        return dataclasses.replace(self, vertices=self.vertices @ np.asarray(rotation).T + np.asarray(translation))
+
+    def painted(self, reflectivity: float, semantic: str | None = None, gloss: float | None = None) -> Mesh:
+        """Paint placeholders replaced by ``reflectivity`` (and their gloss by ``gloss`` when given:
+        clothing is matt); every face relabelled when ``semantic`` is given."""
+        paint = self.reflectivity == PAINT
+        refl = np.where(paint, np.float32(reflectivity), self.reflectivity).astype(np.float32)
         sem = self.semantic if semantic is None else np.full(len(self.faces), SEMANTIC_ID[semantic], np.uint8)
-        return dataclasses.replace(self, reflectivity=refl, semantic=sem)
+        shine = self.gloss if gloss is None else np.where(paint, np.float32(gloss), self.gloss).astype(np.float32)
+        return dataclasses.replace(self, reflectivity=refl, semantic=sem, gloss=shine)
 
 
 # --------------------------------------------------------------------------- templates
@@ -135,7 +148,7 @@ def box(size: Sequence[float], center: Sequence[float], material_name: str | Non
     if top_material is not False:
         up = np.all(verts[faces][:, :, 2] > 0, axis=1)
         roof = Mesh.of(v, faces[up], top_material if isinstance(top_material, str) else None)
-        sides = Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up], mesh.returns[~up])
+        sides = Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up], mesh.returns[~up], mesh.gloss[~up])
         mesh = Mesh.concat([sides, roof])
     return mesh.placed(center[0], center[1], yaw, center[2])
 
@@ -183,12 +196,17 @@ def polygons_of(geometry: object) -> MultiPolygon:
     return MultiPolygon([g for g in shapely.get_parts(geometry) if isinstance(g, Polygon) and not g.is_empty])
 
 
-def _triangles(polygon: Polygon | MultiPolygon) -> NDArray[np.float64]:
-    """Triangles covering a polygon (with holes), shape T×3×2."""
-    polygon = polygons_of(polygon)
-    if polygon.is_empty:
+def triangles_of(polygon: Polygon | MultiPolygon | NDArray[np.object_]) -> NDArray[np.float64]:
+    """Triangles covering a polygon (with holes), or an array of polygons, shape T×3×2. Each
+    part is triangulated on its own, so the edges between parts that touch (a road cut along
+    its centreline) stay edges."""
+    if isinstance(polygon, np.ndarray):
+        parts = np.asarray([g for g in polygon if isinstance(g, Polygon) and not g.is_empty], dtype=object)
+    else:
+        parts = shapely.get_parts(polygons_of(polygon))
+    if len(parts) == 0:
         return np.zeros((0, 3, 2))
-    triangles = shapely.constrained_delaunay_triangles(polygon)
+    triangles = shapely.constrained_delaunay_triangles(parts)
     parts = shapely.get_parts(triangles)
     if len(parts) == 0:
         return np.zeros((0, 3, 2))
@@ -198,7 +216,7 @@ def _triangles(polygon: Polygon | MultiPolygon) -> NDArray[np.float64]:
 
 def flat(polygon: Polygon | MultiPolygon, z: float, material_name: str) -> Mesh:
     """A horizontal polygon (road, lawn, marking) at height ``z``."""
-    tri = _triangles(polygon)
+    tri = triangles_of(polygon)
     verts = np.concatenate([tri.reshape(-1, 2), np.full((tri.size // 2, 1), z)], axis=1)
     return Mesh.of(verts, np.arange(len(verts), dtype=np.int32).reshape(-1, 3), material_name)
 

@@ -4,13 +4,17 @@ Per frame the renderer
 
 1. places the ego vehicle at the firing time of every azimuth column (so a moving ego
    vehicle produces rolling-shutter distortion: each point is expressed in the sensor
-   frame of the instant it was measured, as a real driver reports it), and each road
-   user at the instant the head sweeps over it;
+   frame of the instant it was measured, as a real driver reports it), resting on the
+   ground under its wheels (pitched and rolled with it), and each road user at the
+   instant the head sweeps over it;
 2. casts all rays with Embree (through embreex) against the static world and the
    road users;
 3. turns hits into returns: Gaussian range noise, the receiver's detection threshold
-   (dark, far, grazing surfaces are lost), random drop, and intensity in [0, 1] from
-   the surface's reflectivity, the incidence angle and the range;
+   (dark, far, grazing surfaces are lost), the sensor's other losses (glossy surfaces at
+   grazing angles, per-beam random losses, azimuth gaps, the vehicle's own shadow; see
+   :class:`~lidarfuzz.sim.sensor.Dropouts`), and the intensity reading from the surface's
+   reflectivity, the incidence angle, the range and the laser's calibration
+   (:class:`~lidarfuzz.sim.sensor.Receiver`);
 4. computes KITTI labels (see :mod:`lidarfuzz.sim.labels`).
 
 Channels: ``x y z intensity ring time label instance`` — ``label`` is the semantic
@@ -39,10 +43,23 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.labels import LabelConfig, label_actors
 from lidarfuzz.sim.meshes import Mesh
-from lidarfuzz.sim.world import PlacedActor, World, as_multipolygon, positions_at
+from lidarfuzz.sim.terrain import TRACK, WHEELBASE, frame_from_slopes
+from lidarfuzz.sim.world import PlacedActor, World, as_multipolygon, poses_on_ground, positions_at
 
 CHANNELS = ("x", "y", "z", "intensity", "ring", "time", "label", "instance")
 ROI_RADIUS = 150.0  # the drivable area saved with a frame is clipped to this square around the sensor
+
+
+_MAX_GAPS = 16  # azimuth gaps per sweep at most (their count is Poisson; see Dropouts.azimuth_gaps)
+
+
+def _poisson_pmf(mean: float) -> NDArray[np.float64]:
+    """P(k) for k = 0 … _MAX_GAPS of a Poisson count with ``mean``."""
+    k = np.arange(_MAX_GAPS + 1)
+    log_factorial = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
+    if mean <= 0:
+        return (k == 0).astype(np.float64)
+    return np.exp(k * np.log(mean) - mean - log_factorial)
 
 
 _DEVICE: rtc.EmbreeDevice | None = None
@@ -76,6 +93,7 @@ class Hits:
     semantic: NDArray[np.uint8]
     owner: NDArray[np.int64]  # index of the road user hit, -1 otherwise
     returns: NDArray[np.float32]  # probability that the surface hit returns the beam
+    gloss: NDArray[np.float32]  # share of the beam the surface mirrors away at grazing incidence
 
 
 @dataclass(frozen=True)
@@ -85,8 +103,9 @@ class MovingPart:
 
     mesh: Mesh
     owner: NDArray[np.int32]
-    viewpoints: NDArray[np.float64]  # indexed by actor index
+    viewpoints: NDArray[np.float64]  # sensor origins, indexed by actor index
     rays: NDArray[np.bool_]
+    orientations: NDArray[np.float64]  # sensor → world rotations, indexed by actor index
 
 
 class Renderer:
@@ -103,10 +122,13 @@ class Renderer:
         self.labels = labels or LabelConfig()
         self._device = _shared_device()
         self._static_scene: rtcore_scene.EmbreeScene | None = None
+        self._still_pose: tuple[NDArray[np.float64], ...] | None = None
         # Road users that never move are static geometry: built into the static scene once.
         self._still = [a for a in world.actors if a.trajectory.speed == 0]
         self._moving = [a for a in world.actors if a.trajectory.speed != 0]
-        still = [a.mesh_at(0.0, world.ground) for a in self._still]
+        still_poses = poses_on_ground(tuple(self._still), positions_at(tuple(self._still), np.zeros(len(self._still))),
+                                      world.ground)
+        still = [a.mesh_at(0.0, world.ground, pose=tuple(p)) for a, p in zip(self._still, still_poses, strict=True)]
         self._still_mesh = Mesh.concat([m for m, _ in still])
         self._still_owner = np.concatenate([np.full(len(m), a.index, np.int32) for (m, _), a in
                                             zip(still, self._still, strict=True)] or [np.zeros(0, np.int32)])
@@ -114,22 +136,59 @@ class Renderer:
         self._local_directions = self.sensor.local_directions.reshape(-1, 3).astype(np.float32)
         self._direction_components = [np.ascontiguousarray(self._local_directions[:, k]) for k in range(3)]
         self._ring_of_ray = np.tile(np.arange(self.sensor.beams, dtype=np.float32), self.sensor.columns)
+        self._ring_index = np.tile(np.arange(self.sensor.beams, dtype=np.intp), self.sensor.columns)
         self._time_of_ray = np.repeat(self.sensor.column_times.astype(np.float32), self.sensor.beams)
         self._track_of_index = np.array([a.track_id for a in world.actors] + [-1], np.float32)
 
     # ------------------------------------------------------------------ geometry
-    def ego_pose(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], ...]:
-        """Sensor (x, y, z, yaw) in the world at time(s) ``t``."""
+    def sensor_pose(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The sensor's origin (N×3) and rotation (N×3×3, sensor → world) at time(s) ``t``.
+
+        The vehicle rests on the plane through its four wheels (:data:`~lidarfuzz.sim.terrain.WHEELBASE`,
+        :data:`~lidarfuzz.sim.terrain.TRACK`), so on a slope or a cambered road it pitches and
+        rolls with the ground, as KITTI's car does; the sensor sits ``mount_height`` above that
+        plane along its normal, tilted by its mounting angles.
+        """
+        t = np.atleast_1d(np.asarray(t, np.float64))
         x, y, yaw = self.world.ego.at(t)
-        return x, y, np.full_like(x, self.sensor.mount_height), yaw
+        ground, sensor = self.world.ground, self.sensor
+        tilted = not ground.is_flat or sensor.mount_pitch_deg or sensor.mount_roll_deg
+        if not tilted:
+            c, s = np.cos(yaw), np.sin(yaw)
+            rotation = np.zeros((len(x), 3, 3))
+            rotation[:, 0, 0], rotation[:, 0, 1], rotation[:, 1, 0], rotation[:, 1, 1] = c, -s, s, c
+            rotation[:, 2, 2] = 1.0
+            return np.stack([x, y, np.full_like(x, sensor.mount_height)], axis=1), rotation
+        if self.world.ego.speed == 0:  # one pose for every instant
+            if self._still_pose is None:
+                z, forward, left = ground.tilt(x[:1], y[:1], yaw[:1], WHEELBASE, TRACK)
+                self._still_pose = (z, forward, left)
+            z, forward, left = (np.repeat(v, len(x)) for v in self._still_pose)
+        elif len(t) > 16:
+            # The ground under the car changes little within a sweep: its tilt at 9 instants,
+            # interpolated (the car moves at most 6 m between two of them).
+            samples = np.linspace(t.min(), t.max(), 9)
+            sx, sy, syaw = self.world.ego.at(samples)
+            z, forward, left = (np.interp(t, samples, v) for v in ground.tilt(sx, sy, syaw, WHEELBASE, TRACK))
+        else:
+            z, forward, left = ground.tilt(x, y, yaw, WHEELBASE, TRACK)
+        body = frame_from_slopes(yaw, forward, left)
+        rotation = body @ sensor.mount_rotation
+        origin = np.stack([x, y, z], axis=1) + body[:, :, 2] * sensor.mount_height
+        return origin, rotation
+
+    def ego_pose(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], ...]:
+        """Sensor (x, y, z, yaw) in the world at time(s) ``t`` (its heading; see :meth:`sensor_pose`
+        for its full orientation)."""
+        origin, rotation = self.sensor_pose(t)
+        return origin[:, 0], origin[:, 1], origin[:, 2], np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
 
     def pose_matrix(self, t: float) -> NDArray[np.float64]:
         """4×4 LiDAR → world transform at time ``t``."""
-        x, y, z, yaw = (float(v[0]) for v in self.ego_pose(t))
-        c, s = np.cos(yaw), np.sin(yaw)
+        origin, rotation = self.sensor_pose(np.array([t], np.float64))
         pose = np.eye(4)
-        pose[:2, :2] = [[c, -s], [s, c]]
-        pose[:3, 3] = [x, y, z]
+        pose[:3, :3] = rotation[0]
+        pose[:3, 3] = origin[0]
         return pose
 
     def actor_times(self, t_ref: float) -> NDArray[np.float64]:
@@ -153,10 +212,11 @@ class Renderer:
         mesh, each face's owner, and every actor's (x, y, z, yaw) (zeros for the others)."""
         actors = self._moving if which is None else which
         own_times = times[[a.index for a in actors]]
-        placed = positions_at(tuple(actors), own_times)
-        meshes, owner, poses = [], [], np.zeros((len(self.world.actors), 4))
-        for actor, t, xy_yaw in zip(actors, own_times, placed, strict=True):
-            mesh, pose = actor.mesh_at(float(t), self.world.ground, (xy_yaw[0], xy_yaw[1], xy_yaw[2]))
+        placed = poses_on_ground(tuple(actors), positions_at(tuple(actors), own_times), self.world.ground)
+        rotations = frame_from_slopes(placed[:, 3], placed[:, 4], placed[:, 5])
+        meshes, owner, poses = [], [], np.zeros((len(self.world.actors), 6))
+        for actor, t, pose_on_ground, rotation in zip(actors, own_times, placed, rotations, strict=True):
+            mesh, pose = actor.mesh_at(float(t), self.world.ground, pose=tuple(pose_on_ground), rotation=rotation)
             meshes.append(mesh)
             owner.append(np.full(len(mesh), actor.index, np.int32))
             poses[actor.index] = pose
@@ -198,8 +258,8 @@ class Renderer:
         parts = []
         for pose_times, rays, which in poses:
             mesh, owner, _ = self._moving_mesh(pose_times, which)
-            x, y, z, _ = self.ego_pose(pose_times)
-            parts.append(MovingPart(mesh, owner, np.stack([x, y, z], axis=1), rays))
+            origin, rotation = self.sensor_pose(pose_times)
+            parts.append(MovingPart(mesh, owner, origin, rays, rotation))
         return parts
 
     def _actor_meshes(self, times: NDArray[np.float64]) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
@@ -213,15 +273,10 @@ class Renderer:
     def rays(self, t_ref: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """World-frame origins and unit directions of every ray, in firing order (column-major)."""
         sensor = self.sensor
-        x, y, z, yaw = self.ego_pose(t_ref + sensor.column_times)
+        origin, rotation = self.sensor_pose(t_ref + sensor.column_times)
         local = self._local_directions.reshape(sensor.columns, sensor.beams, 3)
-        c = np.cos(yaw).astype(np.float32)[:, None]
-        s = np.sin(yaw).astype(np.float32)[:, None]
-        directions = np.empty_like(local)
-        directions[..., 0] = c * local[..., 0] - s * local[..., 1]
-        directions[..., 1] = s * local[..., 0] + c * local[..., 1]
-        directions[..., 2] = local[..., 2]
-        origins = np.repeat(np.stack([x, y, z], axis=1).astype(np.float32), sensor.beams, axis=0)
+        directions = np.matmul(local, rotation.astype(np.float32).transpose(0, 2, 1))
+        origins = np.repeat(origin.astype(np.float32), sensor.beams, axis=0)
         return origins, directions.reshape(-1, 3)
 
     def _static(self) -> rtcore_scene.EmbreeScene | None:
@@ -249,6 +304,7 @@ class Renderer:
         semantic = np.zeros(n, np.uint8)
         owner = np.full(n, -1, np.int64)
         returns = np.ones(n, np.float32)
+        gloss = np.zeros(n, np.float32)
         if static is not None:
             result = self._trace(static, origins, directions, np.full(n, self.sensor.max_range, np.float32))
             distance, normal = result["tfar"], result["Ng"]
@@ -258,10 +314,12 @@ class Renderer:
             reflectivity[world_hit] = self.world.static.reflectivity[face[world_hit]]
             semantic[world_hit] = self.world.static.semantic[face[world_hit]]
             returns[world_hit] = self.world.static.returns[face[world_hit]]
+            gloss[world_hit] = self.world.static.gloss[face[world_hit]]
             if still_hit.any():
                 reflectivity[still_hit] = self._still_mesh.reflectivity[face[still_hit]]
                 semantic[still_hit] = self._still_mesh.semantic[face[still_hit]]
                 returns[still_hit] = self._still_mesh.returns[face[still_hit]]
+                gloss[still_hit] = self._still_mesh.gloss[face[still_hit]]
                 owner[still_hit] = self._still_owner[face[still_hit]]
         else:
             distance = np.full(n, self.sensor.max_range, np.float32)
@@ -270,7 +328,7 @@ class Renderer:
             if not len(part.mesh):
                 continue
             rays = np.flatnonzero(part.rays & self._rays_towards_mesh(origins, part.mesh, part.owner,
-                                                                      part.viewpoints))
+                                                                      part.viewpoints, part.orientations))
             if not len(rays):
                 continue
             scene = rtcore_scene.EmbreeScene(self._device)
@@ -287,8 +345,9 @@ class Renderer:
             reflectivity[hit] = part.mesh.reflectivity[face]
             semantic[hit] = part.mesh.semantic[face]
             returns[hit] = part.mesh.returns[face]
+            gloss[hit] = part.mesh.gloss[face]
             owner[hit] = part.owner[face]
-        return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns)
+        return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns, gloss)
 
     def _trace(self, scene: rtcore_scene.EmbreeScene, origins: NDArray[np.float32],
                directions: NDArray[np.float32], limit: NDArray[np.float32]) -> dict[str, NDArray[Any]]:
@@ -303,23 +362,20 @@ class Renderer:
             lambda part: scene.run(origins[part], directions[part], dists=limit[part], output=1), chunks))
         return {key: np.concatenate([r[key] for r in results]) for key in results[0]}
 
-    def _rays_towards_mesh(self, origins: NDArray[np.float32], mesh: Mesh, owner: NDArray[np.int32] | None,
-                           viewpoints: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
+    def _rays_towards_mesh(self, origins: NDArray[np.float32], mesh: Mesh, owner: NDArray[np.int32],
+                           viewpoints: NDArray[np.float64], orientations: NDArray[np.float64],
+                           ) -> NDArray[np.bool_]:
         """Rays (column × beam grid) fired into the angular extent of each object of ``mesh``
-        (faces grouped by ``owner``) seen from ``viewpoints`` (the sensor when the head sweeps
-        over each object; by default where it is mid-sweep), widened by the sensor's travel
-        while sweeping over the object, and two steps."""
+        (faces grouped by ``owner``) seen from ``viewpoints`` with the sensor's ``orientations``
+        (the sensor when the head sweeps over each object), measured in the sensor's frame,
+        widened by the sensor's travel while sweeping over the object, and two steps."""
         sensor = self.sensor
-        groups = np.zeros(len(mesh.faces), np.int64) if owner is None else owner.astype(np.int64)
+        groups = owner.astype(np.int64)
         vertex_group = np.zeros(len(mesh.vertices), np.int64)
         vertex_group[mesh.faces.ravel()] = np.repeat(groups, 3)
-        if viewpoints is None:
-            centre = origins[sensor.beams * (sensor.columns // 2)].astype(np.float64)
-            viewpoints = np.tile(centre, (int(groups.max()) + 1, 1))
-            sweep_travel = float(np.linalg.norm(origins[-1] - origins[0]))
-        else:
-            sweep_travel = float(np.linalg.norm(origins[-1] - origins[0]))
-        offset = mesh.vertices - viewpoints[vertex_group]
+        sweep_travel = float(np.linalg.norm(origins[-1] - origins[0]))
+        # Into each viewpoint's sensor frame: the beam table's azimuths and elevations apply there.
+        offset = np.matmul((mesh.vertices - viewpoints[vertex_group])[:, None, :], orientations[vertex_group])[:, 0]
         distance_xy = np.hypot(offset[:, 0], offset[:, 1])
         azimuth = np.arctan2(offset[:, 1], offset[:, 0])
         elevation = np.arctan2(offset[:, 2], distance_xy)
@@ -381,6 +437,33 @@ class Renderer:
         hit = (result["geomID"] >= 0) & (result["tfar"] >= self.sensor.min_range)
         return int(hit.sum())
 
+    # ------------------------------------------------------------------ returns
+    def _specular_survival(self, gloss: NDArray[np.float32], cos_incidence: NDArray[np.float32],
+                           ) -> NDArray[np.float32]:
+        """Probability that a glossy surface hit at ``cos_incidence`` scatters the beam back
+        instead of mirroring it away (:class:`~lidarfuzz.sim.sensor.Dropouts`)."""
+        edge = np.float32(self.sensor.dropouts.specular_cos)
+        if edge <= 0:
+            return np.ones_like(gloss)
+        grazing = np.clip((edge - cos_incidence) / edge, np.float32(0.0), np.float32(1.0))
+        return np.float32(1.0) - gloss * grazing
+
+    def _sensor_losses(self, rng: np.random.Generator) -> NDArray[np.bool_]:
+        """Rays that can return at all (firing order): not in the vehicle's shadow, not in a lost
+        azimuth sector. A fixed number of draws, whatever the scene, so the other noise stays put."""
+        sensor, dropouts = self.sensor, self.sensor.dropouts
+        ok = ~sensor.shadowed
+        count_draw, start_draw, width_draw = rng.random(), rng.random(_MAX_GAPS), rng.random(_MAX_GAPS)
+        gaps = min(int(np.searchsorted(np.cumsum(_poisson_pmf(dropouts.azimuth_gaps)), count_draw)), _MAX_GAPS)
+        if gaps:
+            ok = ok.copy()
+            lo, hi = dropouts.gap_columns
+            for start, width in zip(start_draw[:gaps], width_draw[:gaps], strict=True):
+                first = int(start * sensor.columns)
+                columns = np.arange(first, first + lo + int(width * (hi - lo + 1))) % sensor.columns
+                ok[columns] = False
+        return ok.ravel()
+
     # ------------------------------------------------------------------ frame
     def render(self, t_ref: float = 0.0, *, frame_id: str = "", frame_seed: int | None = None,
                timestamp: float | None = None) -> Scene:
@@ -413,15 +496,14 @@ class Renderer:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             signal = reflectivity * np.sqrt(np.maximum(cos_incidence, np.float32(0.05)))
             signal *= (np.float32(100.0) / distance) ** 2
-        kept = geometric & (signal >= sensor.detection_threshold) & (drop_draw >= sensor.drop_rate)
-        kept &= return_draw < hits.returns
+        kept = geometric & (signal >= sensor.detection_threshold)
+        kept &= drop_draw >= np.tile(sensor.beam_drop_rates, sensor.columns)
+        kept &= return_draw < hits.returns * self._specular_survival(hits.gloss, cos_incidence)
+        kept &= self._sensor_losses(rng)
         index = np.flatnonzero(kept)
         d = distance[index]
-        cos_kept = cos_incidence[index]
-        intensity = reflectivity[index] * (np.float32(0.35) + np.float32(0.65) * cos_kept)
-        intensity *= np.exp(-d / np.float32(400.0))
-        intensity += intensity_error[index]
-        np.clip(intensity, 0.0, 1.0, out=intensity)
+        intensity = sensor.receiver.read(reflectivity[index], cos_incidence[index], d, self._ring_index[index],
+                                         intensity_error[index], sensor.beams)
 
         measured = d + range_error[index]
         owner_of_point = instance[index]

@@ -17,6 +17,13 @@ head spins clockwise seen from above (as Velodyne heads do), starting behind the
 so it faces forward half-way through the sweep; the frame's timestamp is that instant
 (when KITTI's cameras are triggered), and each point's ``time`` channel is its firing
 time relative to it, in ``[-period/2, period/2)``. Ring 0 is the lowest beam.
+
+The receiver (:class:`Receiver`) and the losses (:class:`Dropouts`) default to what a
+real HDL-64E records in KITTI: intensities quantised to 0.01 with 8–10 % of them 0,
+64 differently calibrated lasers, dark and far returns reading 0, glossy paint and
+glass lost at grazing angles, the lowest beams cut off by the roof rack. The figures
+come from KITTI object-benchmark scans (training 000000–000002) and the HDL-64E
+datasheet; each constant says which.
 """
 
 from __future__ import annotations
@@ -30,9 +37,161 @@ from typing import Any
 import numpy as np
 import yaml
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from lidarfuzz.errors import DataFormatError, validation_error
+
+
+class ShadowSector(BaseModel):
+    """Rays the vehicle itself blocks: those fired within ``azimuth_deg`` (from, to; degrees,
+    counter-clockwise from ahead, −180…180) at or below ``below_deg`` elevation."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    azimuth_deg: tuple[float, float]
+    below_deg: float = Field(ge=-90, le=90)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ShadowSector:
+        lo, hi = self.azimuth_deg
+        if not -180.0 <= lo < hi <= 180.0:
+            raise ValueError("azimuth_deg must be (from, to) with -180 <= from < to <= 180")
+        return self
+
+
+#: Where KITTI's roof rack (cameras ahead of the Velodyne, GPS/IMU mast and rack behind it)
+#: hides the ground from the lowest lasers: no return in any of KITTI training 000000–000002
+#: in these sectors (counts per 4° of azimuth per laser), e.g. nothing within ±24° behind below −13.5°.
+KITTI_ROOF_SHADOW: tuple[ShadowSector, ...] = (
+    ShadowSector(azimuth_deg=(-180.0, -156.0), below_deg=-13.5),
+    ShadowSector(azimuth_deg=(156.0, 180.0), below_deg=-13.5),
+    ShadowSector(azimuth_deg=(-84.0, -64.0), below_deg=-15.5),
+    ShadowSector(azimuth_deg=(-4.0, 8.0), below_deg=-20.3),
+    ShadowSector(azimuth_deg=(100.0, 112.0), below_deg=-19.3),
+)
+
+
+class Receiver(BaseModel):
+    """How the receiver turns a return into an intensity reading.
+
+    A surface of reflectivity ρ hit at incidence θ at range r scatters back
+    ``e = ρ · (1 − incidence_weight + incidence_weight · cos θ) · exp(−r / 400 m)``. The sensor
+    reports
+
+        ``reading = gain[beam] · scale · response(e) · falloff(r) + offset[beam] + noise``
+
+    clipped to [0, 1] and rounded down to ``step``, where ``response(e) = 1 − exp(−(e − dark)⁺ /
+    knee)`` (``e`` itself when ``knee`` is None). This reproduces what KITTI's HDL-64E records:
+
+    * dark surfaces (black paint, tyres, glass: ρ ≲ 0.03) read 0, and near returns that read 0
+      come in runs along a ring (70 % of them have both neighbours at 0 in KITTI training
+      000000–000002), i.e. from dark surfaces, not from noise;
+    * the reading saturates: the road (ρ ≈ 0.1, hit at grazing angles) reads 0.25–0.35, walls
+      and vegetation barely more, and 2–5 % of the returns read above 0.5;
+    * the incidence angle matters little (``incidence_weight``): the road far ahead reads as
+      bright as the road beside the car;
+    * ``falloff(r) = exp(−((r − falloff_start)⁺ / falloff_length)²)`` is the range compensation
+      running out: the mean reading is flat to ~25 m and halves by ~45 m, and 50–65 % of the
+      returns at 40–60 m and ~90 % at 60–80 m read exactly 0 (they are still returns: the
+      point was measured);
+    * each laser has its own gain (log-normal, σ = ``gain_spread``) and offset (normal,
+      ``offset_mean`` ± ``offset_spread``), drawn from ``calibration_seed``: KITTI's 64 lasers
+      read the same road 0.5–1.5× their neighbours' median (σ 10–16 %).
+
+    ``Receiver.clean()`` is the idealised reading of earlier versions: ``e`` itself.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    scale: float = Field(default=0.45, gt=0, le=10)
+    dark: float = Field(default=0.065, ge=0, le=1, description="backscatter that reads 0")
+    knee: float | None = Field(default=0.06, gt=0, description="backscatter above dark where the reading "
+                                                                "reaches 63 % of scale; None: linear")
+    incidence_weight: float = Field(default=0.25, ge=0, le=1)
+    falloff_start: float = Field(default=15.0, ge=0)
+    falloff_length: float | None = Field(default=20.0, gt=0, description="None: no range fall-off")
+    gain_spread: float = Field(default=0.18, ge=0, le=1)
+    offset_mean: float = Field(default=-0.07, ge=-0.5, le=0.5)
+    offset_spread: float = Field(default=0.06, ge=0, le=0.5)
+    step: float = Field(default=0.01, ge=0, le=0.1, description="quantisation step; 0 = continuous")
+    calibration_seed: int = Field(default=0, ge=0)
+
+    @staticmethod
+    def clean() -> Receiver:
+        """The idealised receiver: reading = e, no calibration differences, no quantisation."""
+        return Receiver(scale=1.0, dark=0.0, knee=None, incidence_weight=0.65, falloff_length=None,
+                        gain_spread=0.0, offset_mean=0.0, offset_spread=0.0, step=0.0)
+
+    def calibration(self, beams: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Each ring's gain and offset (ring 0 the lowest), fixed by ``calibration_seed``."""
+        rng = np.random.default_rng(np.random.SeedSequence([self.calibration_seed, beams, 0xCA1B]))
+        gain = np.exp(np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.gain_spread)
+        offset = self.offset_mean + np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.offset_spread
+        return gain.astype(np.float32), offset.astype(np.float32)
+
+    def read(self, reflectivity: NDArray[np.float32], cos_incidence: NDArray[np.float32],
+             distance: NDArray[np.float32], ring: NDArray[np.intp], noise: NDArray[np.float32],
+             beams: int) -> NDArray[np.float32]:
+        """Intensity readings of returns from surfaces of ``reflectivity`` hit at ``cos_incidence``
+        at ``distance`` on ``ring``, with ``noise`` already drawn (its deviation applied)."""
+        gain, offset = self.calibration(beams)
+        weight = np.float32(self.incidence_weight)
+        scatter = reflectivity * (np.float32(1.0) - weight + weight * cos_incidence)
+        scatter *= np.exp(-distance / np.float32(400.0))
+        if self.knee is None:
+            reading = np.maximum(scatter - np.float32(self.dark), np.float32(0.0))
+        else:
+            above = np.maximum(scatter - np.float32(self.dark), np.float32(0.0))
+            reading = np.float32(1.0) - np.exp(-above / np.float32(self.knee))
+        reading *= np.float32(self.scale)
+        if self.falloff_length is not None:
+            beyond = np.maximum(distance - np.float32(self.falloff_start), np.float32(0.0))
+            reading *= np.exp(-np.square(beyond / np.float32(self.falloff_length)))
+        reading = reading * gain[ring] + offset[ring] + noise
+        np.clip(reading, 0.0, 1.0, out=reading)
+        if self.step > 0:
+            # Down to the step, as an integer reading is stored: k / 100 as float32 in KITTI.
+            levels = np.floor(reading.astype(np.float64) / self.step + 1e-4)
+            per_unit = round(1.0 / self.step)
+            reading = levels / per_unit if abs(per_unit * self.step - 1.0) < 1e-9 else levels * self.step
+        return reading.astype(np.float32)
+
+
+class Dropouts(BaseModel):
+    """Returns a real sensor loses besides weak ones (:attr:`LidarSensor.detection_threshold`)
+    and random ones (:attr:`LidarSensor.drop_rate`).
+
+    * **glossy surfaces at grazing angles**: a surface of gloss g (clear-coated paint 0.5,
+      glass 1) hit at incidence cos θ < ``specular_cos`` mirrors the beam away and returns with
+      probability ``1 − g · (specular_cos − cos θ) / specular_cos`` — car bonnets, roofs and
+      flanks seen edge-on lose points, as they do in real scans;
+    * **per-beam losses**: each laser's random loss rate is ``drop_rate`` times a log-normal
+      factor (σ = ``beam_loss_spread``), fixed by the receiver's calibration seed;
+    * **azimuth gaps**: a Poisson number (mean ``azimuth_gaps``) of sectors of
+      ``gap_columns`` columns per sweep with no return on any laser (lost packets). KITTI's
+      scans show none (0 empty columns in training 000000–000002), hence 0 by default;
+    * **the vehicle's shadow**: rays blocked by the car and its roof rack (:class:`ShadowSector`).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    specular_cos: float = Field(default=0.4, ge=0, le=1)
+    beam_loss_spread: float = Field(default=0.5, ge=0, le=3)
+    azimuth_gaps: float = Field(default=0.0, ge=0, le=50)
+    gap_columns: tuple[int, int] = (2, 12)
+    shadow: tuple[ShadowSector, ...] = ()
+
+    @staticmethod
+    def none() -> Dropouts:
+        """No losses beyond the detection threshold and the random drop rate."""
+        return Dropouts(specular_cos=0.0, beam_loss_spread=0.0, azimuth_gaps=0.0, shadow=())
+
+    @field_validator("gap_columns")
+    @classmethod
+    def _gap_order(cls, value: tuple[int, int]) -> tuple[int, int]:
+        if not 1 <= value[0] <= value[1]:
+            raise ValueError("gap_columns must be (min, max) with 1 <= min <= max")
+        return value
 
 
 class LidarSensor(BaseModel):
@@ -48,11 +207,17 @@ class LidarSensor(BaseModel):
         mount_height: Sensor height above the ground, metres.
         rotation_hz: Revolutions per second; one frame is one revolution.
         range_noise: Standard deviation of the Gaussian range error, metres.
-        drop_rate: Probability that a return is lost at random.
+        drop_rate: Probability that a return is lost at random (the mean over the beams).
         detection_threshold: Minimum return signal (reflectivity · √cos(incidence) ·
             (100 m / range)²); weaker returns (dark surfaces far away, grazing angles)
-            are lost, as on a real receiver.
+            are lost, as on a real receiver. 0.4 is the HDL-64E datasheet's: 10 %
+            reflectivity (pavement) is seen to 50 m, 80 % (cars, foliage) to 120 m.
         intensity_noise: Standard deviation of the additive intensity noise.
+        mount_pitch_deg: The sensor's mounting tilt about its y axis relative to the
+            vehicle (positive: nose down, the ground ahead rises in the sensor frame).
+        mount_roll_deg: Mounting tilt about its x axis (positive: left side up).
+        receiver: The intensity reading (:class:`Receiver`).
+        dropouts: Losses of returns (:class:`Dropouts`).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -66,8 +231,12 @@ class LidarSensor(BaseModel):
     rotation_hz: float = Field(default=10.0, gt=0)
     range_noise: float = Field(default=0.02, ge=0)
     drop_rate: float = Field(default=0.01, ge=0, le=1)
-    detection_threshold: float = Field(default=0.05, ge=0)
-    intensity_noise: float = Field(default=0.01, ge=0)
+    detection_threshold: float = Field(default=0.4, ge=0)
+    intensity_noise: float = Field(default=0.03, ge=0)
+    mount_pitch_deg: float = Field(default=0.0, ge=-10, le=10)
+    mount_roll_deg: float = Field(default=0.0, ge=-10, le=10)
+    receiver: Receiver = Field(default_factory=Receiver)
+    dropouts: Dropouts = Field(default_factory=Dropouts)
 
     @field_validator("elevations_deg")
     @classmethod
@@ -116,6 +285,37 @@ class LidarSensor(BaseModel):
         out[..., 2] = np.broadcast_to(np.sin(el), (self.columns, self.beams))
         return out
 
+    @cached_property
+    def mount_rotation(self) -> NDArray[np.float64]:
+        """3×3 rotation from the sensor frame to the vehicle's (its mounting tilt)."""
+        p, r = np.deg2rad(self.mount_pitch_deg), np.deg2rad(self.mount_roll_deg)
+        pitch = np.array([[np.cos(p), 0.0, np.sin(p)], [0.0, 1.0, 0.0], [-np.sin(p), 0.0, np.cos(p)]])
+        roll = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(r), -np.sin(r)], [0.0, np.sin(r), np.cos(r)]])
+        return pitch @ roll
+
+    @cached_property
+    def shadowed(self) -> NDArray[np.bool_]:
+        """Rays (columns × beams, firing order) blocked by the vehicle (:attr:`Dropouts.shadow`)."""
+        out = np.zeros((self.columns, self.beams), bool)
+        if not self.dropouts.shadow:
+            return out
+        azimuth = np.rad2deg(np.angle(np.exp(1j * self.column_azimuths)))[:, None]
+        elevation = np.rad2deg(self.ring_elevations)[None, :]
+        for sector in self.dropouts.shadow:
+            lo, hi = sector.azimuth_deg
+            out |= (azimuth >= lo) & (azimuth <= hi) & (elevation <= sector.below_deg)
+        return out
+
+    @cached_property
+    def beam_drop_rates(self) -> NDArray[np.float32]:
+        """Each ring's random loss rate (:attr:`Dropouts.beam_loss_spread`), averaging ``drop_rate``."""
+        spread = self.dropouts.beam_loss_spread
+        if not spread or not self.drop_rate:
+            return np.full(self.beams, self.drop_rate, np.float32)
+        rng = np.random.default_rng(np.random.SeedSequence([self.receiver.calibration_seed, self.beams, 0xD40]))
+        factor = np.exp(np.clip(rng.standard_normal(self.beams), -2.5, 2.5) * spread)
+        return np.clip(self.drop_rate * factor / factor.mean(), 0.0, 1.0).astype(np.float32)
+
     def column_of_azimuth(self, azimuth: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Fractional column index at which the head points at ``azimuth`` (radians)."""
         turns = np.mod(np.pi - np.asarray(azimuth, dtype=np.float64), 2.0 * np.pi) / (2.0 * np.pi)
@@ -134,7 +334,8 @@ def _hdl64e_elevations() -> tuple[float, ...]:
 
 
 SENSOR_PRESETS: dict[str, LidarSensor] = {
-    "HDL-64E": LidarSensor(name="HDL-64E", elevations_deg=_hdl64e_elevations(), columns=2083, max_range=120.0),
+    "HDL-64E": LidarSensor(name="HDL-64E", elevations_deg=_hdl64e_elevations(), columns=2083, max_range=120.0,
+                           dropouts=Dropouts(shadow=KITTI_ROOF_SHADOW)),
     "HDL-32E": LidarSensor(name="HDL-32E", elevations_deg=tuple(np.round(np.linspace(10.67, -30.67, 32), 4)),
                            columns=2250, max_range=100.0),
     "VLP-16": LidarSensor(name="VLP-16", elevations_deg=tuple(np.linspace(15.0, -15.0, 16)), columns=1800,
@@ -143,6 +344,20 @@ SENSOR_PRESETS: dict[str, LidarSensor] = {
                           columns=1024, max_range=120.0, range_noise=0.03),
 }
 DEFAULT_SENSOR = "HDL-64E"
+
+
+def clean_sensor(sensor: LidarSensor) -> LidarSensor:
+    """``sensor`` with the idealised receiver and return model of lidarfuzz before 0.2: a linear
+    intensity, no calibration differences or quantisation, a permissive detection threshold
+    (0.05), 1 % intensity noise and no losses but the random ones."""
+    return sensor_with(sensor, receiver=Receiver.clean(), dropouts=Dropouts.none(), detection_threshold=0.05,
+                       intensity_noise=0.01)
+
+
+def sensor_with(sensor: LidarSensor, **fields: Any) -> LidarSensor:
+    """A validated copy of ``sensor`` with some fields replaced (``model_copy`` would keep the
+    cached beam tables of the original)."""
+    return LidarSensor.model_validate({**sensor.model_dump(), **fields})
 
 
 def preset_names() -> list[str]:

@@ -178,6 +178,45 @@ class Ego(_Model):
     route: list[Point2] | None = Field(default=None, min_length=2)
 
 
+class Ramp(_Model):
+    """A dropped kerb (a driveway or a kerb ramp at a crossing): the sidewalk falls to a 2 cm lip
+    over ``width`` metres of kerb, rising back to full height over ``depth`` metres.
+
+    ``position`` is on the carriageway's edge; ``yaw`` points from the road into the sidewalk.
+    """
+
+    position: Point2
+    yaw: float
+    width: float = Field(default=3.0, gt=0, le=20)
+    depth: float = Field(default=1.2, gt=0, le=10)
+
+
+class Terrain(_Model):
+    """The shape of the ground (all zero: flat, the default for hand-written scenes).
+
+    Heights are relative to the world origin (the ego vehicle's start); slopes are rise over
+    run (0.02 = 2 %). See :mod:`lidarfuzz.sim.terrain` for how they combine and
+    :mod:`lidarfuzz.sim.realism` for the ranges real roads have.
+    """
+
+    grade: float = Field(default=0.0, ge=-0.15, le=0.15, description="longitudinal slope along +x at x = 0")
+    grade_change: float = Field(default=0.0, ge=-0.2, le=0.2,
+                                description="change of the grade per 100 m along x (a crest < 0 < a sag)")
+    cross_slope: float = Field(default=0.0, ge=-0.1, le=0.1, description="slope of the whole terrain along +y")
+    camber: float = Field(default=0.0, ge=0.0, le=0.08,
+                          description="crown: cross-fall of each two-way road from its centreline to its edges")
+    sidewalk_slope: float = Field(default=0.0, ge=0.0, le=0.08, description="sidewalks' rise away from the road")
+    undulation: float = Field(default=0.0, ge=0.0, le=0.5, description="amplitude of gentle waves, metres")
+    undulation_wavelength: float = Field(default=40.0, ge=5.0, le=1000.0)
+    undulation_phase: float = 0.0
+    ramps: list[Ramp] = Field(default_factory=list)
+
+    @property
+    def is_flat(self) -> bool:
+        return not (self.grade or self.grade_change or self.cross_slope or self.camber or self.sidewalk_slope
+                    or self.undulation or self.ramps)
+
+
 class SceneSpec(_Model):
     """A whole scene: layout, actors, the ego vehicle and its sensor."""
 
@@ -185,6 +224,7 @@ class SceneSpec(_Model):
     seed: int = Field(default=0, description="seeds the sensor noise; the layout is fixed by the description")
     ground: Literal["grass", "soil", "paving"] = "grass"
     extent: float = Field(default=140.0, gt=10, le=2000, description="half-size of the ground square around the route")
+    terrain: Terrain = Field(default_factory=Terrain)
     roads: list[Road] = Field(default_factory=list)
     objects: list[StaticObject] = Field(default_factory=list)
     actors: list[Actor] = Field(default_factory=list)
@@ -225,6 +265,6 @@ def load_scene(path: str | PathLike[str]) -> SceneSpec:
 
 
 __all__ = [
-    "ACTOR_CLASSES", "Actor", "Building", "Bush", "Crosswalk", "Ego", "Pole", "Road", "SceneSpec", "Sign",
-    "StaticObject", "Tree", "Wall", "load_scene", "parse_scene",
+    "ACTOR_CLASSES", "Actor", "Building", "Bush", "Crosswalk", "Ego", "Pole", "Ramp", "Road", "SceneSpec", "Sign",
+    "StaticObject", "Terrain", "Tree", "Wall", "load_scene", "parse_scene",
 ]

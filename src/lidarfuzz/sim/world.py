@@ -1,8 +1,9 @@
 """A scene description compiled into geometry and motion: the static mesh, the drivable area, trajectories.
 
 The static world (ground, roads with markings, kerbs and sidewalks, buildings with
-windows, walls, vegetation, poles, signs) is built once per scene; road users are
-placed per frame from their trajectories.
+windows, walls, vegetation, poles, signs) is built once per scene, draped over the
+scene's terrain (:mod:`lidarfuzz.sim.terrain`); road users are placed per frame from
+their trajectories, standing on the ground beneath them (vehicles tilted with it).
 """
 
 from __future__ import annotations
@@ -19,11 +20,17 @@ from shapely.geometry import LineString, MultiPolygon, Point, Polygon, box
 from shapely.ops import unary_union
 
 from lidarfuzz.sim.actors import actor_mesh, mean_size
-from lidarfuzz.sim.materials import OBJECT_SEMANTIC, material
-from lidarfuzz.sim.meshes import Mesh, cylinder, ellipsoid, extruded, flat, polygons_of
+from lidarfuzz.sim.materials import OBJECT_SEMANTIC, PAINT_GLOSS, material, sample_paint
+from lidarfuzz.sim.meshes import Mesh, cylinder, ellipsoid, extruded, polygons_of
 from lidarfuzz.sim.meshes import box as box_mesh
 from lidarfuzz.sim.sensor import LidarSensor, load_sensor
 from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Pole, Road, SceneSpec, Sign, Tree, Wall
+from lidarfuzz.sim.terrain import VERGE_CELL, Ground, frame_from_slopes, ramp_edges
+
+#: Road users that rest on four wheels tilt with the ground; people and riders stay upright.
+TILTING_CLASSES = frozenset({"Car", "Van", "Truck"})
+#: Static objects are sunk this far into sloping ground, so none floats above its lowest corner.
+SINK = 0.05
 
 MARKING_Z = 0.006  # paint sits just above the asphalt so rays hit it first
 STRIDE = 1.5  # metres per walking cycle
@@ -94,15 +101,49 @@ class PlacedActor:
     trajectory: Trajectory
     phase: float  # walking phase offset (radians)
 
+    def pose_at(self, ground: Ground, x: float, y: float, yaw: float) -> tuple[float, ...]:
+        """(x, y, z, yaw, rise forward, rise left): standing at (x, y) on the ``ground``
+        (see :func:`poses_on_ground`)."""
+        return tuple(float(v) for v in poses_on_ground((self,), np.array([[x, y, yaw]]), ground)[0])
+
     def mesh_at(self, t: float, ground: Ground, xy_yaw: tuple[float, float, float] | None = None,
-                ) -> tuple[Mesh, tuple[float, float, float, float]]:
-        """World-frame mesh and (x, y, z, yaw) at time ``t``, standing on the ``ground`` surface
-        (``xy_yaw``: the position at ``t`` when the caller has it already)."""
-        x, y, yaw = xy_yaw if xy_yaw is not None else (float(v[0]) for v in self.trajectory.at(t))
-        z = ground.height(x, y)
+                pose: tuple[float, ...] | None = None, rotation: NDArray[np.float64] | None = None,
+                ) -> tuple[Mesh, tuple[float, ...]]:
+        """World-frame mesh and pose (:func:`poses_on_ground`) at time ``t``, standing on the
+        ``ground`` (``xy_yaw`` or ``pose``, and the pose's ``rotation``: where it is at ``t`` when
+        the caller has it already)."""
+        if pose is None:
+            x, y, yaw = xy_yaw if xy_yaw is not None else (float(v[0]) for v in self.trajectory.at(t))
+            pose = self.pose_at(ground, float(x), float(y), float(yaw))
         phase = self.phase + 2 * np.pi * float(self.trajectory.distance(t)) / STRIDE
-        local = actor_mesh(self.cls, self.size, phase)
-        return local.painted(self.reflectivity, OBJECT_SEMANTIC[self.cls]).placed(x, y, yaw, z), (x, y, z, yaw)
+        gloss = PAINT_GLOSS if self.cls in TILTING_CLASSES else 0.0  # clear-coated paint, matt clothes
+        local = actor_mesh(self.cls, self.size, phase).painted(self.reflectivity, OBJECT_SEMANTIC[self.cls], gloss)
+        if pose[4] or pose[5]:
+            rotation = frame_from_slopes(pose[3], pose[4], pose[5]) if rotation is None else rotation
+            return local.posed(rotation, pose[:3]), pose
+        return local.placed(pose[0], pose[1], pose[3], pose[2]), pose
+
+
+def poses_on_ground(actors: tuple[PlacedActor, ...], xy_yaw: NDArray[np.float64], ground: Ground,
+                    ) -> NDArray[np.float64]:
+    """Where road users at ``xy_yaw`` (N×3) stand: N×6 (x, y, z, yaw, rise forward, rise left).
+
+    A vehicle rests on the plane through its wheels (80 % of its length and 85 % of its width
+    apart), tilted with it; a person stands upright on the surface under its centre.
+    """
+    out = np.zeros((len(actors), 6))
+    if not len(actors):
+        return out
+    out[:, [0, 1, 3]] = xy_yaw
+    tilting = np.array([a.cls in TILTING_CLASSES for a in actors]) & (not ground.is_flat)
+    if tilting.any():
+        sizes = np.array([a.size for a in actors])[tilting]
+        z, forward, left = ground.tilt(xy_yaw[tilting, 0], xy_yaw[tilting, 1], xy_yaw[tilting, 2],
+                                       0.8 * sizes[:, 0], 0.85 * sizes[:, 1])
+        out[tilting, 2], out[tilting, 4], out[tilting, 5] = z, forward, left
+    if (~tilting).any():
+        out[~tilting, 2] = ground.height(xy_yaw[~tilting, 0], xy_yaw[~tilting, 1])
+    return out
 
 
 def positions_at(actors: tuple[PlacedActor, ...], times: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -127,27 +168,6 @@ def positions_at(actors: tuple[PlacedActor, ...], times: NDArray[np.float64]) ->
 
 
 @dataclass(frozen=True, eq=False)
-class Ground:
-    """Surface height: 0 on the road, the kerb's height on sidewalks, the verge's on terrain."""
-
-    sidewalks: MultiPolygon
-    sidewalk_height: float
-    drivable: MultiPolygon
-    terrain_height: float
-
-    def __post_init__(self) -> None:
-        shapely.prepare(self.sidewalks)
-        shapely.prepare(self.drivable)
-
-    def height(self, x: float, y: float) -> float:
-        if shapely.contains_xy(self.drivable, x, y):
-            return 0.0
-        if shapely.contains_xy(self.sidewalks, x, y):
-            return self.sidewalk_height
-        return self.terrain_height
-
-
-@dataclass(frozen=True, eq=False)
 class World:
     """A compiled scene: static geometry, drivable area, actors, ego trajectory and sensor."""
 
@@ -166,7 +186,7 @@ def compile_world(spec: SceneSpec) -> World:
     ego = Trajectory.of(spec.ego.position, spec.ego.yaw, spec.ego.speed, spec.ego.route)
     parts, ground = _ground_and_roads(spec, ego)
     for obj in spec.objects:
-        parts.append(_static_object(obj))
+        parts.append(_on_ground(_static_object(obj), obj, ground))
     actors = []
     for index, actor in enumerate(spec.actors):
         actors.append(_place_actor(index, actor, spec.seed))
@@ -181,7 +201,7 @@ def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
     elif actor.cls in ("Pedestrian", "Cyclist"):
         refl = float(rng.uniform(0.1, 0.6))
     else:
-        refl = float(rng.uniform(0.05, 0.75))
+        refl = sample_paint(rng)
     speed = 0.0 if actor.parked else actor.speed
     trajectory = Trajectory.of(actor.position, actor.yaw, speed, actor.route)
     track_id = actor.id if actor.id is not None else index
@@ -192,11 +212,15 @@ def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
 # --------------------------------------------------------------------------- ground and roads
 def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Ground]:
     route_extent = ego.waypoints
-    if spec.ego.route is None and spec.ego.speed > 0:
+    if spec.ego.route is None and spec.ego.speed == 0:
+        route_extent = ego.waypoints[:1]  # a standing ego vehicle: not its 10 km heading line
+    elif spec.ego.route is None:
         x, y, _ = ego.at(np.array([0.0, 60.0]))  # a minute of driving is more than any generated log
         route_extent = np.stack([x, y], axis=1)
     lo = route_extent.min(axis=0) - spec.extent
     hi = route_extent.max(axis=0) + spec.extent
+    if not spec.terrain.is_flat:  # on the open ground's grid: its edge cells are whole
+        lo, hi = np.floor(lo / VERGE_CELL) * VERGE_CELL, np.ceil(hi / VERGE_CELL) * VERGE_CELL
     square = box(lo[0], lo[1], hi[0], hi[1])
 
     carriageways = [LineString(r.centerline).buffer(r.half_width, cap_style="flat", join_style="mitre")
@@ -206,27 +230,31 @@ def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Gro
                                                       join_style="mitre") for r in spec.roads if r.sidewalk_width > 0]
     sidewalks = unary_union(sidewalk_areas).difference(drivable).intersection(square) if sidewalk_areas else Polygon()
     kerb = max((r.kerb_height for r in spec.roads), default=0.0)
-    parts: list[Mesh] = []
-    if not drivable.is_empty:
-        parts.append(flat(drivable, 0.0, "asphalt"))
-        parts.append(_markings(spec, drivable))
-    if not sidewalks.is_empty:
-        parts.append(extruded(sidewalks, 0.0, kerb, "paving", side_material="kerb"))
     terrain = square.difference(drivable).difference(sidewalks)
     terrain_height = kerb * 0.8 if spec.roads else 0.0
+    ground = Ground(spec.terrain, tuple(spec.roads), as_multipolygon(drivable), as_multipolygon(sidewalks), kerb,
+                    terrain_height)
+    parts: list[Mesh] = []
+    if not drivable.is_empty:
+        # Cut along the centrelines so the crown's ridge is an edge of the mesh.
+        ridges = unary_union([LineString(r.centerline) for r in spec.roads if not r.one_way])
+        parts.append(ground.drape(drivable, "road", "asphalt", cut=ridges))
+        parts.append(_markings(spec, drivable, ground))
+    if not sidewalks.is_empty:
+        parts.append(ground.drape(sidewalks, "sidewalk", "paving", cut=ramp_edges(ground)))
+        parts.append(ground.walls(sidewalks, "sidewalk", "kerb"))
     ground_material = GROUND_MATERIALS[spec.ground]
+    parts.append(ground.drape(terrain, "verge", ground_material, cell=VERGE_CELL))
     if spec.roads:
-        parts.append(extruded(terrain, 0.0, terrain_height, ground_material))
-    else:
-        parts.append(flat(terrain, 0.0, ground_material))
-    return parts, Ground(as_multipolygon(sidewalks), kerb, as_multipolygon(drivable), terrain_height)
+        parts.append(ground.walls(terrain, "verge", ground_material))
+    return parts, ground
 
 
 def as_multipolygon(geometry: object) -> MultiPolygon:
     return polygons_of(geometry)
 
 
-def _markings(spec: SceneSpec, drivable: Polygon | MultiPolygon) -> Mesh:
+def _markings(spec: SceneSpec, drivable: Polygon | MultiPolygon, ground: Ground) -> Mesh:
     """Edge lines, centre lines, dashed lane dividers (kept out of junctions) and crosswalks."""
     lines = []
     junctions = _junctions(spec.roads)
@@ -245,7 +273,7 @@ def _markings(spec: SceneSpec, drivable: Polygon | MultiPolygon) -> Mesh:
     if stripes:
         paint = unary_union([paint, *stripes])
     paint = paint.intersection(drivable)
-    return flat(paint, MARKING_Z, "road-paint") if not paint.is_empty else Mesh.empty()
+    return ground.drape(paint, "road", "road-paint", lift=MARKING_Z) if not paint.is_empty else Mesh.empty()
 
 
 def _junctions(roads: list[Road]) -> Polygon | MultiPolygon:
@@ -274,6 +302,18 @@ def _crosswalk(c: Crosswalk) -> Polygon | MultiPolygon:
 
 
 # --------------------------------------------------------------------------- static objects
+def _on_ground(mesh: Mesh, obj: object, ground: Ground) -> Mesh:
+    """A static object built on z = 0 moved onto the ground: its footprint's lowest point, sunk
+    by :data:`SINK` on sloping ground so that no corner floats."""
+    if ground.is_flat or not len(mesh) or isinstance(obj, Crosswalk):
+        return mesh
+    footprint = footprint_of(obj)
+    xy = np.asarray(footprint.exterior.coords) if isinstance(obj, Building | Wall) else np.asarray(
+        [footprint.centroid.coords[0]])
+    lift = float(ground.height(xy[:, 0], xy[:, 1]).min()) - SINK
+    return dataclasses.replace(mesh, vertices=mesh.vertices + np.array([0.0, 0.0, lift]))
+
+
 def _static_object(obj: object) -> Mesh:
     if isinstance(obj, Building):
         return _building(obj)
