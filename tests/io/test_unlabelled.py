@@ -68,6 +68,15 @@ def test_detect_runs_every_frame(mixed: Path, tmp_path: Path) -> None:
     result = runner.invoke(app, ["detect", "classic", str(mixed), "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.iterdir()) == ["000000.txt", "000001.txt", "000002.txt"]
+    # eval needs labels: the unlabelled frame's detections are refused, naming the flag …
+    refused = runner.invoke(app, ["eval", str(mixed), str(out)])
+    assert refused.exit_code != 0 and "000001.txt: detection file without a ground-truth frame" in str(
+        refused.exception) and "--allow-unlabelled" in str(refused.exception)
+    # … and left out with it (AP over the two labelled frames)
+    report = tmp_path / "eval.json"
+    allowed = runner.invoke(app, ["eval", str(mixed), str(out), "--allow-unlabelled", "--json", str(report)])
+    assert allowed.exit_code == 0, allowed.output
+    assert json.loads(report.read_text())["num_frames"] == 2
 
 
 @pytest.mark.parametrize("command", [

@@ -61,6 +61,9 @@ def register(app: typer.Typer) -> None:
         json_out: Annotated[
             Path | None, typer.Option("--json", help="Also write every AP and the mAP as JSON to this file.")
         ] = None,
+        allow_unlabelled: Annotated[
+            bool, typer.Option(help="Leave out detection files of frames without a label file (unlabelled).")
+        ] = False,
     ) -> None:
         """Evaluate detections as the KITTI 3D object devkit does: bbox, BEV, 3D AP and AOS at R11 and R40.
 
@@ -75,7 +78,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(
                 f"{overlaps!r} is not one of {', '.join(OVERLAP_PRESETS)}", param_hint="--overlaps"
             )
-        loaded = load_kitti_eval_frames(gt_dir, dt_dir, calib_dir)
+        loaded = load_kitti_eval_frames(gt_dir, dt_dir, calib_dir, allow_unlabelled=allow_unlabelled)
         for note in loaded.notes:
             err_console.print(f"[yellow]note:[/] {note}", highlight=False, soft_wrap=True)
         if loaded.missing_detections:

@@ -106,6 +106,8 @@ def load_kitti_eval_frames(
     gt_dir: str | PathLike[str],
     dt_dir: str | PathLike[str],
     calib_dir: str | PathLike[str] | None = None,
+    *,
+    allow_unlabelled: bool = False,
 ) -> KittiEvalFiles:
     """Read ground-truth and detection label files into :class:`KittiFrame` objects.
 
@@ -118,6 +120,9 @@ def load_kitti_eval_frames(
             when there is one, else every frame gets :meth:`KittiCalibration.default`
             (boxes are then placed and projected with an idealised KITTI rig). PNG images in
             an ``image_2/`` beside the calibration folder set each frame's image size.
+        allow_unlabelled: Leave out detection files of frames that have no label file (what
+            ``lidarfuzz detect`` writes for the unlabelled frames of a mixed folder), with a note,
+            instead of refusing them.
 
     Raises:
         DataFormatError: A folder is missing or holds no label files; a detection file has
@@ -138,15 +143,20 @@ def load_kitti_eval_frames(
             hint="give the folder holding one <frame id>.txt per frame, e.g. what lidarfuzz detect --out wrote",
         )
     stray = sorted(set(dt_files) - set(gt_files))
-    if stray:
+    notes: list[str] = []
+    if stray and allow_unlabelled:
+        shown = ", ".join(stray[:5]) + (", …" if len(stray) > 5 else "")
+        notes.append(f"{len(stray)} detection file(s) of frames without a label file left out ({shown})")
+        dt_files = {k: v for k, v in dt_files.items() if k in gt_files}
+    elif stray:
         more = f" (and {len(stray) - 1} more)" if len(stray) > 1 else ""
         raise DataFormatError(
             dt_files[stray[0]],
             f"detection file without a ground-truth frame in {label_dir}{more}",
-            hint="detection files must be named like the label files they answer",
+            hint="detection files must be named like the label files they answer; for frames that have no "
+                 "labels pass --allow-unlabelled",
         )
 
-    notes: list[str] = []
     calib_path: Path | None
     if calib_dir is not None:
         calib_path = Path(calib_dir)
