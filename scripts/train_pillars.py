@@ -177,7 +177,7 @@ def main() -> None:
                         help="rendered training and evaluation data (reused when complete)")
     parser.add_argument("--train-frames", type=int, default=5000)
     parser.add_argument("--train-seed", type=int, default=1)
-    parser.add_argument("--epochs", type=int, default=TrainConfig.epochs,
+    parser.add_argument("--epochs", type=int, default=60,
                         help="epochs (cut to what fits with --deadline-minutes)")
     parser.add_argument("--deadline-minutes", type=float, default=None,
                         help="end the whole command in this time: epochs are cut to fit, evaluation included")

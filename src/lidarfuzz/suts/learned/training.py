@@ -151,11 +151,12 @@ def train(
     """Train a PillarNet on in-memory frames; returns (network in eval mode, history).
 
     The network starts from ``initial`` (a state dict: fine-tuning) or from seeded random
-    weights. With ``budget_seconds`` the first epoch is timed and the number of epochs cut
-    to what fits (the learning-rate schedule follows); the history records the epochs run,
-    so the run can be repeated exactly with that number. ``on_epoch(net, row)`` is called
-    after every epoch (to keep a checkpoint), ``on_step(step, total, loss)`` after every
-    step (a progress bar; ``total`` may shrink after the first epoch under a budget). The
+    weights. With ``budget_seconds`` the first two epochs are timed and the number of epochs
+    (at most ``config.epochs``) set to what fits; the learning-rate schedule follows, so a
+    run repeated with the recorded ``epochs_run`` matches it except for the learning rates
+    of its first two epochs. ``on_epoch(net, row)`` is called after every epoch (to keep a
+    checkpoint), ``on_step(step, total, loss)`` after every step (a progress bar; ``total``
+    may change after the first two epochs under a budget). The
     history's ``first_step_loss`` is the loss of the very first batch, before any update:
     what the initial weights score on it.
     """
@@ -234,10 +235,14 @@ def train(
         row["epoch"] = epoch + 1
         row["seconds"] = round(time.perf_counter() - start, 1)
         history["epochs"].append(row)
-        if epoch == 0 and budget_seconds is not None:
-            fits = max(1, int(budget_seconds // max(row["seconds"], 1e-6)))
-            if fits < plan["epochs"]:
-                log(f"an epoch takes {row['seconds']:.0f} s: {fits} epochs fit in {budget_seconds:.0f} s")
+        if epoch < 2 and budget_seconds is not None:
+            # planned on the first epoch, revised on the second: the first also pays for warming up
+            # (cuDNN's autotuning, allocator growth), on a GPU often three times a later epoch
+            took = row["seconds"] - (history["epochs"][-2]["seconds"] if epoch else 0.0)
+            fits = epoch + 1 + int(max(0.0, budget_seconds - row["seconds"]) // max(took, 1e-6))
+            fits = max(epoch + 1, min(cfg.epochs, fits))
+            if fits != plan["epochs"]:
+                log(f"epoch {epoch + 1} took {took:.0f} s: {fits} epochs fit in {budget_seconds:.0f} s")
                 plan["epochs"] = fits
         log(f"epoch {epoch + 1}/{plan['epochs']}: loss {row['loss']:.3f} (heat map {row['heatmap']:.3f}, "
             f"regression {row['regression']:.3f}), {row['seconds']:.0f} s")
