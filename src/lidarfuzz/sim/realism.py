@@ -104,7 +104,7 @@ class RealismConfig(BaseModel):
     camber_range: Range = (0.01, 0.03)
     sidewalk_slope_range: Range = (0.01, 0.025)
     undulation_range: Range = (0.0, 0.04)
-    undulation_wavelength_range: Range = (15.0, 60.0)
+    undulation_wavelength_range: Range = (20.0, 80.0)
     ramps: bool = True
     clean_sensor: bool = False
     calibration: str = "fixed"

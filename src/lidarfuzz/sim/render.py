@@ -123,6 +123,9 @@ class Renderer:
         self._device = _shared_device()
         self._static_scene: rtcore_scene.EmbreeScene | None = None
         self._still_pose: tuple[NDArray[np.float64], ...] | None = None
+        self._tilt_table: tuple[NDArray[np.float64], ...] | None = None
+        self._pose_memo: dict[bytes, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        self._face_table: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
         # Road users that never move are static geometry: built into the static scene once.
         self._still = [a for a in world.actors if a.trajectory.speed == 0]
         self._moving = [a for a in world.actors if a.trajectory.speed != 0]
@@ -150,6 +153,16 @@ class Renderer:
         plane along its normal, tilted by its mounting angles.
         """
         t = np.atleast_1d(np.asarray(t, np.float64))
+        key = t.tobytes()
+        if key in self._pose_memo:  # a frame asks for the same instants several times
+            return self._pose_memo[key]
+        if len(self._pose_memo) > 64:
+            self._pose_memo.clear()
+        pose = self._sensor_pose(t)
+        self._pose_memo[key] = pose
+        return pose
+
+    def _sensor_pose(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         x, y, yaw = self.world.ego.at(t)
         ground, sensor = self.world.ground, self.sensor
         tilted = not ground.is_flat or sensor.mount_pitch_deg or sensor.mount_roll_deg
@@ -159,23 +172,30 @@ class Renderer:
             rotation[:, 0, 0], rotation[:, 0, 1], rotation[:, 1, 0], rotation[:, 1, 1] = c, -s, s, c
             rotation[:, 2, 2] = 1.0
             return np.stack([x, y, np.full_like(x, sensor.mount_height)], axis=1), rotation
-        if self.world.ego.speed == 0:  # one pose for every instant
-            if self._still_pose is None:
-                z, forward, left = ground.tilt(x[:1], y[:1], yaw[:1], WHEELBASE, TRACK)
-                self._still_pose = (z, forward, left)
-            z, forward, left = (np.repeat(v, len(x)) for v in self._still_pose)
-        elif len(t) > 16:
-            # The ground under the car changes little within a sweep: its tilt at 9 instants,
-            # interpolated (the car moves at most 6 m between two of them).
-            samples = np.linspace(t.min(), t.max(), 9)
-            sx, sy, syaw = self.world.ego.at(samples)
-            z, forward, left = (np.interp(t, samples, v) for v in ground.tilt(sx, sy, syaw, WHEELBASE, TRACK))
-        else:
-            z, forward, left = ground.tilt(x, y, yaw, WHEELBASE, TRACK)
+        z, forward, left = self._ground_under_ego(t)
         body = frame_from_slopes(yaw, forward, left)
         rotation = body @ sensor.mount_rotation
         origin = np.stack([x, y, z], axis=1) + body[:, :, 2] * sensor.mount_height
         return origin, rotation
+
+    def _ground_under_ego(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        """The height and slopes (forward, left) of the plane under the ego vehicle's wheels at
+        times ``t``. The ground under the car changes little within a sweep: it is evaluated at 17
+        instants spanning three sweeps around the queried times (the car moves under 0.3 m
+        between two at 14 m/s) and interpolated, so a frame's many pose queries cost one lookup."""
+        ego = self.world.ego
+        if ego.speed == 0:  # one pose for every instant
+            if self._still_pose is None:
+                x, y, yaw = ego.at(t[:1])
+                self._still_pose = self.world.ground.tilt(x, y, yaw, WHEELBASE, TRACK)
+            return tuple(np.repeat(v, len(t)) for v in self._still_pose)
+        table = self._tilt_table
+        if table is None or t.min() < table[0][0] or t.max() > table[0][-1]:
+            period = self.sensor.period
+            samples = np.linspace(t.min() - 1.5 * period, t.max() + 1.5 * period, 17)
+            table = (samples, *self.world.ground.tilt(*ego.at(samples), WHEELBASE, TRACK))
+            self._tilt_table = table
+        return tuple(np.interp(t, table[0], v) for v in table[1:])
 
     def ego_pose(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], ...]:
         """Sensor (x, y, z, yaw) in the world at time(s) ``t`` (its heading; see :meth:`sensor_pose`
@@ -300,28 +320,22 @@ class Renderer:
         and only up to the distance found so far."""
         n = len(origins)
         static = self._static()
-        reflectivity = np.zeros(n, np.float32)
-        semantic = np.zeros(n, np.uint8)
-        owner = np.full(n, -1, np.int64)
-        returns = np.ones(n, np.float32)
-        gloss = np.zeros(n, np.float32)
         if static is not None:
             result = self._trace(static, origins, directions, np.full(n, self.sensor.max_range, np.float32))
             distance, normal = result["tfar"], result["Ng"]
             geometry = result["geomID"].astype(np.int32)
-            face = result["primID"]
-            world_hit, still_hit = geometry == 0, geometry == 1
-            reflectivity[world_hit] = self.world.static.reflectivity[face[world_hit]]
-            semantic[world_hit] = self.world.static.semantic[face[world_hit]]
-            returns[world_hit] = self.world.static.returns[face[world_hit]]
-            gloss[world_hit] = self.world.static.gloss[face[world_hit]]
-            if still_hit.any():
-                reflectivity[still_hit] = self._still_mesh.reflectivity[face[still_hit]]
-                semantic[still_hit] = self._still_mesh.semantic[face[still_hit]]
-                returns[still_hit] = self._still_mesh.returns[face[still_hit]]
-                gloss[still_hit] = self._still_mesh.gloss[face[still_hit]]
-                owner[still_hit] = self._still_owner[face[still_hit]]
+            # One gather from a table of every static face's properties (the world's faces, then
+            # the still road users', then a row for "nothing hit").
+            table, owners = self._static_faces()
+            row = np.where(geometry == 0, result["primID"], np.where(geometry == 1, result["primID"] + len(
+                self.world.static), len(table) - 1))
+            properties = table[row]
+            reflectivity, returns, gloss = (np.ascontiguousarray(properties[:, k]) for k in (0, 2, 3))
+            semantic = properties[:, 1].astype(np.uint8)
+            owner = owners[row]
         else:
+            reflectivity, returns, gloss = np.zeros(n, np.float32), np.ones(n, np.float32), np.zeros(n, np.float32)
+            semantic, owner = np.zeros(n, np.uint8), np.full(n, -1, np.int64)
             distance = np.full(n, self.sensor.max_range, np.float32)
             geometry, normal = np.full(n, -1, np.int32), np.zeros((n, 3), np.float32)
         for part in moving or []:
@@ -348,6 +362,19 @@ class Renderer:
             gloss[hit] = part.mesh.gloss[face]
             owner[hit] = part.owner[face]
         return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns, gloss)
+
+    def _static_faces(self) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+        """Reflectivity, semantic class, return probability and gloss of every static face (the
+        world's, then the still road users'), and each face's road user (−1 for the world), with
+        a last row for rays that hit nothing."""
+        if self._face_table is None:
+            meshes = (self.world.static, self._still_mesh)
+            table = np.concatenate([np.column_stack([m.reflectivity, m.semantic.astype(np.float32), m.returns,
+                                                     m.gloss]) for m in meshes] + [[[0.0, 0.0, 1.0, 0.0]]])
+            owners = np.concatenate([np.full(len(self.world.static), -1, np.int64), self._still_owner.astype(np.int64),
+                                     [-1]])
+            self._face_table = (table.astype(np.float32), owners)
+        return self._face_table
 
     def _trace(self, scene: rtcore_scene.EmbreeScene, origins: NDArray[np.float32],
                directions: NDArray[np.float32], limit: NDArray[np.float32]) -> dict[str, NDArray[Any]]:

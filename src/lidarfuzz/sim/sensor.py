@@ -29,7 +29,7 @@ datasheet; each constant says which.
 from __future__ import annotations
 
 import json
-from functools import cached_property
+from functools import cached_property, lru_cache
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -124,10 +124,15 @@ class Receiver(BaseModel):
 
     def calibration(self, beams: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Each ring's gain and offset (ring 0 the lowest), fixed by ``calibration_seed``."""
+        return _calibration(self, beams)
+
+    def _draw_calibration(self, beams: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         rng = np.random.default_rng(np.random.SeedSequence([self.calibration_seed, beams, 0xCA1B]))
         gain = np.exp(np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.gain_spread)
         offset = self.offset_mean + np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.offset_spread
-        return gain.astype(np.float32), offset.astype(np.float32)
+        gain, offset = gain.astype(np.float32), offset.astype(np.float32)
+        gain.flags.writeable = offset.flags.writeable = False  # shared by every frame (cached)
+        return gain, offset
 
     def read(self, reflectivity: NDArray[np.float32], cos_incidence: NDArray[np.float32],
              distance: NDArray[np.float32], ring: NDArray[np.intp], noise: NDArray[np.float32],
@@ -150,11 +155,19 @@ class Receiver(BaseModel):
         reading = reading * gain[ring] + offset[ring] + noise
         np.clip(reading, 0.0, 1.0, out=reading)
         if self.step > 0:
-            # Down to the step, as an integer reading is stored: k / 100 as float32 in KITTI.
-            levels = np.floor(reading.astype(np.float64) / self.step + 1e-4)
+            # Down to the step, as an integer reading is stored: k / 100 as float32 in KITTI (a
+            # float32 division is correctly rounded, so k / 100 is exactly KITTI's value).
             per_unit = round(1.0 / self.step)
-            reading = levels / per_unit if abs(per_unit * self.step - 1.0) < 1e-9 else levels * self.step
+            if abs(per_unit * self.step - 1.0) < 1e-9:
+                reading = np.floor(reading * np.float32(per_unit) + np.float32(1e-3)) / np.float32(per_unit)
+            else:
+                reading = np.floor(reading / np.float32(self.step) + np.float32(1e-3)) * np.float32(self.step)
         return reading.astype(np.float32)
+
+
+@lru_cache(maxsize=64)
+def _calibration(receiver: Receiver, beams: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    return receiver._draw_calibration(beams)
 
 
 class Dropouts(BaseModel):

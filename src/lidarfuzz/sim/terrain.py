@@ -24,8 +24,9 @@ shape; :class:`Ground` evaluates it (vectorised) for the whole scene:
 
 Meshes are built flat and their vertices lifted to the surface. Roads and sidewalks are
 strips whose surface is linear across them: they are cut along the crown's ridges (the
-centrelines) and the ramps' edges, and get vertices every :data:`MAX_EDGE` along their
-edges, so the crown and the ramps are exact. Open ground is cut along a square grid
+centrelines) and the ramps' edges, and get vertices along their edges close enough that
+the mesh departs from the surface by under :data:`TOLERANCE` (:attr:`Ground.spacing`), so
+the crown and the ramps are exact. Open ground is cut along a square grid
 (:func:`grid_triangles`); neighbouring cells share their vertices, so the mesh stays
 watertight (no cracks a ray could slip through).
 """
@@ -43,11 +44,15 @@ from shapely.ops import split
 from lidarfuzz.sim.meshes import Mesh, polygons_of, triangles_of
 from lidarfuzz.sim.spec import Road, Terrain
 
-#: Vertex spacing along the edges of draped roads and sidewalks, metres: the undulation's
-#: sharpest curvature (4 cm at a 15 m wavelength) departs from a chord of this length by under 2 cm.
-MAX_EDGE = 4.0
-#: Grid cell of open ground beside the roads (most of the area, mostly far away), metres.
-VERGE_CELL = 8.0
+#: How far a draped mesh may depart from the analytic surface between its vertices, metres.
+TOLERANCE = 0.01
+#: Bounds of the vertex spacing along roads and sidewalks, metres (:attr:`Ground.spacing`).
+MIN_EDGE, MAX_EDGE = 2.0, 16.0
+#: Open ground beside the roads (most of the area, mostly far away, where only parked cars in
+#: driveways, trees and buildings stand) may depart from the surface by this much, metres.
+VERGE_TOLERANCE = 0.04
+#: Its grid cell is one of these (each divides the next, so a world's edges are on every grid).
+VERGE_CELLS = (8.0, 16.0, 32.0)
 #: A dropped kerb keeps a lip of this height above the road (wheelchair and driveway ramps).
 RAMP_LIP = 0.02
 #: Where the wheels of the ego vehicle touch the ground, relative to the point under the
@@ -99,6 +104,19 @@ class Ground:
     @property
     def is_flat(self) -> bool:
         return self.terrain.is_flat
+
+    @property
+    def spacing(self) -> float:
+        """Vertex spacing along roads and sidewalks: a chord of length L departs from a curve of
+        curvature κ by κ·L²/8, so L = √(8 · :data:`TOLERANCE` / κ), κ the base's sharpest
+        curvature (:func:`curvature`), within [:data:`MIN_EDGE`, :data:`MAX_EDGE`]."""
+        bend = curvature(self.terrain)
+        return MAX_EDGE if bend <= 0 else float(np.clip(np.sqrt(8 * TOLERANCE / bend), MIN_EDGE, MAX_EDGE))
+
+    @property
+    def verge_cell(self) -> float:
+        """Grid cell of open ground: the largest of :data:`VERGE_CELLS` within :data:`VERGE_TOLERANCE`."""
+        return verge_cell(self.terrain)
 
     # ------------------------------------------------------------------ surfaces
     def base(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
@@ -190,7 +208,7 @@ class Ground:
         """A ground polygon as a mesh lying on ``surface`` (``road``, ``sidewalk``, ``verge`` or
         ``base``), ``lift`` above it. ``cut`` (lines) become mesh edges (the crown's ridge, the
         edges of ramps). Strips (roads, sidewalks, paint; ``cell`` None) get vertices every
-        :data:`MAX_EDGE` along their edges, across which their surface is linear; wide areas
+        :attr:`spacing` along their edges, across which their surface is linear; wide areas
         are cut along a grid of ``cell`` metres."""
         polygon = polygons_of(polygon)
         if polygon.is_empty:
@@ -201,9 +219,9 @@ class Ground:
             pieces = polygon
             if cut is not None and not shapely.is_empty(cut):
                 pieces = polygons_of(split(polygon, cut))
-            if cell is None:  # strips: vertices every MAX_EDGE along their edges suffice
+            if cell is None:  # strips: vertices along their edges suffice
                 # Part by part: segmentizing a multipolygon merges parts that touch (the ridge).
-                triangles = triangles_of(shapely.segmentize(shapely.get_parts(pieces), MAX_EDGE))
+                triangles = triangles_of(shapely.segmentize(shapely.get_parts(pieces), self.spacing))
             else:
                 triangles = grid_triangles(pieces, cell)
         xy = triangles.reshape(-1, 2)
@@ -219,7 +237,7 @@ class Ground:
         if polygon.is_empty:
             return Mesh.empty()
         if not self.is_flat:
-            polygon = polygons_of(shapely.segmentize(polygon, MAX_EDGE))
+            polygon = polygons_of(shapely.segmentize(polygon, self.spacing))
         for poly in polygon.geoms:
             rings.append(np.asarray(poly.exterior.coords))
             rings.extend(np.asarray(hole.coords) for hole in poly.interiors)
@@ -236,6 +254,21 @@ class Ground:
         base = np.arange(len(a), dtype=np.int32)[:, None] * 4
         faces = np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])]).astype(np.int32)
         return Mesh.of(quad, faces, material_name)
+
+
+def curvature(terrain: Terrain) -> float:
+    """The sharpest curvature of the base (1/m): the vertical curve's plus the undulation's
+    (its two waves' amplitudes times their wavenumbers squared)."""
+    k = 2 * np.pi / terrain.undulation_wavelength
+    return abs(terrain.grade_change) / 100.0 + terrain.undulation * k * k * (0.7 + 0.3 * 1.7 ** 2)
+
+
+def verge_cell(terrain: Terrain) -> float:
+    """The largest of :data:`VERGE_CELLS` whose chords depart from the base by under
+    :data:`VERGE_TOLERANCE` (κ·L²/8)."""
+    bend = curvature(terrain)
+    fits = [c for c in VERGE_CELLS if bend * c * c / 8 <= VERGE_TOLERANCE]
+    return max(fits) if fits else VERGE_CELLS[0]
 
 
 def ramp_edges(ground: Ground) -> object:
@@ -273,24 +306,29 @@ def grid_triangles(polygon: Polygon | MultiPolygon, cell: float) -> NDArray[np.f
     if polygon.is_empty:
         return np.zeros((0, 3, 2))
     minx, miny, maxx, maxy = polygon.bounds
-    xs = np.arange(np.floor(minx / cell), np.ceil(maxx / cell)) * cell
-    ys = np.arange(np.floor(miny / cell), np.ceil(maxy / cell)) * cell
-    x0, y0 = (v.ravel() for v in np.meshgrid(xs, ys))
-    # Cells the boundary crosses (one tree query), and cells wholly inside (their centre is, and
-    # no boundary crosses them).
-    crossing = np.zeros(len(x0), bool)
-    crossing[shapely.STRtree(shapely.box(x0, y0, x0 + cell, y0 + cell)).query(polygon.boundary,
-                                                                             predicate="intersects")] = True
+    i0, j0 = int(np.floor(minx / cell)), int(np.floor(miny / cell))
+    columns, rows = int(np.ceil(maxx / cell)) - i0, int(np.ceil(maxy / cell)) - j0
+    # Cells the boundary crosses: every cell a boundary segment's bounding box touches (segments
+    # no longer than half a cell, so that box spans at most 2 × 2 cells; a superset is harmless).
+    crossing = np.zeros((columns, rows), bool)
+    for rings in shapely.get_parts(shapely.segmentize(polygon.boundary, cell / 2)):
+        xy = shapely.get_coordinates(rings)
+        ci = np.clip(np.floor(xy[:, 0] / cell).astype(np.int64) - i0, 0, columns - 1)
+        cj = np.clip(np.floor(xy[:, 1] / cell).astype(np.int64) - j0, 0, rows - 1)
+        for a, b in ((ci[:-1], cj[:-1]), (ci[1:], cj[1:]), (ci[:-1], cj[1:]), (ci[1:], cj[:-1])):
+            crossing[a, b] = True
+    i, j = np.meshgrid(np.arange(columns), np.arange(rows), indexing="ij")
+    x0, y0 = (i + i0) * cell, (j + j0) * cell
     inside = ~crossing & shapely.contains_xy(polygon, x0 + cell / 2, y0 + cell / 2)
-    a = np.stack([x0[inside], y0[inside]], axis=1)
+    a = np.stack([x0[inside], y0[inside]], axis=1).astype(np.float64)
     b, c, d = (a + np.array(corner) for corner in ((cell, 0.0), (cell, cell), (0.0, cell)))
     triangles = [np.stack([a, b, c], axis=1), np.stack([a, c, d], axis=1)]
     pieces = []
-    rows = np.searchsorted(ys, y0[crossing])
-    for row in np.unique(rows):  # clip to the row first: each cell's clip then works on a small polygon
-        y = ys[row]
-        strip = shapely.clip_by_rect(polygon, xs[0], y, xs[-1] + cell, y + cell)
-        pieces += [shapely.clip_by_rect(strip, x, y, x + cell, y + cell) for x in x0[crossing][rows == row]]
+    for row in np.flatnonzero(crossing.any(axis=0)):  # clip to the row first: each cell's clip then is small
+        y = (row + j0) * cell
+        strip = shapely.clip_by_rect(polygon, i0 * cell, y, (i0 + columns) * cell, y + cell)
+        pieces += [shapely.clip_by_rect(strip, x, y, x + cell, y + cell)
+                   for x in (np.flatnonzero(crossing[:, row]) + i0) * cell]
     if pieces:
         triangles.append(triangles_of(shapely.get_parts(np.asarray(pieces, dtype=object))))
     return np.concatenate(triangles)
@@ -317,4 +355,5 @@ def frame_from_slopes(yaw: ArrayLike, rise_forward: ArrayLike, rise_left: ArrayL
     lx, ly, lz = uy * fz - uz * fy, uz * fx - ux * fz, ux * fy - uy * fx
     return np.stack([np.stack([fx, lx, ux], -1), np.stack([fy, ly, uy], -1), np.stack([fz, lz, uz], -1)], -2)
 
-__all__ = ["MAX_EDGE", "RAMP_LIP", "TRACK", "VERGE_CELL", "WHEELBASE", "Ground", "frame_from_slopes", "grid_triangles"]
+__all__ = ["MAX_EDGE", "MIN_EDGE", "RAMP_LIP", "TOLERANCE", "TRACK", "VERGE_CELLS", "VERGE_TOLERANCE", "WHEELBASE",
+           "Ground", "curvature", "frame_from_slopes", "grid_triangles", "verge_cell"]

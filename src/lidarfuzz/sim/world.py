@@ -25,7 +25,7 @@ from lidarfuzz.sim.meshes import Mesh, cylinder, ellipsoid, extruded, polygons_o
 from lidarfuzz.sim.meshes import box as box_mesh
 from lidarfuzz.sim.sensor import LidarSensor, load_sensor
 from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Pole, Road, SceneSpec, Sign, Tree, Wall
-from lidarfuzz.sim.terrain import VERGE_CELL, Ground, frame_from_slopes, ramp_edges
+from lidarfuzz.sim.terrain import VERGE_CELLS, Ground, frame_from_slopes, ramp_edges
 
 #: Road users that rest on four wheels tilt with the ground; people and riders stay upright.
 TILTING_CLASSES = frozenset({"Car", "Van", "Truck"})
@@ -185,8 +185,7 @@ def compile_world(spec: SceneSpec) -> World:
     sensor = load_sensor(spec.sensor)
     ego = Trajectory.of(spec.ego.position, spec.ego.yaw, spec.ego.speed, spec.ego.route)
     parts, ground = _ground_and_roads(spec, ego)
-    for obj in spec.objects:
-        parts.append(_on_ground(_static_object(obj), obj, ground))
+    parts += _on_ground([_static_object(obj) for obj in spec.objects], list(spec.objects), ground)
     actors = []
     for index, actor in enumerate(spec.actors):
         actors.append(_place_actor(index, actor, spec.seed))
@@ -220,7 +219,8 @@ def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Gro
     lo = route_extent.min(axis=0) - spec.extent
     hi = route_extent.max(axis=0) + spec.extent
     if not spec.terrain.is_flat:  # on the open ground's grid: its edge cells are whole
-        lo, hi = np.floor(lo / VERGE_CELL) * VERGE_CELL, np.ceil(hi / VERGE_CELL) * VERGE_CELL
+        grid = max(VERGE_CELLS)
+        lo, hi = np.floor(lo / grid) * grid, np.ceil(hi / grid) * grid
     square = box(lo[0], lo[1], hi[0], hi[1])
 
     carriageways = [LineString(r.centerline).buffer(r.half_width, cap_style="flat", join_style="mitre")
@@ -244,7 +244,7 @@ def _ground_and_roads(spec: SceneSpec, ego: Trajectory) -> tuple[list[Mesh], Gro
         parts.append(ground.drape(sidewalks, "sidewalk", "paving", cut=ramp_edges(ground)))
         parts.append(ground.walls(sidewalks, "sidewalk", "kerb"))
     ground_material = GROUND_MATERIALS[spec.ground]
-    parts.append(ground.drape(terrain, "verge", ground_material, cell=VERGE_CELL))
+    parts.append(ground.drape(terrain, "verge", ground_material, cell=ground.verge_cell))
     if spec.roads:
         parts.append(ground.walls(terrain, "verge", ground_material))
     return parts, ground
@@ -302,16 +302,28 @@ def _crosswalk(c: Crosswalk) -> Polygon | MultiPolygon:
 
 
 # --------------------------------------------------------------------------- static objects
-def _on_ground(mesh: Mesh, obj: object, ground: Ground) -> Mesh:
-    """A static object built on z = 0 moved onto the ground: its footprint's lowest point, sunk
-    by :data:`SINK` on sloping ground so that no corner floats."""
-    if ground.is_flat or not len(mesh) or isinstance(obj, Crosswalk):
-        return mesh
-    footprint = footprint_of(obj)
-    xy = np.asarray(footprint.exterior.coords) if isinstance(obj, Building | Wall) else np.asarray(
-        [footprint.centroid.coords[0]])
-    lift = float(ground.height(xy[:, 0], xy[:, 1]).min()) - SINK
-    return dataclasses.replace(mesh, vertices=mesh.vertices + np.array([0.0, 0.0, lift]))
+def _on_ground(meshes: list[Mesh], objects: list[object], ground: Ground) -> list[Mesh]:
+    """Static objects built on z = 0 moved onto the ground: each to its footprint's lowest point
+    (a building's or wall's corners, another object's centre), sunk by :data:`SINK` on sloping
+    ground so that no corner floats."""
+    if ground.is_flat:
+        return meshes
+    points, owner = [], []
+    for k, obj in enumerate(objects):
+        footprint = footprint_of(obj) if not isinstance(obj, Crosswalk) else None
+        if footprint is None:
+            continue
+        xy = np.asarray(footprint.exterior.coords) if isinstance(obj, Building | Wall) else np.asarray(
+            footprint.centroid.coords)
+        points.append(xy)
+        owner.append(np.full(len(xy), k))
+    if not points:
+        return meshes
+    xy, index = np.concatenate(points), np.concatenate(owner)
+    lowest = np.full(len(objects), np.inf)
+    np.minimum.at(lowest, index, ground.height(xy[:, 0], xy[:, 1]))
+    return [dataclasses.replace(m, vertices=m.vertices + np.array([0.0, 0.0, lowest[k] - SINK]))
+            if np.isfinite(lowest[k]) and len(m) else m for k, m in enumerate(meshes)]
 
 
 def _static_object(obj: object) -> Mesh:
