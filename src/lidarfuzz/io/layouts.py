@@ -304,7 +304,7 @@ def _pct(share: float) -> str:
 def judge(sample: Mapping[str, NDArray[np.floating]], layout: PointLayout) -> Verdict:
     """Whether sampled columns (channel → values) can be what ``layout`` says.
 
-    Cheap statistics over a few thousand rows; every threshold leaves room for real scans
+    Cheap statistics over about 2,000 rows; every threshold leaves room for real scans
     (KITTI has ~0.1 % whole-number coordinates and 8–26 % zero intensities; a misread
     nuScenes sweep has ~37 % whole numbers in x, y, z and ~48 % negative intensities):
 
@@ -316,7 +316,6 @@ def judge(sample: Mapping[str, NDArray[np.floating]], layout: PointLayout) -> Ve
     * ring: more than 1 % not a whole number in 0–255.
     """
     reasons: list[str] = []
-    strong = False
     # few, whole-array numpy calls: this runs on every scan read (NaN compares false everywhere,
     # so it only dilutes the shares a little; the reader handles non-finite points itself)
     coords = np.concatenate([sample["x"], sample["y"], sample["z"]])
@@ -339,8 +338,8 @@ def judge(sample: Mapping[str, NDArray[np.floating]], layout: PointLayout) -> Ve
     scale: float | None = None
     if "intensity" in sample:
         intensity = sample["intensity"]
-        lowest, highest = float(intensity.min()), float(intensity.max())
         if intensity.size >= MIN_ROWS_TO_JUDGE:
+            lowest, highest = float(intensity.min()), float(intensity.max())
             negative = float(np.count_nonzero(intensity < 0)) / intensity.size if lowest < 0 else 0.0
             if negative > 0.01:
                 reasons.append(f"{_pct(negative)} of the intensities are negative")
