@@ -27,19 +27,23 @@ from lidarfuzz.scene.scene import Scene
 torch = pytest.importorskip("torch")
 
 from lidarfuzz.suts.learned.augment import Augmentation, augment, box_index_of_points  # noqa: E402
-from lidarfuzz.suts.learned.network import PillarNet, detection_loss  # noqa: E402
+from lidarfuzz.suts.learned.network import PillarConfig, PillarNet, detection_loss  # noqa: E402
 from lidarfuzz.suts.learned.sut import DEFAULT_WEIGHTS, PillarsDetector, load_weights  # noqa: E402
 from lidarfuzz.suts.learned.training import (  # noqa: E402
     TrainConfig,
     frame_arrays,
     initial_weights,
     open_training_data,
+    save_weights,
     train,
 )
 
 pytestmark = pytest.mark.torch
 runner = CliRunner()
 CLASSES = ("Car", "Pedestrian", "Cyclist")
+#: A network a tenth the built-in one's cost, over the synthetic frames' cars, so training tests take seconds.
+SMALL = PillarConfig(x_range=(0.0, 51.2), y_range=(-12.8, 12.8), pillar=0.4, pillar_channels=8,
+                     block_channels=(8, 16, 32), block_layers=(1, 1, 1), neck_channels=8, head_channels=16)
 
 
 def synthetic_scene(index: int) -> Scene:
@@ -82,15 +86,21 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 # -- the command ---------------------------------------------------------------------------------
 def test_a_tiny_run_writes_weights_that_pillars_loads(data: Path, tmp_path: Path) -> None:
+    """From a small network's weights file (--init PATH), so the run takes seconds; the file's
+    configuration travels into the new weights."""
+    start = tmp_path / "small.pt"
+    torch.manual_seed(0)
+    save_weights(PillarNet(SMALL), start, {})
     out = tmp_path / "mine.pt"
     args = ["train", str(data), "--out", str(out), "--epochs", "1", "--batch", "4", "--device", "cpu",
-            "--init", "scratch", "--workers", "1", "--seed", "3"]
+            "--init", str(start), "--workers", "1", "--seed", "3"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "wrote" in result.output and "val split" in result.output
-    _, meta = load_weights(out)
-    assert meta["classes"] == list(CLASSES)
-    assert meta["point_range"] == {"x": [0.0, 57.6], "y": [-38.4, 38.4], "z": [-3.0, 1.0]}
+    net, meta = load_weights(out)
+    assert net.config == SMALL
+    assert meta["classes"] == list(CLASSES) and meta["init"] == str(start)
+    assert meta["point_range"] == {"x": [0.0, 51.2], "y": [-12.8, 12.8], "z": [-3.0, 1.0]}
     assert meta["data"]["frames"] == 4 and meta["data"]["split"] == "train" and meta["seed"] == 3
     assert meta["data"]["objects"] == {"Car": 8, "Pedestrian": 0, "Cyclist": 0}  # two cars in each of 4 frames
     assert len(meta["history"]["epochs"]) == 1 and meta["val"]["frames"] == 2
@@ -102,16 +112,16 @@ def test_a_tiny_run_writes_weights_that_pillars_loads(data: Path, tmp_path: Path
 
 
 def test_fine_tuning_starts_from_the_builtin_weights(data: Path) -> None:
-    """The first step's loss is the committed network's loss on that batch, computed here independently;
-    from scratch the same batch scores differently."""
+    """The first step's loss is the committed network's loss on that batch, computed here independently,
+    and the step moves the weights away from the committed ones."""
     from lidarfuzz.io.kitti import open_kitti
 
     dataset = open_kitti(data)
-    frames = [frame_arrays(dataset.load(f), CLASSES) for f in dataset.frame_ids()]
+    frames = [frame_arrays(dataset.load(f), CLASSES) for f in dataset.frame_ids()[:2]]
     config, state, path = initial_weights("builtin")
     assert path == DEFAULT_WEIGHTS
-    # batch 4 of 4 frames: the first batch is every frame (in some order; the loss does not depend on it)
-    cfg = TrainConfig(epochs=1, batch_size=4, augment="none", seed=0, lr=1e-3)
+    # batch 2 of 2 frames: the first batch is both (in some order; the loss does not depend on it)
+    cfg = TrainConfig(epochs=1, batch_size=2, augment="none", seed=0, lr=1e-3)
     tuned, history = train(frames, config=cfg, network_config=config, initial=state, device="cpu", log=lambda _: None)
 
     reference = PillarNet(config)
@@ -123,13 +133,9 @@ def test_fine_tuning_starts_from_the_builtin_weights(data: Path) -> None:
     classes = torch.cat([torch.from_numpy(c) for _, _, c in frames])
     box_index = torch.cat([torch.full((len(b),), i) for i, (_, b, _) in enumerate(frames)])
     with torch.no_grad():
-        heatmap, regression = reference(points, index, 4)
+        heatmap, regression = reference(points, index, 2)
         expected, _ = detection_loss(heatmap, regression, boxes, classes, box_index, config)
     assert history["first_step_loss"] == pytest.approx(float(expected), rel=1e-4)
-
-    _, scratch = train(frames, config=cfg, network_config=config, device="cpu", log=lambda _: None)
-    assert scratch["first_step_loss"] != pytest.approx(history["first_step_loss"], rel=1e-2)
-    # and one step moved the weights away from the committed ones
     moved = [not torch.equal(tuned.state_dict()[k], v) for k, v in state.items() if v.is_floating_point()]
     assert any(moved)
 
@@ -139,9 +145,9 @@ def test_training_on_the_cpu_is_deterministic(data: Path) -> None:
 
     dataset = open_kitti(data)
     frames = [frame_arrays(dataset.load(f), CLASSES) for f in dataset.frame_ids()]
-    cfg = TrainConfig(epochs=1, batch_size=4, seed=5)
-    first, _ = train(frames, config=cfg, device="cpu", log=lambda _: None)
-    second, _ = train(frames, config=cfg, device="cpu", log=lambda _: None)
+    cfg = TrainConfig(epochs=2, batch_size=2, seed=5)  # 4 steps, every augmentation on
+    first, _ = train(frames, config=cfg, network_config=SMALL, device="cpu", log=lambda _: None)
+    second, _ = train(frames, config=cfg, network_config=SMALL, device="cpu", log=lambda _: None)
     for key, value in first.state_dict().items():
         assert torch.equal(value, second.state_dict()[key]), key
 
