@@ -66,6 +66,19 @@ def main() -> None:
         target = TARGETS_MS.get(name, 10.0)
         print(f"| {name} | {cls.family} | {ms:.2f} | {ms / baseline:.0f} | ≤ {target:g} | "
               f"{'yes' if ms <= target else '**no**'} |", flush=True)
+    # a frame without a map: outside_roi_scatter estimates the drivable region from the scan
+    from lidarfuzz.scene.drivable import estimate_drivable
+
+    unmapped = scene.replace(roi=None)
+    scatter = available()["outside_roi_scatter"].at_severity(args.severity)
+    for label, target, fn in [
+        ("drivable-region estimate (frame without a map)", 30.0, lambda: estimate_drivable(unmapped)),
+        ("outside_roi_scatter, frame without a map", 40.0,
+         lambda: scatter(unmapped, generator(0, scene.frame_id, 0, 0))),
+    ]:
+        ms = median_ms(fn, args.repeat)
+        print(f"| {label} | noise | {ms:.2f} | {ms / baseline:.0f} | ≤ {target:g} | "
+              f"{'yes' if ms <= target else '**no**'} |", flush=True)
     print(f"\nnumpy {np.__version__}; {os.cpu_count()} CPUs on the machine")
 
 

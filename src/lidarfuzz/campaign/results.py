@@ -76,6 +76,9 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     Frames in ``unlabelled`` (no label file in a labelled data set, run with ``--allow-unlabelled``)
     are left out of AP — with no ground truth every detection there would count as a false
     positive — and counted in ``ap_excluded``; their relations and failures still count.
+
+    When the mutants' params name a region (``outside_roi_scatter``: the frame's map, a data-set
+    map, the estimated drivable area or the boxes), ``regions`` says on how many frames each was used.
     """
     skipped = set(unlabelled)
     excluded: list[str] = []
@@ -83,7 +86,10 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     labelled = moved = False
     failures = cached = 0
     seconds = 0.0
+    regions: dict[str, set[str]] = defaultdict(set)
     for frame_id, boxes, labels, gt_boxes, gt_labels, failure, relations, secs, was_cached, *more in rows:
+        if more and isinstance(more[0], Mapping) and more[0].get("region"):
+            regions[str(more[0]["region"])].add(frame_id)
         failures += int(failure is not None)
         cached += int(bool(was_cached))
         seconds += float(secs or 0.0)
@@ -123,6 +129,8 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
                                                                           per="object")]
     out["violations_total"] = [r.to_dict() for r in violation_rates(records, by=("relation",))]
     out["count_form"] = [r.to_dict() for r in count_form_rates(records, by=("severity",))]
+    if regions:
+        out["regions"] = {name: len(ids) for name, ids in sorted(regions.items())}
     return out
 
 

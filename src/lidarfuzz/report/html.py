@@ -251,7 +251,26 @@ def _violations(summary: Mapping[str, Any]) -> dict[str, Any]:
         "by_class": by_class,
         "objects": by_object,
         "count_form": [{**r, "rate_text": fmt_pct(r["rate"])} for r in violations.get("count_form", [])],
+        "regions": _regions(summary),
     }
+
+
+#: What the regions named in ``outside_roi_scatter``'s params are, for the report's reader.
+REGION_NAMES = {"frame_map": "the frame's own map", "dataset_map": "the data set's map",
+                "estimated": "the drivable area estimated from the scan", "boxes": "outside the labelled boxes only",
+                "roi": "the frame's map"}
+
+
+def _regions(summary: Mapping[str, Any]) -> list[dict[str, str]]:
+    """Per subtask whose mutants avoided a region (``outside_roi_scatter``): which, on how many frames."""
+    out = []
+    for entry in summary.get("subtasks", [])[1:]:
+        regions = entry.get("regions") or {}
+        if regions:
+            text = ", ".join(f"{REGION_NAMES.get(name, name)} ({name}) on {_plural(int(n), 'frame')}"
+                             for name, n in regions.items())
+            out.append({"label": entry.get("label", ""), "text": text})
+    return out
 
 
 def _failures(summary: Mapping[str, Any]) -> dict[str, Any]:
