@@ -311,7 +311,8 @@ def segment_ground(xyz: NDArray[np.floating], settings: DrivableSettings = DEFAU
     support = cz <= low[cpatch] + 0.1 + s.seed_band
     for _ in range(3):
         fitted, n = _fit_planes(cx[support], cy[support], cz[support], cpatch[support], grid.patches)
-        residual = cz - (fitted[cpatch, 0] * cx + fitted[cpatch, 1] * cy + fitted[cpatch, 2])
+        plane = fitted[cpatch]
+        residual = cz - (plane[:, 0] * cx + plane[:, 1] * cy + plane[:, 2])
         support = np.abs(residual) <= s.ground_band
     # patches that are not ground: too steep, too little support, or standing on something
     ok = (n >= 3) & (np.hypot(fitted[:, 0], fitted[:, 1]) <= np.tan(np.deg2rad(s.max_tilt_deg)))
@@ -332,9 +333,9 @@ def segment_ground(xyz: NDArray[np.floating], settings: DrivableSettings = DEFAU
         gap = grid.patch_r[members] - grid.patch_r[inner]
         good = ok[members] & (rise <= s.max_rise + s.max_grade * gap)
         planes[members] = np.where(good[:, None], fitted[members], planes[inner])
-    at = np.maximum(grid.cell_patch, 0)
+    plane = planes[np.maximum(grid.cell_patch, 0)]
     cell_ground = np.empty(size + 1, np.float32)
-    cell_ground[:size] = planes[at, 0] * grid.cell_x + planes[at, 1] * grid.cell_y + planes[at, 2]
+    cell_ground[:size] = plane[:, 0] * grid.cell_x + plane[:, 1] * grid.cell_y + plane[:, 2]
     cell_ground[:size][grid.cell_patch < 0] = np.nan
     cell_ground[size] = np.nan
     return GroundSegmentation(z - cell_ground[cell], planes, np.where(used, cell, -1), s)
