@@ -375,13 +375,9 @@ Region = Literal["auto", "map", "estimated", "boxes"]
 class OutsideRoiScatterConfig(Config):
     count_range: Range = Field((100, 100), description="scattered points (the paper uses 10, 100, 1000)")
     range_m: float | None = Field(None, gt=0, description="sensor range; default: the cloud's farthest point")
-    region: Region = Field(
-        "auto", description="where the points may not go: auto (the frame's map, else an estimate), map (the "
-                            "frame's map, required), estimated (always the estimate), boxes (outside the "
-                            "ground-truth boxes grown by 1 m: the behaviour before the estimate)")
-    margin_m: float = Field(3.0, ge=0, description="points stay this far from an estimated region (its "
-                                                    "uncertainty, and what ROI filters keep around a map); a "
-                                                    "map's region is used as it is")
+    region: Region = Field("auto", description="auto (the frame's map, else the estimate), map (required), "
+                                               "estimated, or boxes (the fallback before the estimate)")
+    margin_m: float = Field(3.0, ge=0, description="metres kept from an estimated region (a map is used as it is)")
 
 
 class OutsideRoiScatterParams(Params):
