@@ -43,7 +43,10 @@ def register(app: typer.Typer) -> None:
         allow_unlabelled: AllowUnlabelledOption = False,
         roi_map: Annotated[Path | None, typer.Option(help="GeoJSON drivable-area map for every frame without its "
                                                           "own roi/ map (LiDAR frame; \"frame\": \"world\" for a "
-                                                          "log with poses).")] = None,
+                                                          "log with poses), or 'estimate': the drivable region "
+                                                          "estimated from each frame's points, which the system "
+                                                          "and every mutant then see (Zhou & Sun's MR1 on data "
+                                                          "without a map).")] = None,
         intensity_scale: Annotated[float | None, typer.Option(help="Intensity of the strongest return (1 or 255), "
                                                                    "when the layout's is wrong.")] = None,
         workspace: WorkspaceOption = WORKSPACE,

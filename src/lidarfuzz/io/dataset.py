@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.common import Problem
 from lidarfuzz.io.options import DatasetMap, DatasetOptions
+from lidarfuzz.scene.drivable import ESTIMATED, estimate_drivable
 from lidarfuzz.scene.scene import Sample, Scene
 
 S = TypeVar("S", bound=Sample)
@@ -64,6 +65,9 @@ class Dataset(ABC, Generic[S]):
         elif self._map is not None:
             roi = self._map.for_scene(scene)
             meta["roi_source"] = "dataset_map"
+        elif self.options.estimates_map:
+            roi = estimate_drivable(scene, use_labels=False)  # never the labels: the system sees this map
+            meta["roi_source"] = ESTIMATED
         if self.options.intensity_scale is not None:
             meta["intensity_scale"] = self.options.intensity_scale
         if roi is scene.roi and meta == scene.metadata:

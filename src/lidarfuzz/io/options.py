@@ -13,7 +13,11 @@ reports, the web app):
 * ``roi_map``: a GeoJSON drivable-area map for the whole data set, used for every frame that has
   no map of its own (``roi/<id>.json``). Its polygons are in the LiDAR frame (the same for every
   frame), or — with ``"frame": "world"`` at the top level or in its ``properties`` — in the
-  world frame of a log with poses, moved into each frame's LiDAR frame by the frame's pose.
+  world frame of a log with poses, moved into each frame's LiDAR frame by the frame's pose. Or the
+  word ``estimate``: every frame without a map gets the drivable region estimated from its own
+  points (:func:`lidarfuzz.scene.drivable.with_estimated_roi`, ``roi_source: estimated``), so the
+  system under test and every mutant of the frame see the same region, as Apollo's ROI filter sees
+  the same HD map — what Zhou & Sun's MR1 (``outside_roi_scatter``) needs on data without a map.
 
 Example:
     >>> DatasetOptions(layout="nuscenes").stored()
@@ -41,6 +45,8 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 
 MapFrame = Literal["lidar", "world"]
+#: ``roi_map`` value asking for the drivable region estimated from each frame's points.
+ESTIMATE_MAP = "estimate"
 
 
 class DatasetOptions(BaseModel):
@@ -55,7 +61,8 @@ class DatasetOptions(BaseModel):
     intensity_scale: float | None = Field(default=None, gt=0, description="intensity of the strongest return "
                                                                            "(1 or 255), overriding the layout's")
     roi_map: str | None = Field(default=None, description="GeoJSON drivable-area map for every frame without "
-                                                          "its own")
+                                                          "its own, or 'estimate' for the region estimated from "
+                                                          "each frame's points")
 
     @field_validator("layout")
     @classmethod
@@ -71,7 +78,7 @@ class DatasetOptions(BaseModel):
 
     def resolved(self) -> DatasetOptions:
         """The same options with ``roi_map`` an absolute path (what the store keeps)."""
-        if self.roi_map is None:
+        if self.roi_map is None or self.estimates_map:
             return self
         return self.model_copy(update={"roi_map": str(Path(self.roi_map).expanduser().resolve())})
 
@@ -87,9 +94,14 @@ class DatasetOptions(BaseModel):
         except (ValidationError, LayoutError) as exc:
             raise LidarfuzzError(f"the stored data-set options {dict(data or {})} are not valid: {exc}") from None
 
+    @property
+    def estimates_map(self) -> bool:
+        """Whether frames without a map get the region estimated from their points."""
+        return self.roi_map == ESTIMATE_MAP
+
     def dataset_map(self) -> DatasetMap | None:
-        """The data-set ROI map, read and checked (``None`` when there is none)."""
-        return load_dataset_map(self.roi_map) if self.roi_map else None
+        """The data-set ROI map, read and checked (``None`` when there is none or it is estimated)."""
+        return load_dataset_map(self.roi_map) if self.roi_map and not self.estimates_map else None
 
 
 def options_from_flags(layout: str | None = None, allow_unlabelled: bool = False,
