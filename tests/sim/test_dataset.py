@@ -14,7 +14,7 @@ from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.io import open_dataset
 from lidarfuzz.io.inspect import inspect_source
 from lidarfuzz.io.kitti import KittiDataset, KittiLog
-from lidarfuzz.sim import GenerationConfig, generate_dataset, parse_scene
+from lidarfuzz.sim import GenerationConfig, generate_dataset, load_sensor, parse_scene
 from lidarfuzz.sim.dataset import SUMMARY_FILE, is_complete
 from tests.sim.helpers import street
 
@@ -67,7 +67,8 @@ def test_generated_data_set_reads_back_and_info_reports_no_problem(independent):
     assert info["complete"] and info["config"]["frames"] == 4 and info["label_counts"] == summary.label_counts
     # Each frame's scene is saved and renders the same frame again.
     scene = parse_scene(json.loads((root / "scenes" / "000001.json").read_text()))
-    assert scene.sensor == "VLP-16"
+    # The sensor is stored whole: the preset with the pitch and roll drawn for this frame.
+    assert load_sensor(scene.sensor).name == "VLP-16"
 
 
 def test_side_files_store_integer_channels_compactly(independent):

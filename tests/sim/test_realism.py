@@ -262,8 +262,12 @@ def test_per_frame_randomisation_changes_the_sensor_deterministically():
     assert a.sensor != b.sensor
     sensor = load_sensor(a.sensor)
     assert 0.06 <= sensor.receiver.gain_spread <= 0.2
-    # The default keeps one sensor (KITTI's receiver) for every frame: only its name is stored.
-    assert _frame_scene(GenerationConfig(frames=1), 0).sensor == "HDL-64E"
+    # The default keeps one sensor (KITTI's receiver, one calibration) for every frame; only its
+    # pitch and roll against the road vary, within KITTI's 0.17–0.64° of pitch.
+    first, second = (load_sensor(_frame_scene(GenerationConfig(frames=2), k).sensor) for k in (0, 1))
+    assert first.receiver == second.receiver == SENSOR_PRESETS["HDL-64E"].receiver
+    assert first.mount_pitch_deg != second.mount_pitch_deg
+    assert 0.15 <= first.mount_pitch_deg <= 0.65
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -279,3 +283,18 @@ def test_labelled_objects_points_lie_in_their_boxes_on_sloping_ground(seed):
         margin = 0.1 + 0.05 * labelled.sizes[i, 0] / 2
         inside = points_in_boxes(own, labelled.as_array()[i:i + 1], margin=margin)[:, 0]
         assert inside.all(), f"{labelled.labels[i]} {labelled.track_ids[i]}: {np.sum(~inside)} points outside"
+
+
+@pytest.mark.slow
+def test_randomised_realism_gives_the_same_bytes_whatever_the_worker_count(tmp_path):
+    import hashlib
+
+    from lidarfuzz.sim import generate_dataset
+
+    def digest(root):
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted((root / "velodyne").iterdir())}
+
+    config = GenerationConfig(frames=3, seed=5, sensor="VLP-16", realism=RealismConfig.randomised())
+    generate_dataset(tmp_path / "one", config, workers=1)
+    generate_dataset(tmp_path / "two", config, workers=2)
+    assert digest(tmp_path / "one") == digest(tmp_path / "two")

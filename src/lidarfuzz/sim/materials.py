@@ -61,15 +61,15 @@ _MATERIALS = (
 #: Materials by name; ``paint`` (vehicle body colour) is per object, see :data:`PAINT_REFLECTIVITY`.
 MATERIALS: dict[str, Material] = {m.name: m for m in _MATERIALS}
 
-#: Vehicle paint from black (0.03: diffuse reflectance of black clear-coated paint at 905 nm is
-#: 2–5 %) to white (0.75).
-PAINT_REFLECTIVITY = (0.03, 0.75)
+#: Vehicle paint from black (0.05: carbon-black clear-coated paint reflects 3–8 % diffusely at
+#: 905 nm) to white (0.75).
+PAINT_REFLECTIVITY = (0.05, 0.75)
 #: Paint drawn per vehicle from the colours cars have (global shares, rounded from the paint
 #: makers' yearly colour-popularity reports: white ~35 %, black ~20 %, grey ~18 %, silver
 #: ~12 %, other colours ~15 %), each a range of reflectivity at 905 nm: (share, low, high).
 PAINT_COLOURS: tuple[tuple[float, float, float], ...] = (
     (0.35, 0.50, 0.75),  # white
-    (0.20, 0.03, 0.06),  # black
+    (0.20, 0.05, 0.08),  # black
     (0.18, 0.08, 0.20),  # grey
     (0.12, 0.30, 0.50),  # silver
     (0.15, 0.15, 0.50),  # red, blue and the rest

@@ -140,6 +140,7 @@ class Renderer:
         self._direction_components = [np.ascontiguousarray(self._local_directions[:, k]) for k in range(3)]
         self._ring_of_ray = np.tile(np.arange(self.sensor.beams, dtype=np.float32), self.sensor.columns)
         self._ring_index = np.tile(np.arange(self.sensor.beams, dtype=np.intp), self.sensor.columns)
+        self._drop_rate_of_ray = np.tile(self.sensor.beam_drop_rates, self.sensor.columns)
         self._time_of_ray = np.repeat(self.sensor.column_times.astype(np.float32), self.sensor.beams)
         self._track_of_index = np.array([a.track_id for a in world.actors] + [-1], np.float32)
 
@@ -524,7 +525,7 @@ class Renderer:
             signal = reflectivity * np.sqrt(np.maximum(cos_incidence, np.float32(0.05)))
             signal *= (np.float32(100.0) / distance) ** 2
         kept = geometric & (signal >= sensor.detection_threshold)
-        kept &= drop_draw >= np.tile(sensor.beam_drop_rates, sensor.columns)
+        kept &= drop_draw >= self._drop_rate_of_ray
         kept &= return_draw < hits.returns * self._specular_survival(hits.gloss, cos_incidence)
         kept &= self._sensor_losses(rng)
         index = np.flatnonzero(kept)

@@ -288,15 +288,10 @@ class LidarSensor(BaseModel):
 
     @cached_property
     def local_directions(self) -> NDArray[np.float64]:
-        """Unit ray directions in the sensor frame, shape (columns, beams, 3), in firing order."""
-        az = self.column_azimuths[:, None]
-        el = self.ring_elevations[None, :]
-        cos_el = np.cos(el)
-        out = np.empty((self.columns, self.beams, 3))
-        out[..., 0] = cos_el * np.cos(az)
-        out[..., 1] = cos_el * np.sin(az)
-        out[..., 2] = np.broadcast_to(np.sin(el), (self.columns, self.beams))
-        return out
+        """Unit ray directions in the sensor frame, shape (columns, beams, 3), in firing order
+        (shared, read-only, by every sensor with the same beam table: each generated frame has
+        its own sensor instance, its mounting tilt drawn, but the same beams)."""
+        return _local_directions(tuple(float(e) for e in self.ring_elevations), self.columns)
 
     @cached_property
     def mount_rotation(self) -> NDArray[np.float64]:
@@ -309,15 +304,7 @@ class LidarSensor(BaseModel):
     @cached_property
     def shadowed(self) -> NDArray[np.bool_]:
         """Rays (columns × beams, firing order) blocked by the vehicle (:attr:`Dropouts.shadow`)."""
-        out = np.zeros((self.columns, self.beams), bool)
-        if not self.dropouts.shadow:
-            return out
-        azimuth = np.rad2deg(np.angle(np.exp(1j * self.column_azimuths)))[:, None]
-        elevation = np.rad2deg(self.ring_elevations)[None, :]
-        for sector in self.dropouts.shadow:
-            lo, hi = sector.azimuth_deg
-            out |= (azimuth >= lo) & (azimuth <= hi) & (elevation <= sector.below_deg)
-        return out
+        return _shadowed(tuple(float(e) for e in self.ring_elevations), self.columns, self.dropouts.shadow)
 
     @cached_property
     def beam_drop_rates(self) -> NDArray[np.float32]:
@@ -337,6 +324,32 @@ class LidarSensor(BaseModel):
     def time_of_azimuth(self, azimuth: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Firing time (relative to the frame timestamp) at which the head points at ``azimuth``."""
         return (self.column_of_azimuth(azimuth) / self.columns - 0.5) * self.period
+
+
+@lru_cache(maxsize=16)
+def _local_directions(ring_elevations: tuple[float, ...], columns: int) -> NDArray[np.float64]:
+    az = (np.pi - 2.0 * np.pi * np.arange(columns) / columns)[:, None]
+    el = np.asarray(ring_elevations)[None, :]
+    cos_el = np.cos(el)
+    out = np.empty((columns, len(ring_elevations), 3))
+    out[..., 0] = cos_el * np.cos(az)
+    out[..., 1] = cos_el * np.sin(az)
+    out[..., 2] = np.broadcast_to(np.sin(el), (columns, len(ring_elevations)))
+    out.flags.writeable = False
+    return out
+
+
+@lru_cache(maxsize=16)
+def _shadowed(ring_elevations: tuple[float, ...], columns: int,
+              shadow: tuple[ShadowSector, ...]) -> NDArray[np.bool_]:
+    out = np.zeros((columns, len(ring_elevations)), bool)
+    azimuth = np.rad2deg(np.angle(np.exp(1j * (np.pi - 2.0 * np.pi * np.arange(columns) / columns))))[:, None]
+    elevation = np.rad2deg(np.asarray(ring_elevations))[None, :]
+    for sector in shadow:
+        lo, hi = sector.azimuth_deg
+        out |= (azimuth >= lo) & (azimuth <= hi) & (elevation <= sector.below_deg)
+    out.flags.writeable = False
+    return out
 
 
 def _hdl64e_elevations() -> tuple[float, ...]:

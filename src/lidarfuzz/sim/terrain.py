@@ -160,6 +160,8 @@ class Ground:
                 d = _distance_to_polyline(np.asarray(road.centerline, np.float64), x, y) - road.half_width
                 np.minimum(away, d, out=away)
             rise = rise + self.terrain.sidewalk_slope * np.clip(away, 0.0, None)
+        if not self._ramp_polygons or not np.any(shapely.contains_xy(self._ramps, x, y)):
+            return z + rise
         for polygon, start, gradient in self._ramp_polygons:
             inside = shapely.contains_xy(polygon, x, y)
             if np.any(inside):
@@ -177,11 +179,11 @@ class Ground:
         x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
         on_road = shapely.contains_xy(self.drivable, x, y)
         on_sidewalk = ~on_road & shapely.contains_xy(self.sidewalks, x, y)
-        z = self.verge(x, y)
-        if np.any(on_road):
-            z = np.where(on_road, self.road(x, y), z)
+        z = np.array(self.verge(x, y), np.float64)
+        if np.any(on_road):  # each surface evaluated only where it lies
+            z[on_road] = self.road(x[on_road], y[on_road])
         if np.any(on_sidewalk):
-            z = np.where(on_sidewalk, self.sidewalk(x, y), z)
+            z[on_sidewalk] = self.sidewalk(x[on_sidewalk], y[on_sidewalk])
         return z
 
     def tilt(self, x: ArrayLike, y: ArrayLike, yaw: ArrayLike, length: ArrayLike,
