@@ -558,6 +558,85 @@ def rolling_shutter_figure(path: Path) -> dict[str, float]:
     return info
 
 
+# KITTI object-benchmark training 000000–000002 (HDL-64E), measured once (never read here).
+#: Share of returns per intensity bin of 0.05 (0–1).
+KITTI_INTENSITY_HISTOGRAMS = (
+    (0.109, 0.018, 0.038, 0.067, 0.076, 0.148, 0.207, 0.168, 0.080, 0.044, 0.024, 0.013, 0.005, 0.001, 0.001),
+    (0.100, 0.037, 0.053, 0.126, 0.129, 0.195, 0.173, 0.092, 0.038, 0.024, 0.015, 0.010, 0.004, 0.002, 0.001),
+    (0.095, 0.021, 0.047, 0.084, 0.082, 0.171, 0.210, 0.144, 0.064, 0.039, 0.020, 0.010, 0.006, 0.002, 0.002),
+)
+#: Share of returns reading exactly 0 per range bin (m).
+KITTI_ZERO_BY_RANGE = {
+    (0, 10): (0.106, 0.046, 0.077), (10, 20): (0.079, 0.032, 0.047), (20, 30): (0.119, 0.084, 0.098),
+    (30, 40): (0.156, 0.232, 0.429), (40, 60): (0.504, 0.654, 0.579), (60, 80): (0.877, 0.940, 0.940),
+}
+#: Height of the road ahead and behind (5th percentile of z within 4 m of the x axis, 5 m bins from x = −40 m).
+KITTI_GROUND_PROFILES = {
+    "000001": (-2.38, -2.32, -2.21, -2.13, -2.05, -1.98, -1.87, -1.82, -1.75, -1.69, -1.64, -1.60, -1.54, -1.46,
+               -1.38, -1.32, -1.23, -1.25),
+    "000002": (-2.22, -2.06, -1.99, -1.93, -1.90, -1.85, -1.80, -1.74, -1.72, -1.73, -1.98, -1.94, -1.93, -2.01,
+               -2.09, -2.20, -2.33, np.nan),
+}
+
+
+def realism_figure(path: Path) -> dict[str, object]:
+    """Intensities and ground of simulated HDL-64E frames next to KITTI's."""
+    from lidarfuzz.sim import GenerationConfig, render_frames
+    from lidarfuzz.sim.realism import RealismConfig
+
+    frames = {"realistic (default)": list(render_frames(GenerationConfig(frames=4, seed=11))),
+              "RealismConfig.off()": list(render_frames(GenerationConfig(frames=4, seed=11,
+                                                                         realism=RealismConfig.off())))}
+    colours = {"realistic (default)": "#d62728", "RealismConfig.off()": "#7f7f7f"}
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.4), layout="constrained")
+    edges = np.linspace(0, 0.75, 16)
+    centres = (edges[:-1] + edges[1:]) / 2
+    ax = axes[0]
+    for k, hist in enumerate(KITTI_INTENSITY_HISTOGRAMS):
+        ax.plot(centres, hist, color="#1f77b4", lw=1.2, alpha=0.8, label="KITTI 000000–000002" if k == 0 else None)
+    info: dict[str, object] = {}
+    for name, scenes in frames.items():
+        intensity = np.concatenate([s.points.channel("intensity") for s in scenes])
+        share = np.histogram(intensity, bins=np.linspace(0, 1, 21))[0][:15] / len(intensity)
+        ax.plot(centres, share, color=colours[name], lw=1.8, label=f"simulator, {name}")
+        info[name] = {"zero": round(float(np.mean(intensity == 0)), 3),
+                      "points": int(np.mean([len(s.points) for s in scenes]))}
+    ax.set(xlabel="intensity", ylabel="share of returns per 0.05", title="Intensity histogram")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    bins = list(KITTI_ZERO_BY_RANGE)
+    x = np.arange(len(bins))
+    for k in range(3):
+        ax.plot(x, [KITTI_ZERO_BY_RANGE[b][k] for b in bins], "o-", color="#1f77b4", alpha=0.8,
+                label="KITTI 000000–000002" if k == 0 else None)
+    for name, scenes in frames.items():
+        intensity = np.concatenate([s.points.channel("intensity") for s in scenes])
+        distance = np.concatenate([np.linalg.norm(s.points.xyz, axis=1) for s in scenes])
+        zero = [np.mean(intensity[(distance >= lo) & (distance < hi)] == 0) for lo, hi in bins]
+        ax.plot(x, zero, "s-", color=colours[name], label=f"simulator, {name}")
+    ax.set_xticks(x, [f"{lo}–{hi}" for lo, hi in bins])
+    ax.set(xlabel="range (m)", ylabel="share reading exactly 0", title="Zero readings by range", ylim=(-0.02, 1.02))
+    ax.legend(fontsize=8)
+    ax = axes[2]
+    bin_x = np.arange(-40, 50, 5) + 2.5
+    for k, profile in enumerate(KITTI_GROUND_PROFILES.values()):
+        ax.plot(bin_x, profile, "o-", color="#1f77b4", alpha=0.8, label="KITTI 000001, 000002" if k == 0 else None)
+    for shown, scene in enumerate(frames["realistic (default)"]):
+        label, xyz = scene.points.channel("label"), scene.points.xyz
+        road = np.isin(label, [1, 2]) & (np.abs(xyz[:, 1]) < 4)
+        z = [np.percentile(xyz[road & (np.abs(xyz[:, 0] - c) < 2.5), 2], 5) if np.sum(
+            road & (np.abs(xyz[:, 0] - c) < 2.5)) > 20 else np.nan for c in bin_x]
+        ax.plot(bin_x, z, "s-", color=colours["realistic (default)"], alpha=0.8,
+                label="simulator, realistic (4 frames)" if shown == 0 else None)
+    ax.axhline(-1.73, color=colours["RealismConfig.off()"], lw=1.8, label="simulator, RealismConfig.off()")
+    ax.set(xlabel="x (m, ahead of the sensor)", ylabel="road height in the sensor frame (m)",
+           title="The road ahead and behind")
+    ax.legend(fontsize=8)
+    fig.suptitle("Simulated HDL-64E frames (GenerationConfig seed 11) next to real KITTI scans", fontsize=11)
+    save(fig, path)
+    return info
+
+
 def save(fig, path: Path) -> None:
     """Write ``fig`` as a 256-colour PNG (about a quarter of the size of a true-colour one)."""
     from io import BytesIO
@@ -589,6 +668,7 @@ def main() -> int:
     beams_figure(IMAGES / "sim_beams.png")
     print(f"    {classes_figure(IMAGES / 'sim_classes.png')}")
     print(f"    {rolling_shutter_figure(IMAGES / 'sim_rolling_shutter.png')}")
+    print(f"    {realism_figure(IMAGES / 'sim_realism.png')}")
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0
 
