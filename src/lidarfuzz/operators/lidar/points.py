@@ -177,6 +177,27 @@ def _draw_region(rng: np.random.Generator, sample: Scene, size: float) -> tuple[
     return centre, [size, size, float(hi[2] - lo[2]) + 1.0]  # full height: a column of the scene
 
 
+def _draw_region_on_points(rng: np.random.Generator, sample: Scene,
+                           size: float) -> tuple[list[float], list[float]]:
+    """A full-height column centred on a point drawn uniformly from the cloud.
+
+    Operators that change the points already there (deletion, intensity) need a region where
+    points are: a scan's bounding box is mostly empty (returns crowd near the sensor and on the
+    ground), so a centre drawn uniformly in it leaves a 2 m column empty in most draws and the
+    "mutant" equal to its source. Centring on a drawn point makes the region's chance
+    proportional to its point count (a blind patch on the window hides a share of the returns,
+    not of the bounding box) and never empty. The column spans the cloud's whole height (its
+    centre at the extent's middle), so every point under the patch is in it.
+    """
+    lo, hi = cloud_extent(sample.points)
+    if len(sample.points) == 0:  # nothing to centre on; apply leaves an empty cloud as it is
+        x, y = float(rng.uniform(lo[0], hi[0])), float(rng.uniform(lo[1], hi[1]))
+    else:
+        point = sample.points.xyz[int(rng.integers(0, len(sample.points)))]
+        x, y = float(point[0]), float(point[1])
+    return [x, y, float(lo[2] + hi[2]) / 2], [size, size, float(hi[2] - lo[2]) + 1.0]
+
+
 class RegionNoiseConfig(RegionConfig):
     count_range: Range = Field((100, 100), description="number of noise points")
 
@@ -237,8 +258,9 @@ class RegionDeletionParams(Params):
 
 
 class RandomRegionPointDeletion(Operator[Scene, RegionConfig, RegionDeletionParams]):
-    """A blind patch (dirt on the window, a blocked sector): every point inside one region
-    drawn within the cloud's extent is deleted (the thesis's RRPD). Keeps boxes."""
+    """A blind patch (dirt on the window, a blocked sector): every point inside one
+    full-height region centred on a randomly drawn point of the cloud is deleted (the thesis's
+    RRPD; the region is never empty). Keeps boxes."""
 
     name = "random_region_point_deletion"
     aliases = ("RRPD",)
@@ -251,7 +273,7 @@ class RandomRegionPointDeletion(Operator[Scene, RegionConfig, RegionDeletionPara
     SEVERITIES: ClassVar = {s: {"size_range": (e, e)} for s, e in [(1, 2.0), (2, 4.0), (3, 6.0), (4, 8.0), (5, 10.0)]}
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> RegionDeletionParams:
-        center, size = _draw_region(rng, sample, uniform(rng, self.config.size_range))
+        center, size = _draw_region_on_points(rng, sample, uniform(rng, self.config.size_range))
         if size[0] == 0:
             size = [0.0, 0.0, 0.0]
         return RegionDeletionParams(center=tuple(center), size=tuple(size))  # type: ignore[arg-type]
@@ -336,8 +358,9 @@ class RegionIntensityParams(Params):
 
 class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntensityParams]):
     """A region whose reflectivity changes as one (a puddle, a dirty patch of the window):
-    every point inside one region has its intensity multiplied by a common factor (the
-    thesis's RIM), clipped to the data's scale. Positions are untouched."""
+    every point inside one full-height region centred on a randomly drawn point of the cloud
+    has its intensity multiplied by a common factor (the thesis's RIM), clipped to the data's
+    scale. Positions are untouched."""
 
     name = "region_intensity_scaling"
     aliases = ("RIM",)
@@ -351,7 +374,7 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
                             [(1, 0.8, 4.0), (2, 0.6, 6.0), (3, 0.4, 8.0), (4, 0.2, 10.0), (5, 0.05, 12.0)]}
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> RegionIntensityParams:
-        center, size = _draw_region(rng, sample, uniform(rng, self.config.size_range))
+        center, size = _draw_region_on_points(rng, sample, uniform(rng, self.config.size_range))
         return RegionIntensityParams(center=tuple(center), size=tuple(size),  # type: ignore[arg-type]
                                      factor=uniform(rng, self.config.factor_range))
 
