@@ -111,6 +111,19 @@ def test_complete_fills_alpha_and_2d_box():
     np.testing.assert_allclose(back.bbox2d[0], CALIB.boxes_to_image(boxes.as_array())[0])
 
 
+def test_complete_leaves_boxes_beside_the_image_without_a_2d_box():
+    # A car 15 m ahead but 40 m to the left (LiDAR y = 40) is in front of the camera (depth 15 m >
+    # 0.1) and projects left of the image: u ≈ 721.5 · (-40 / 15) + 609.6 ≈ -1315 px for its centre,
+    # all 8 corners below u = 0, so the clipped box is [0, v1, 0, v2], zero wide. Written as such, the
+    # devkit would score a sliver at the edge; it must stay -1 (no 2D box), as relabel_in_image has it.
+    boxes = Boxes3D.create([[15.0, 40.0, -0.9], [15.0, 1.0, -0.9]], [[3.9, 1.6, 1.5]] * 2, [0.2, 0.2], ["Car", "Car"])
+    corners_u = CALIB.boxes_to_image(boxes.as_array(), clip=False)[0, [0, 2]]
+    assert (corners_u < 0).all()  # the premise: wholly left of the image
+    back = parse_labels(format_labels(boxes, CALIB, complete=True), CALIB)
+    assert np.isnan(back.bbox2d[0]).all()
+    assert back.bbox2d[1, 2] - back.bbox2d[1, 0] > 10  # the car in view keeps its projected box
+
+
 @pytest.mark.parametrize(
     ("line", "match"),
     [

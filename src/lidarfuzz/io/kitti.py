@@ -181,7 +181,12 @@ def format_labels(boxes: Boxes3D, calib: KittiCalibration | None, *, complete: b
                 corners = box_corners(arr[fill_box]).reshape(-1, 3)
                 _, depth = calib.rect_to_image(calib.lidar_to_rect(corners))
                 in_front = np.flatnonzero(fill_box)[np.all(depth.reshape(-1, 8) > 0.1, axis=1)]
-                bbox2d[in_front] = calib.boxes_to_image(arr[in_front])
+                projected = calib.boxes_to_image(arr[in_front])
+                # A box in front of the camera but beside the image clips to a zero-width (or
+                # zero-height) box: it has no 2D box, as relabel_in_image leaves it, not a sliver
+                # at the image's edge that the devkit would count as a visible object.
+                has_area = (projected[:, 2] > projected[:, 0]) & (projected[:, 3] > projected[:, 1])
+                bbox2d[in_front[has_area]] = projected[has_area]
     alpha = np.where(np.isnan(alpha), -10.0, alpha)
     bbox2d = np.where(np.isnan(bbox2d).any(axis=1, keepdims=True), -1.0, bbox2d)
     truncation = np.where(np.isnan(boxes.truncation), -1.0, boxes.truncation)
