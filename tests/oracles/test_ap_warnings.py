@@ -83,3 +83,13 @@ def test_cli_eval_warns_and_the_json_holds_the_warnings(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "warning: Car: too few objects to score" in result.output
     assert any(w.startswith("Car: too few objects") for w in json.loads(out.read_text())["warnings"])
+
+
+def test_a_class_with_objects_at_some_difficulties_only_gets_each_ceiling() -> None:
+    # moderate and hard count 1 object, easy none: a perfect detector scores 0 / 0 at easy, and with
+    # one object 0 AP|R40 (no sample after recall 0) and 1/11 = 9.1 AP|R11 at moderate and hard
+    result = KittiEvalResult(ap={}, overlaps={}, num_frames=3, num_objects={"Car": {"easy": 0, "moderate": 1,
+                                                                                    "hard": 1}})
+    assert result.sample_warnings() == [
+        "Car: too few objects to score (easy 0, moderate 1, hard 1; fewer than 41): a perfect detector reaches at "
+        "most 0.0 AP|R40 and 0.0 AP|R11 (easy); 0.0 AP|R40 and 9.1 AP|R11 (moderate, hard)"]

@@ -99,8 +99,8 @@ class KittiEvalResult:
             >>> gt = Boxes3D.create([[10, 0, -0.9], [20, 3, -0.9]], [[3.9, 1.6, 1.5]] * 2, [0.0, 0.0],
             ...     ["Car", "Car"], truncation=[0.0, 0.0], occlusion=[0, 0])
             >>> evaluate_kitti([KittiFrame(gt, gt.replace(scores=[0.9, 0.8]))], classes=["Car"]).sample_warnings()[1]
-            'Car: too few objects to score (easy 2, moderate 2, hard 2; fewer than 41): with 2 a perfect detector \
-reaches at most 2.5 AP|R40 and 9.1 AP|R11'
+            'Car: too few objects to score (easy 2, moderate 2, hard 2; fewer than 41): a perfect detector \
+reaches at most 2.5 AP|R40 and 9.1 AP|R11 (easy, moderate, hard)'
         """
         notes: list[str] = []
         if self.num_frames == 1:
@@ -110,14 +110,18 @@ reaches at most 2.5 AP|R40 and 9.1 AP|R11'
             if not few:
                 continue
             counts = ", ".join(f"{d} {n}" for d, n in few.items())
-            fewest = min(few.values())
-            if fewest == 0:
+            if not any(few.values()):
                 notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}); with none the "
                              "AP is 0 whatever the detector does")
                 continue
-            r40, r11 = ap_ceiling(fewest)
-            notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}): with {fewest} a "
-                         f"perfect detector reaches at most {r40:.1f} AP|R40 and {r11:.1f} AP|R11")
+            by_count: dict[int, list[str]] = {}
+            for difficulty, n in few.items():
+                by_count.setdefault(n, []).append(difficulty)
+            ceilings = "; ".join(
+                "{:.1f} AP|R40 and {:.1f} AP|R11 ({})".format(*ap_ceiling(n), ", ".join(ds))
+                for n, ds in by_count.items())
+            notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}): a perfect "
+                         f"detector reaches at most {ceilings}")
         return notes
 
     def to_dict(self) -> dict[str, Any]:
