@@ -20,7 +20,7 @@ from lidarfuzz.suts.registry import available as registered_suts
 SHOWN_ON: dict[str, tuple[int, bool]] = {
     "classic-bug-intensity-norm": (2, True),
     "classic-bug-point-cap": (0, True),
-    "classic-bug-dense-cell": (3, True),
+    "classic-bug-dense-cell": (0, True),
     "classic-bug-yaw-wrap": (2, True),
     "classic-bug-roi-cache": (0, True),
     "classic-bug-fixed-ground": (4, True),
