@@ -174,7 +174,10 @@ def test_wet_ground_changes_only_ground_points(hdl64):
     assert np.array_equal(mutant.points.data[other], source[other])
     assert np.all(ground[np.setdiff1d(np.arange(len(hdl64.points)), index)])  # only ground drops out
     assert np.all(mutant.points.intensity[~other] <= source[~other, 3])
-    assert np.mean(mutant.points.intensity[~other] < source[~other, 3]) > 0.99
+    # Every kept ground return with a reading above 0 gets darker; a reading of 0 (the simulator's
+    # realistic receiver reports them, as KITTI does for 8-26 % of returns) cannot read lower.
+    lit = ~other & (source[:, 3] > 0)
+    assert np.mean(mutant.points.intensity[lit] < source[lit, 3]) > 0.99
     assert np.array_equal(mutant.points.xyz, source[:, :3])
 
 
