@@ -39,15 +39,20 @@ def test_mutants_are_saved_as_kitti_with_their_labels_moved(workspace: Path, wor
     assert len(a.boxes) == len(b.boxes) and not b.boxes.allclose(a.boxes)  # moved with their objects
 
 
-def test_list_status_and_report_with_gates(workspace: Path) -> None:
+def test_list_status_and_report_with_gates(workspace: Path, world: Path, tmp_path: Path) -> None:
     listed = runner.invoke(app, ["list", "--workspace", str(workspace)], env={"COLUMNS": "160"})
     assert listed.exit_code == 0 and "done" in listed.output
     status = runner.invoke(app, ["status", "1", "--workspace", str(workspace)], env={"COLUMNS": "160"})
     assert status.exit_code == 0 and "rotate_z@1" in status.output and "fog@3" in status.output
     ok = runner.invoke(app, ["report", "1", "--quiet", "--gate", "failures>0", "--workspace", str(workspace)])
     assert ok.exit_code == 0, ok.output
-    failing = runner.invoke(app, ["report", "1", "--quiet", "--gate", "violations:*>0",
-                                  "--workspace", str(workspace)])
+    # a failing gate: a system that raises on frame 000001 crashes once per subtask (the original and
+    # fog@1), so "failures>0" fails; the correct pipeline above breaks no relation on this small world
+    other = ["--workspace", str(tmp_path / "ws")]
+    crashed = runner.invoke(app, ["run", "--dataset", str(world), "--sut", "tests.campaign.systems:RaisesOnFrame",
+                                  "--op", "fog@1", "--inline", *other], env={"COLUMNS": "160"})
+    assert "system failures: {'crash': 2}" in crashed.output, crashed.output
+    failing = runner.invoke(app, ["report", "1", "--quiet", "--gate", "failures>0", *other])
     assert failing.exit_code == 1 and "gates failed" in failing.output
     bad = runner.invoke(app, ["report", "1", "--gate", "ap_drop:3d>1", "--workspace", str(workspace)])
     assert isinstance(bad.exception, LidarfuzzError) and "ap_drop:3d>1" in str(bad.exception)
