@@ -16,16 +16,20 @@ from lidarfuzz.suts.classic import ClassicPipeline
 from lidarfuzz.suts.registry import available as registered_suts
 
 # frame of the simulator (seed 0, HDL-64E) on which each bug is shown; True where the bug
-# also stays hidden on that frame's original
+# also stays hidden on that frame's original. On the realistic simulator (sloped ground, KITTI's
+# receiver) three bugs no longer hide on any of the first six originals — every frame has a black
+# car whose returns read 0 (under intensity-norm's dust cut), and ground that is not flat tilts
+# fixed-ground's and forward-ground's plane — so they show in plain AP as well as under their
+# operators (probed on frames 0-5 of seed 0).
 SHOWN_ON: dict[str, tuple[int, bool]] = {
-    "classic-bug-intensity-norm": (2, True),
+    "classic-bug-intensity-norm": (2, False),
     "classic-bug-point-cap": (0, True),
     "classic-bug-dense-cell": (0, True),
     "classic-bug-yaw-wrap": (2, True),
     "classic-bug-roi-cache": (0, True),
-    "classic-bug-fixed-ground": (4, True),
+    "classic-bug-fixed-ground": (4, False),
     "classic-bug-sign-filter": (0, False),
-    "classic-bug-forward-ground": (3, True),
+    "classic-bug-forward-ground": (3, False),
 }
 
 
@@ -48,7 +52,16 @@ def test_the_zoo_is_registered_and_documented() -> None:
         assert bug().fingerprint() != ClassicPipeline().fingerprint()
 
 
-@pytest.mark.parametrize("bug", BUGS, ids=lambda b: b.name)
+#: Bugs their documented operator cannot reveal on the realistic simulator (known, open: issue 17's note).
+NOT_REVEALED = {
+    "classic-bug-sign-filter": "cars read 0.05-0.3 on KITTI-like intensities and no operator of the catalogue "
+                               "raises a car's mean above the bug's 0.6 (intensity_scaling's factors average 1, "
+                               "intensity_saturation caps at 0.8 or lower): it needs a receiver-gain operator",
+}
+
+
+@pytest.mark.parametrize("bug", [pytest.param(b, marks=pytest.mark.xfail(strict=True, reason=NOT_REVEALED[b.name]))
+                                 if b.name in NOT_REVEALED else b for b in BUGS], ids=lambda b: b.name)
 def test_the_documented_operator_reveals_the_bug(bug: type[BuggyPipeline], frames: list[Scene]) -> None:
     index, hidden = SHOWN_ON[bug.name]
     source = frames[index]
