@@ -87,6 +87,7 @@ def intensity_scale(values: NDArray[np.floating]) -> float:
             return scale
     return top
 
+
 #: Integer intensity types a reader may record instead of a number (LAS: ``"uint16"``).
 _TYPE_SCALES = {"uint8": 255.0, "uint16": 65535.0}
 
