@@ -93,3 +93,19 @@ def test_a_class_with_objects_at_some_difficulties_only_gets_each_ceiling() -> N
     assert result.sample_warnings() == [
         "Car: too few objects to score (easy 0, moderate 1, hard 1; fewer than 41): a perfect detector reaches at "
         "most 0.0 AP|R40 and 0.0 AP|R11 (easy); 0.0 AP|R40 and 9.1 AP|R11 (moderate, hard)"]
+
+
+def test_a_campaign_names_the_original_classes_once_and_new_ones_per_mutant() -> None:
+    from lidarfuzz.campaign.results import ap_warnings
+
+    def stored(car: int, cyclist: int) -> dict[str, object]:
+        counts = {"Car": {d: car for d in ("easy", "moderate", "hard")},
+                  "Cyclist": {d: cyclist for d in ("easy", "moderate", "hard")}}
+        return KittiEvalResult(ap={}, overlaps={}, num_frames=10, num_objects=counts).to_dict()
+
+    notes = ap_warnings([{"label": "original", "ap": stored(60, 5)},
+                         {"label": "fog@1", "ap": stored(58, 4)},  # Cyclist already named: not again
+                         {"label": "object_removal@5", "ap": stored(30, 2)},  # Car falls under 41
+                         {"label": "rotate_z@5", "ap": None}])  # no AP: nothing to say
+    assert [n.split(" (")[0] for n in notes] == ["Cyclist: too few objects to score",
+                                                 "object_removal@5: Car: too few objects to score"]

@@ -142,18 +142,20 @@ def ap_result(data: Mapping[str, Any] | None) -> KittiEvalResult | None:
 
 def ap_warnings(subtasks: Sequence[Mapping[str, Any]]) -> list[str]:
     """Why a task's AP may not mean what it seems (single frame, few objects): the original's
-    warnings, then any a mutant adds (an operator that removes objects), prefixed by its label."""
+    warnings, then those a mutant adds for a class the original had enough of (an operator that
+    removes objects or moves them out of view), prefixed by its label."""
     notes: list[str] = []
-    base: set[str] = set()
+    warned: set[str] = set()  # the original's classes (and "AP from a single frame")
     for index, entry in enumerate(subtasks):
         result = ap_result(entry.get("ap"))
         if result is None:
             continue
         for note in result.sample_warnings():
+            subject = note.split(":", 1)[0]
             if index == 0:
-                base.add(note)
+                warned.add(subject)
                 notes.append(note)
-            elif note not in base:
+            elif subject not in warned:
                 notes.append(f"{entry.get('label', '')}: {note}")
     return notes
 
