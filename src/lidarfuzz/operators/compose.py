@@ -2,6 +2,9 @@
 
 A composite is an operator: it samples concrete params for its children (recording
 which ones ran), serialises with :meth:`spec` and replays exactly from its params.
+Rebuilding one from its spec needs its children rebuilt first, by name: that is the
+registry's job (:func:`lidarfuzz.operators.registry.from_spec`), which hands them to
+:meth:`from_children`; so this module knows no registry.
 """
 
 from __future__ import annotations
@@ -71,10 +74,9 @@ class _Composite(Operator[Any, _NoConfig, CompositeParams]):
         return sample
 
     @classmethod
-    def _children(cls, spec: dict[str, Any]) -> list[Operator[Any, Any, Any]]:
-        from lidarfuzz.operators.registry import from_spec
-
-        return [from_spec(child) for child in spec.get("operators", [])]
+    def from_children(cls, children: list[Operator[Any, Any, Any]], spec: dict[str, Any]) -> _Composite:
+        """The composite a :meth:`spec` describes, given its ``operators`` already rebuilt."""
+        raise NotImplementedError
 
 
 class Compose(_Composite):
@@ -94,8 +96,8 @@ class Compose(_Composite):
         return {"name": self.name, "operators": self._children_spec()}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> Compose:
-        return cls(cls._children(spec))
+    def from_children(cls, children: list[Operator[Any, Any, Any]], spec: dict[str, Any]) -> Compose:
+        return cls(children)
 
 
 class OneOf(_Composite):
@@ -120,8 +122,8 @@ class OneOf(_Composite):
         return {"name": self.name, "operators": self._children_spec(), "weights": self.weights}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> OneOf:
-        return cls(cls._children(spec), spec.get("weights"))
+    def from_children(cls, children: list[Operator[Any, Any, Any]], spec: dict[str, Any]) -> OneOf:
+        return cls(children, spec.get("weights"))
 
 
 class Maybe(_Composite):
@@ -145,11 +147,11 @@ class Maybe(_Composite):
         return {"name": self.name, "operators": self._children_spec(), "p": self.p}
 
     @classmethod
-    def from_spec(cls, spec: dict[str, Any]) -> Maybe:
-        children = cls._children(spec)
+    def from_children(cls, children: list[Operator[Any, Any, Any]], spec: dict[str, Any]) -> Maybe:
         if len(children) != 1:
             raise ValueError("maybe wraps exactly one operator")
         return cls(children[0], spec.get("p", 0.5))
 
 
-COMPOSITES: dict[str, Any] = {"sequence": Compose, "one_of": OneOf, "maybe": Maybe}
+#: Composite operators by the name their spec carries.
+COMPOSITES: dict[str, type[_Composite]] = {"sequence": Compose, "one_of": OneOf, "maybe": Maybe}

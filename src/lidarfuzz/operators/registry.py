@@ -14,6 +14,7 @@ from typing import Any
 
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.operators.base import Operator
+from lidarfuzz.operators.compose import COMPOSITES
 from lidarfuzz.plugins import UnknownPluginError, find, load_group
 
 GROUP = "lidarfuzz.operators"
@@ -32,13 +33,12 @@ def get(name: str) -> type[Operator[Any, Any, Any]]:
 
 
 def from_spec(spec: dict[str, Any]) -> Operator[Any, Any, Any]:
-    """Rebuild an operator from :meth:`Operator.spec` output (composites included)."""
-    from lidarfuzz.operators.compose import COMPOSITES
-
+    """Rebuild an operator from :meth:`Operator.spec` output (composites included, children first)."""
     name = spec.get("name")
     if not isinstance(name, str):
         raise LidarfuzzError(f"an operator spec needs a name, got {spec!r}")
     if name in COMPOSITES:
-        return COMPOSITES[name].from_spec(spec)
+        children = [from_spec(child) for child in spec.get("operators", [])]
+        return COMPOSITES[name].from_children(children, spec)
     cls = get(name)
     return cls(**spec.get("config", {}))
