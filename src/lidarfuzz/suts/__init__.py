@@ -1,7 +1,8 @@
 """Systems under test: the contract, spec strings, adapters, and the built-in pipelines."""
 
 from lidarfuzz.suts.base import Failure, FailureKind, SutResult, SystemUnderTest, validate_detections
-from lidarfuzz.suts.guard import IsolatedSut, SutError, run_guarded
+from lidarfuzz.suts.errors import SutError
+from lidarfuzz.suts.guard import IsolatedSut, run_guarded
 from lidarfuzz.suts.registry import available, create
 
 __all__ = [

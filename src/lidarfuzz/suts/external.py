@@ -42,20 +42,20 @@ from typing import IO, Any, Literal
 
 import numpy as np
 
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.frames import write_frame
 from lidarfuzz.io.kitti import parse_labels
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import FailureKind, SystemUnderTest
 from lidarfuzz.suts.conventions import CONVENTIONS, detections
-from lidarfuzz.suts.guard import SutError
+from lidarfuzz.suts.errors import SutError
 
 PointsFormat = Literal["bin", "pcd"]
 
 
 def _write_inputs(scene: Scene, folder: Path, points_format: PointsFormat) -> tuple[Path, Path]:
-    from lidarfuzz.io.frames import write_frame
-
     stem = scene.frame_id or "frame"
     points = write_frame(folder / f"{stem}.{points_format}", scene, overwrite=True)
     calib = folder / f"{stem}.calib.txt"
@@ -91,8 +91,6 @@ def parse_response(data: Any, calib: KittiCalibration | None, where: str) -> Box
 
 
 def _parse_kitti(text: str, calib: KittiCalibration | None, where: str) -> Boxes3D:
-    from lidarfuzz.errors import DataFormatError
-
     try:
         return parse_labels(text, calib or KittiCalibration.default(), where)
     except DataFormatError as exc:

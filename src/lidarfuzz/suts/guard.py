@@ -20,21 +20,9 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
-from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.suts.base import Failure, FailureKind, SutResult, SystemUnderTest
-
-
-class SutError(LidarfuzzError):
-    """Raised by adapters when the system under test failed in a known way."""
-
-    def __init__(self, kind: FailureKind, message: str, detail: str = "") -> None:
-        super().__init__(message)
-        self.kind = kind
-        self.message = message
-        self.detail = detail
-
-    def failure(self) -> Failure:
-        return Failure(self.kind, self.message, self.detail)
+from lidarfuzz.suts.errors import SutError
+from lidarfuzz.suts.registry import create
 
 
 def _failure_of(exc: BaseException) -> Failure:
@@ -60,8 +48,6 @@ def run_guarded(sut: SystemUnderTest[Any, Any], sample: Any) -> SutResult[Any]:
 
 def _serve(spec: str, conn: Connection, options: dict[str, Any] | None = None) -> None:
     """Worker process: build the SUT from its spec, then answer samples until told to stop."""
-    from lidarfuzz.suts.registry import create
-
     try:
         sut = create(spec, **(options or {}))
         sut.load()

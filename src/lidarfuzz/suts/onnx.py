@@ -27,6 +27,7 @@ from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import SystemUnderTest
 from lidarfuzz.suts.conventions import Convention, detections
+from lidarfuzz.suts.specs import import_target
 
 Pre = Callable[[Scene, Sequence[str]], Mapping[str, NDArray[Any]]]
 Post = Callable[[Mapping[str, NDArray[Any]], Scene, Sequence[str] | None], Boxes3D]
@@ -57,11 +58,7 @@ def boxes_output(
 
 
 def _resolve(value: Any) -> Any:
-    if isinstance(value, str):
-        from lidarfuzz.suts.registry import _import
-
-        return _import(value)
-    return value
+    return import_target(value) if isinstance(value, str) else value
 
 
 class OnnxSut(SystemUnderTest[Scene, Boxes3D]):
@@ -116,7 +113,7 @@ class OnnxSut(SystemUnderTest[Scene, Boxes3D]):
         if self._session is not None:
             return
         try:
-            import onnxruntime as ort
+            import onnxruntime as ort  # optional extra 'onnx', needed only to run a model
         except ImportError:
             raise MissingDependencyError("onnxruntime", "onnx", "running ONNX models") from None
         options = ort.SessionOptions()

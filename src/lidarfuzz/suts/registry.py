@@ -22,55 +22,27 @@ file's ``options``), since a command line may itself contain ``?``.
 
 from __future__ import annotations
 
-import importlib
-import json
 from typing import Any
-from urllib.parse import parse_qsl
 
 from pydantic import ValidationError
 
-from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.plugins import find, load_group
 from lidarfuzz.suts.base import SystemUnderTest
+from lidarfuzz.suts.external import SubprocessSut, WorkerSut
+from lidarfuzz.suts.onnx import OnnxSut
+from lidarfuzz.suts.open3d_ml import Open3DPointPillars
+from lidarfuzz.suts.python import PythonSut
+from lidarfuzz.suts.specs import SutSpecError, import_target, split_spec
+
+__all__ = ["GROUP", "SCHEMES", "SutSpecError", "available", "create", "split_spec", "sut_factory"]
 
 GROUP = "lidarfuzz.suts"
 SCHEMES = ("subprocess", "worker", "onnx", "open3d")
 
 
-class SutSpecError(LidarfuzzError, ValueError):
-    """A SUT spec that names nothing usable."""
-
-
 def available() -> dict[str, type[SystemUnderTest[Any, Any]]]:
     """Registered SUT classes by name (built-ins first)."""
     return load_group(GROUP, SystemUnderTest)
-
-
-def _value(text: str) -> Any:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
-
-def split_spec(spec: str) -> tuple[str, dict[str, Any]]:
-    """``name?k=v&k2=v2`` → (``name``, {k: v, k2: v2}) with JSON-parsed values."""
-    base, _, query = spec.partition("?")
-    return base.strip(), {k: _value(v) for k, v in parse_qsl(query, keep_blank_values=True)}
-
-
-def _import(target: str) -> Any:
-    module_name, _, attr = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise SutSpecError(f"SUT spec {target!r}: cannot import module {module_name!r} ({exc})") from None
-    obj: Any = module
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise SutSpecError(f"SUT spec {target!r}: module {module_name!r} has no attribute {attr!r}")
-        obj = getattr(obj, part)
-    return obj
 
 
 def _build(spec: str, factory: Any, options: dict[str, Any]) -> Any:
@@ -96,25 +68,17 @@ def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
         if not rest.strip():
             raise SutSpecError(f"SUT spec {spec!r}: nothing after '{scheme}:'")
         if scheme == "subprocess":
-            from lidarfuzz.suts.external import SubprocessSut
-
             return _build(spec, lambda **o: SubprocessSut(rest, **o), options)
         if scheme == "worker":
-            from lidarfuzz.suts.external import WorkerSut
-
             return _build(spec, lambda **o: WorkerSut(rest, **o), options)
         path, query = split_spec(rest)
         if scheme == "open3d":
-            from lidarfuzz.suts.open3d_ml import Open3DPointPillars
-
             return _build(spec, lambda **o: Open3DPointPillars(path, **o), {**query, **options})
-        from lidarfuzz.suts.onnx import OnnxSut
-
         return _build(spec, lambda **o: OnnxSut(path, **o), {**query, **options})
     base, query = split_spec(spec)
     options = {**query, **options}
     if ":" in base:
-        obj = _import(base)
+        obj = import_target(base)
         if isinstance(obj, type) and issubclass(obj, SystemUnderTest):
             return _build(spec, obj, options)
         if isinstance(obj, SystemUnderTest):
@@ -126,8 +90,6 @@ def create(spec: str, **options: Any) -> SystemUnderTest[Any, Any]:
         made = obj() if getattr(obj, "__lidarfuzz_factory__", False) else None
         if isinstance(made, SystemUnderTest):
             return made
-        from lidarfuzz.suts.python import PythonSut
-
         return _build(spec, lambda **o: PythonSut(obj, **o), options)
     cls = find(GROUP, SystemUnderTest, base, "system under test", "see lidarfuzz suts")
     return _build(spec, cls, options)
