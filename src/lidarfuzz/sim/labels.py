@@ -26,7 +26,7 @@ per cent sticks out of its box by a few centimetres at its ends.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,8 +39,30 @@ from lidarfuzz.scene.labels import occlusion_level
 from lidarfuzz.sim.terrain import frame_from_slopes
 
 if TYPE_CHECKING:
+    from lidarfuzz.scene.calib import KittiCalibration
     from lidarfuzz.sim.meshes import Mesh
-    from lidarfuzz.sim.render import Renderer
+    from lidarfuzz.sim.sensor import LidarSensor
+    from lidarfuzz.sim.world import World
+
+
+class FrameRenderer(Protocol):
+    """What labelling needs of the renderer that made the frame
+    (:class:`lidarfuzz.sim.render.Renderer` is one; it calls :func:`label_actors`, so this
+    module names only the part it uses)."""
+
+    world: World
+    sensor: LidarSensor
+    calib: KittiCalibration
+
+    def sensor_pose(self, t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Sensor origins and rotations at times ``t``."""
+        ...
+
+    def visible_rays_alone(self, actors: Mesh, owner: NDArray[np.int32], index: int,
+                           origins: NDArray[np.float32], directions: NDArray[np.float32],
+                           candidates: NDArray[np.intp]) -> int:
+        """How many of the ``candidates`` rays would hit actor ``index`` if nothing else were there."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -51,7 +73,7 @@ class LabelConfig:
 
 
 def label_actors(
-    renderer: Renderer,
+    renderer: FrameRenderer,
     *,
     t_ref: float,
     times: NDArray[np.float64],
@@ -129,7 +151,7 @@ def label_actors(
     return result, extras
 
 
-def _rays_towards(renderer: Renderer, box: NDArray[np.float64]) -> NDArray[np.intp]:
+def _rays_towards(renderer: FrameRenderer, box: NDArray[np.float64]) -> NDArray[np.intp]:
     """Indices of the rays fired into the box's angular extent (its columns, and the beams whose
     elevation reaches it, each widened by a margin)."""
     sensor = renderer.sensor
