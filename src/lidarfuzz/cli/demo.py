@@ -10,14 +10,15 @@ where. A second run reuses the world and, through the SUT output cache, every ou
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-DEFAULT_WORKSPACE = Path(os.environ.get("LIDARFUZZ_WORKSPACE", "lidarfuzz-workspace"))
+from lidarfuzz.settings import settings
+
+DEFAULT_WORKSPACE = Path(settings().workspace)
 #: One operator per family, chosen to be quick and telling (lidarfuzz operators lists them all).
 DEMO_OPERATORS: tuple[str, ...] = ("gaussian_noise_addition", "uniform_point_deletion", "rotate_z",
                                    "intensity_scaling", "fog", "beam_missing", "object_translate")

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from typing import Annotated
 
 import typer
 
 from lidarfuzz.cli.catalog import WORKSPACE, WorkspaceOption
 from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.settings import settings
 
 
 def parse_size(text: str) -> int:
@@ -31,8 +31,7 @@ def register(app: typer.Typer) -> None:
         host: Annotated[str, typer.Option(help="Address to bind; anything but loopback needs --token.")] = "127.0.0.1",
         port: Annotated[int, typer.Option(min=0, max=65535, help="Port.")] = 8000,
         token: Annotated[str | None, typer.Option(help="Require this token on every API call "
-                                                       "(Authorization: Bearer …); $LIDARFUZZ_TOKEN.",
-                                                  envvar="LIDARFUZZ_TOKEN", show_envvar=False)] = None,
+                                                       "(Authorization: Bearer …); $LIDARFUZZ_TOKEN.")] = None,
         workers: Annotated[int, typer.Option(min=0, help="Tasks run at once (0: queue only).")] = 1,
         processes: Annotated[int | None, typer.Option(min=1, help="Worker processes per running task "
                                                                   "(default: the CPU count).")] = None,
@@ -43,6 +42,8 @@ def register(app: typer.Typer) -> None:
         models, reports and the 3D viewer; the API's documentation is at /docs."""
         from lidarfuzz.web.security import Limits, is_loopback
 
+        environment = settings()
+        token, log_level = token or environment.token, environment.log_level  # a bad level fails before serving
         if not is_loopback(host) and not token:
             raise LidarfuzzError(f"--host {host}: serving beyond this machine needs a token "
                                  f"(--token T or $LIDARFUZZ_TOKEN); every API call must then carry it")
@@ -58,4 +59,4 @@ def register(app: typer.Typer) -> None:
         suffix = f"/?token={token}" if token else "/"
         console.print(f"lidarfuzz web app on [bold]http://{shown}:{port}{suffix}[/] (workspace {workspace}; "
                       f"API docs /docs); Ctrl-C stops it")
-        uvicorn.run(web_app, host=host, port=port, log_level=os.environ.get("LIDARFUZZ_LOG_LEVEL", "warning"))
+        uvicorn.run(web_app, host=host, port=port, log_level=log_level)

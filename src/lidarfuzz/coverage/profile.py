@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from lidarfuzz.coverage.criteria import CoverageError
 from lidarfuzz.errors import DataFormatError
+from lidarfuzz.settings import settings
 
 #: The ``.npz`` layout written by :meth:`NeuronProfile.save` (1: one count per layer; 2: per neuron).
 FORMAT = 2
@@ -47,7 +48,7 @@ class ProfileFileError(DataFormatError, CoverageError):
 
 def cache_dir() -> Path:
     """``$LIDARFUZZ_CACHE/profiles`` (default cache ``~/.cache/lidarfuzz``)."""
-    return Path(os.environ.get("LIDARFUZZ_CACHE") or Path.home() / ".cache" / "lidarfuzz") / "profiles"
+    return settings().cache / "profiles"
 
 
 @dataclass

@@ -42,10 +42,11 @@ from lidarfuzz.scene.labels import camera_labels, occlusion_level
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.scene.semantics import OBJECT_SEMANTIC, SEMANTIC_ID
+from lidarfuzz.settings import settings
 
 
 def _cache_dir() -> Path:
-    return Path(os.environ.get("LIDARFUZZ_CACHE") or Path.home() / ".cache" / "lidarfuzz")
+    return settings().cache
 
 
 @dataclass(frozen=True)
