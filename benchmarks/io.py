@@ -26,7 +26,7 @@ import pypcd4
 
 from lidarfuzz.io import open_dataset, read_frame, write_frame
 from lidarfuzz.io.formats import bin as bin_format
-from lidarfuzz.io.logs.bags import write_log
+from lidarfuzz.io.logs import write_log
 from lidarfuzz.scene import PointCloud, Scene
 from lidarfuzz.sim import GenerationConfig, render_frames
 

@@ -3,7 +3,7 @@ import pytest
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io import FrameFolder, KittiLog, SingleFrame, open_dataset, write_frame
-from lidarfuzz.io.logs.bags import BagLog, write_log
+from lidarfuzz.io.logs import BagLog, write_log
 from lidarfuzz.io.open import source_kind
 from lidarfuzz.scene import PointCloud, Scene
 

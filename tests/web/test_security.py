@@ -306,7 +306,7 @@ def test_frames_with_label_and_calib_files(client: TestClient, world: Path) -> N
 
 
 def test_a_log_upload_is_stored_under_a_generated_name(client: TestClient, tmp_path: Path, world: Path) -> None:
-    from lidarfuzz.io.logs.bags import write_log
+    from lidarfuzz.io.logs import write_log
     from lidarfuzz.io.open import open_dataset
 
     dataset = open_dataset(world)

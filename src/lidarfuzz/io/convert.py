@@ -98,7 +98,7 @@ def write_scenes(scenes: Iterator[Scene], dst: str | PathLike[str], target: str,
         write_frame(dst_path, first, overwrite=overwrite)
         return ConvertResult(dst_path, target.split(":", 1)[1], 1)
     if target in LOG_TARGETS:
-        from lidarfuzz.io.logs.bags import write_log
+        from lidarfuzz.io.logs import write_log
 
         counted = _Counted(scenes)
         write_log(dst_path, counted, kind=target, overwrite=overwrite)  # type: ignore[arg-type]

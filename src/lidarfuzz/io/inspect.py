@@ -104,7 +104,7 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
     kind = source_kind(path)
     log_info = None
     if kind == "log":
-        from lidarfuzz.io.logs.bags import inspect_bag
+        from lidarfuzz.io.logs import inspect_bag
 
         log_info = inspect_bag(path)
     dataset = open_dataset(path, topic=topic, strict=False, options=options)

@@ -80,7 +80,7 @@ def open_dataset(
     kind = source_kind(path)
     dataset: Dataset[Scene]
     if kind == "log":
-        from lidarfuzz.io.logs.bags import BagLog
+        from lidarfuzz.io.logs import BagLog
 
         dataset = BagLog(path, topic=topic, nonfinite=nonfinite)
     elif kind == "kitti":
