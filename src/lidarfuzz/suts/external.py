@@ -44,7 +44,7 @@ import numpy as np
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.frames import write_frame
-from lidarfuzz.io.kitti import parse_labels
+from lidarfuzz.io.kitti.labels import parse_labels
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.scene import Scene

@@ -1,0 +1,364 @@
+"""Opening a KITTI-layout folder: :class:`KittiDataset` (frames by id), :class:`KittiLog` (a
+folder with ``timestamps.txt``: frames in time order, with poses) and :func:`open_kitti`,
+which picks one. Structural problems are checked on opening (see :class:`KittiDataset`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Iterable, Sequence
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.common import NonFinitePolicy, Problem
+from lidarfuzz.io.dataset import Dataset, Log
+from lidarfuzz.io.formats import bin as bin_format
+from lidarfuzz.io.kitti.labels import KITTI_CLASSES, read_label_file
+from lidarfuzz.io.layouts import LAYOUTS, PointLayout, layout_from_structure, parse_layout
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.points import PointCloud
+from lidarfuzz.scene.roi import RoiMap
+from lidarfuzz.scene.scene import Scene
+
+
+def png_size(path: Path) -> tuple[int, int] | None:
+    """(height, width) from a PNG header, without decoding the image; None if not a PNG."""
+    with open(path, "rb") as handle:
+        head = handle.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n":
+        return None
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    return height, width
+
+
+def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
+    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt)."""
+    out: dict[str, NDArray[np.float64]] = {}
+    for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        tokens = raw.split()
+        if not tokens:
+            continue
+        if len(tokens) != width + 1:
+            raise DataFormatError(path, f"expected a frame id and {width} number(s), found {len(tokens)} fields",
+                                  line=lineno)
+        try:
+            values = np.array([float(t) for t in tokens[1:]])
+        except ValueError:
+            raise DataFormatError(path, "not a number", line=lineno) from None
+        if tokens[0] in out:
+            raise DataFormatError(path, f"duplicate frame id {tokens[0]!r}", line=lineno)
+        out[tokens[0]] = values
+    return out
+
+
+
+def unlabelled_note(ids: Sequence[str], total: int, shown: int = 5) -> str:
+    """``2 of 5 frame(s) have no label file in label_2/ (000003, 000004)``: counted and named."""
+    names = ", ".join(ids[:shown]) + (f", … ({len(ids) - shown} more)" if len(ids) > shown else "")
+    return f"{len(ids)} of {total} frame(s) have no label file in label_2/ ({names}): unlabelled"
+
+
+def find_kitti_root(path: str | PathLike[str], split: str = "training") -> Path | None:
+    """The folder holding ``velodyne/`` (``path`` itself or ``path/<split>``), if any."""
+    path = Path(path)
+    if (path / "velodyne").is_dir():
+        return path
+    if (path / split / "velodyne").is_dir():
+        return path / split
+    return None
+
+
+class KittiDataset(Dataset[Scene]):
+    """A KITTI object data set (or a lidarfuzz data set in KITTI layout).
+
+    Args:
+        path: The root (holding ``velodyne/``) or a folder with ``training/``.
+        split: ``training`` or ``testing`` when ``path`` holds both.
+        subset: Name of an ``ImageSets/<subset>.txt`` list restricting the frames.
+        strict: Raise on structural problems (labels without frames, frames without
+            labels, duplicate ids, ...); when False they are only recorded in
+            :meth:`problems` (this is what ``lidarfuzz info`` does).
+        nonfinite: Policy for NaN/Inf coordinates (see :mod:`lidarfuzz.io.common`).
+        classes: Class names accepted in label files.
+        layout: The scans' point layout (a name or column spec, :mod:`lidarfuzz.io.layouts`);
+            by default the folder's structure says (a SemanticKITTI sequence), else KITTI's.
+
+    A data set with ``label_2/`` may have frames without a label file: they are *unlabelled*
+    (``scene.metadata["labelled"]`` False, no boxes — unlike a labelled frame with no objects),
+    listed by :meth:`unlabelled_ids` and reported as a warning; commands that need labels
+    (AP) refuse them unless told to leave them out.
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        split: str = "training",
+        subset: str | None = None,
+        strict: bool = True,
+        nonfinite: NonFinitePolicy = "drop",
+        classes: Iterable[str] = KITTI_CLASSES,
+        layout: PointLayout | str | None = None,
+    ) -> None:
+        root = find_kitti_root(path, split)
+        if root is None:
+            raise DataFormatError(path, "not a KITTI layout: no velodyne/ folder here or under training/")
+        super().__init__(root, name=Path(path).resolve().name)
+        self.root = root
+        self.nonfinite: NonFinitePolicy = nonfinite
+        # a chosen layout is passed to every read (the user's word); else each scan's path decides
+        self._layout_option: PointLayout | None = parse_layout(layout) if isinstance(layout, str) else layout
+        self.layout = self._layout_option or layout_from_structure(root / "velodyne") or LAYOUTS["kitti"]
+        self.classes = tuple(classes)
+        self.subset = subset
+        self._scan(Path(path), subset)
+        errors = [p for p in self._problems if p.severity == "error"]
+        if strict and errors:
+            more = ""
+            if len(errors) > 1:
+                more = f" (and {len(errors) - 1} more problem(s); run 'lidarfuzz info' to list them)"
+            first = errors[0]
+            raise DataFormatError(first.path, first.message + more, line=first.line)
+
+    @property
+    def format(self) -> str:
+        return "kitti"
+
+    def _problem(self, severity: str, path: Path | str, message: str, line: int | None = None) -> None:
+        self._problems.append(Problem(severity, str(path), message, line))  # type: ignore[arg-type]
+
+    def _scan(self, given: Path, subset: str | None) -> None:
+        root = self.root
+        velodyne = root / "velodyne"
+        frames = sorted(p.stem for p in velodyne.glob("*.bin"))
+        others = sorted(p.name for p in velodyne.iterdir() if p.is_file() and p.suffix != ".bin")
+        if others:
+            self._problem("warning", velodyne, f"{len(others)} file(s) that are not .bin ignored, e.g. {others[0]}")
+        labels: set[str] = set()
+        if (root / "label_2").is_dir():
+            labels = {p.stem for p in (root / "label_2").glob("*.txt")}
+            if not labels:
+                self._problem("warning", root / "label_2", "empty: the data set has no labels")
+        self._label_ids = labels
+        self._has_labels = bool(labels)
+        self._has_calib = (root / "calib").is_dir()
+        frame_set = set(frames)
+        if self._has_labels:
+            for stem in sorted(labels - frame_set):
+                self._problem("error", root / "label_2" / f"{stem}.txt", "label file without a point-cloud frame")
+            if not self._has_calib:
+                self._problem("error", root, "label_2/ present but no calib/ folder: labels cannot be placed")
+        if self._has_calib:
+            calibs = {p.stem for p in (root / "calib").glob("*.txt")}
+            for stem in sorted(frame_set - calibs):
+                self._problem("error" if stem in labels else "warning",
+                              velodyne / f"{stem}.bin", "frame without a calib file in calib/")
+
+        if subset is not None:
+            candidates = [root / "ImageSets" / f"{subset}.txt", given / "ImageSets" / f"{subset}.txt"]
+            listing = next((c for c in candidates if c.is_file()), None)
+            if listing is None:
+                raise DataFormatError(candidates[0], f"no ImageSets list named {subset!r}")
+            chosen: list[str] = []
+            seen: dict[str, int] = {}
+            for lineno, raw in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+                frame_id = raw.strip()
+                if not frame_id:
+                    continue
+                if frame_id in seen:
+                    self._problem("error", listing, f"duplicate frame id {frame_id!r} (first on line {seen[frame_id]})",
+                                  lineno)
+                    continue
+                seen[frame_id] = lineno
+                if frame_id not in frame_set:
+                    self._problem("error", listing, f"frame id {frame_id!r} has no velodyne/{frame_id}.bin", lineno)
+                    continue
+                chosen.append(frame_id)
+            frames = chosen
+        self._frames = frames
+        self._frame_set = set(frames)
+        self._unlabelled = [f for f in frames if f not in labels] if self._has_labels else []
+        if self._unlabelled:
+            self._problem("warning", root / "label_2", unlabelled_note(self._unlabelled, len(frames)))
+
+        self._timestamps: dict[str, NDArray[np.float64]] | None = None
+        self._poses: dict[str, NDArray[np.float64]] | None = None
+        for name, width, attr in (("timestamps.txt", 1, "_timestamps"), ("poses.txt", 12, "_poses")):
+            side = root / name
+            if side.is_file() and self.layout.point_labels:
+                # SemanticKITTI's poses.txt: one camera-frame pose per line, no frame ids
+                self._problem("warning", side, "SemanticKITTI's camera-frame poses are not read")
+            elif side.is_file():
+                try:
+                    values = _read_keyed_lines(side, width)
+                except DataFormatError as exc:
+                    self._problem("error", exc.path, exc.message, exc.line)
+                    continue
+                missing = [f for f in frames if f not in values]
+                if missing:
+                    self._problem("error", side, f"no entry for {len(missing)} frame(s), e.g. {missing[0]!r}")
+                setattr(self, attr, values)
+
+    # -- Dataset API ------------------------------------------------------------------
+    def frame_ids(self) -> Sequence[str]:
+        return self._frames
+
+    def _id_set(self) -> set[str]:
+        return self._frame_set
+
+    def has_labels(self) -> bool:
+        return self._has_labels
+
+    def unlabelled_ids(self) -> list[str]:
+        return list(self._unlabelled)
+
+    def points_path(self, frame_id: str) -> Path:
+        return self.root / "velodyne" / f"{frame_id}.bin"
+
+    def label_path(self, frame_id: str) -> Path:
+        return self.root / "label_2" / f"{frame_id}.txt"
+
+    def calib_path(self, frame_id: str) -> Path:
+        return self.root / "calib" / f"{frame_id}.txt"
+
+    def load_calib(self, frame_id: str) -> KittiCalibration | None:
+        path = self.calib_path(frame_id)
+        if not path.is_file():
+            return None
+        calib = KittiCalibration.from_file(path)
+        image = self.root / "image_2" / f"{frame_id}.png"
+        if image.is_file():
+            shape = png_size(image)
+            if shape is not None:
+                calib = KittiCalibration.from_mapping(
+                    {k: getattr(calib, k) for k in ("P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam",
+                                                     "Tr_imu_to_velo")},
+                    image_shape=shape,
+                )
+        return calib
+
+    def load_labels(self, frame_id: str, calib: KittiCalibration | None = None) -> Boxes3D:
+        path = self.label_path(frame_id)
+        if not path.is_file():
+            return Boxes3D.empty()
+        if calib is None:
+            calib = self.load_calib(frame_id)
+        boxes = read_label_file(path, calib, classes=self.classes)
+        extra = self.root / "label_2_extra" / f"{frame_id}.json"
+        if extra.is_file():
+            try:
+                track_ids = json.loads(extra.read_text(encoding="utf-8")).get("track_ids")
+                if track_ids is not None:
+                    boxes = boxes.replace(track_ids=track_ids)
+            except (ValueError, AttributeError) as exc:
+                raise DataFormatError(extra, f"expected {{\"track_ids\": [one per label line]}}: {exc}") from None
+        return boxes
+
+    def _object_extras(self, frame_id: str) -> dict[str, object] | None:
+        extra = self.root / "label_2_extra" / f"{frame_id}.json"
+        if not extra.is_file():
+            return None
+        try:
+            objects = json.loads(extra.read_text(encoding="utf-8")).get("objects")
+        except (ValueError, AttributeError) as exc:
+            raise DataFormatError(extra, f"not a JSON object: {exc}") from None
+        return objects if isinstance(objects, dict) else None
+
+    def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
+        scan = self.load_scan(frame_id)
+        return scan.cloud, scan.dropped
+
+    def load_scan(self, frame_id: str) -> bin_format.ScanRead:
+        """The frame's scan (with its ``velodyne_extra/`` channels) and what reading it learnt."""
+        scan = bin_format.read_scan(self.points_path(frame_id), layout=self.layout, nonfinite=self.nonfinite,
+                                    user_chosen=self._layout_option is not None)
+        extra = self.root / "velodyne_extra" / f"{frame_id}.npz"
+        if extra.is_file():
+            scan = dataclasses.replace(scan, cloud=_attach_extra(scan.cloud, extra, scan.dropped))
+        return scan
+
+    def load(self, frame_id: str) -> Scene:
+        if frame_id not in self._frame_set:
+            raise KeyError(f"{self.root}: no frame with id {frame_id!r}")
+        scan = self.load_scan(frame_id)
+        calib = self.load_calib(frame_id)
+        labelled = frame_id in self._label_ids
+        boxes = self.load_labels(frame_id, calib) if labelled else Boxes3D.empty()
+        objects = self._object_extras(frame_id) if labelled else None
+        roi_path = self.root / "roi" / f"{frame_id}.json"
+        roi = None
+        if roi_path.is_file():
+            try:
+                roi = RoiMap.from_geojson(roi_path.read_text(encoding="utf-8"))
+            except (ValueError, TypeError, KeyError, AttributeError) as exc:
+                raise DataFormatError(roi_path, f"not a GeoJSON Polygon/MultiPolygon: {exc}") from None
+        timestamp = float(self._timestamps[frame_id][0]) if self._timestamps and frame_id in self._timestamps else None
+        pose = None
+        if self._poses and frame_id in self._poses:
+            pose = np.eye(4)
+            pose[:3, :] = self._poses[frame_id].reshape(3, 4)
+        meta: dict[str, object] = {"source": str(self.points_path(frame_id)), "format": "kitti",
+                                   "labelled": labelled, **scan.metadata()}
+        if roi is not None:
+            meta["roi_source"] = "frame_map"
+        if objects:
+            meta["objects"] = objects
+        return self._finish(Scene(scan.cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose,
+                                  roi=roi, metadata=meta))
+
+
+def _attach_extra(cloud: PointCloud, path: Path, dropped: int) -> PointCloud:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            columns = {name: archive[name] for name in archive.files}
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(path, f"cannot read extra channels: {exc}") from None
+    if dropped:
+        raise DataFormatError(path, "extra channels cannot be matched to a scan whose NaN points were dropped",
+                              hint="read with nonfinite='reject' to find the bad points")
+    for name, values in columns.items():
+        if values.shape != (len(cloud),):
+            raise DataFormatError(path, f"has {values.shape[0] if values.ndim else 0} values but the scan has "
+                                  f"{len(cloud)} points", field=name)
+        cloud = cloud.with_channel(name, values)
+    return cloud
+
+
+class KittiLog(KittiDataset, Log[Scene]):
+    """A KITTI-layout data set with ``timestamps.txt``: frames ordered by time, with poses if present."""
+
+    def __init__(self, path: str | PathLike[str], **kwargs: object) -> None:
+        super().__init__(path, **kwargs)  # type: ignore[arg-type]
+        if self._timestamps is None:
+            raise DataFormatError(self.root / "timestamps.txt", "a log needs timestamps.txt")
+        self._frames = sorted(self._frames, key=lambda f: (self._stamp(f), f))
+
+    def _stamp(self, frame_id: str) -> float:
+        assert self._timestamps is not None
+        return float(self._timestamps[frame_id][0]) if frame_id in self._timestamps else float("inf")
+
+    def timestamps(self) -> NDArray[np.float64]:
+        return np.array([self._stamp(f) for f in self._frames])
+
+    def poses(self) -> NDArray[np.float64] | None:
+        if self._poses is None:
+            return None
+        out = np.tile(np.eye(4), (len(self._frames), 1, 1))
+        for i, frame_id in enumerate(self._frames):
+            if frame_id in self._poses:
+                out[i, :3, :] = self._poses[frame_id].reshape(3, 4)
+        return out
+
+
+def open_kitti(path: str | PathLike[str], **kwargs: object) -> KittiDataset:
+    """A :class:`KittiLog` when the layout has ``timestamps.txt``, else a :class:`KittiDataset`."""
+    root = find_kitti_root(path, str(kwargs.get("split", "training")))
+    if root is not None and (root / "timestamps.txt").is_file():
+        return KittiLog(path, **kwargs)
+    return KittiDataset(path, **kwargs)  # type: ignore[arg-type]
