@@ -7,15 +7,25 @@ A package adds, say, a metamorphic relation by declaring in its ``pyproject.toml
 
 Names and aliases are matched case-insensitively, with ``-`` and ``_`` equivalent;
 built-ins (entry points of ``lidarfuzz`` itself) win over plugins of the same name.
+
+A broken third-party entry point — its module does not import, its object is not the
+group's kind of class — is left out with a :class:`PluginWarning` naming it (entry point
+name and value, the error in one line); the rest of the group loads. A broken built-in is a
+bug in lidarfuzz and raises.
 """
 
 from __future__ import annotations
 
+import warnings
 from functools import cache
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 from lidarfuzz.errors import LidarfuzzError
+
+
+class PluginWarning(UserWarning):
+    """A third-party entry point that could not be loaded and was left out."""
 
 
 class UnknownPluginError(LidarfuzzError, KeyError):
@@ -34,14 +44,47 @@ def plugin_key(name: str) -> str:
     return name.strip().lower().replace("-", "_")
 
 
+def is_builtin(entry: EntryPoint) -> bool:
+    """Whether an entry point is one of lidarfuzz's own."""
+    return entry.value.startswith("lidarfuzz.")
+
+
+def declared(group: str) -> list[EntryPoint]:
+    """The entry points of ``group``, built-ins first, without loading any of them."""
+    return sorted(entry_points(group=group), key=lambda e: (not is_builtin(e), e.name))
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _load(entry: EntryPoint, group: str, base: type) -> type[Any]:
+    cls = entry.load()
+    if not (isinstance(cls, type) and issubclass(cls, base)):
+        raise LidarfuzzError(f"entry point {entry.name} = {entry.value} in group {group} is not a {base.__name__}")
+    if not isinstance(getattr(cls, "name", None), str):
+        raise LidarfuzzError(f"entry point {entry.name} = {entry.value} in group {group}: {cls.__name__} has no name")
+    return cls
+
+
 @cache
 def load_group(group: str, base: type) -> dict[str, type[Any]]:
-    """Every class registered under ``group`` by its ``name`` attribute, built-ins first (loaded once)."""
+    """Every class registered under ``group`` by its ``name`` attribute, built-ins first (loaded once).
+
+    A third-party entry point that fails to load or is not a ``base`` subclass is skipped with
+    a :class:`PluginWarning`; a built-in one raises.
+    """
     found: dict[str, type[Any]] = {}
-    for entry in sorted(entry_points(group=group), key=lambda e: (not e.value.startswith("lidarfuzz."), e.name)):
-        cls = entry.load()
-        if not (isinstance(cls, type) and issubclass(cls, base)):
-            raise LidarfuzzError(f"entry point {entry.name} = {entry.value} in group {group} is not a {base.__name__}")
+    for entry in declared(group):
+        try:
+            cls = _load(entry, group, base)
+        except Exception as exc:
+            if is_builtin(entry):
+                raise
+            warnings.warn(f"plugin {entry.name} = {entry.value} (group {group}) left out: {_one_line(exc)}",
+                          PluginWarning, stacklevel=2)
+            continue
         found.setdefault(cls.name, cls)
     return found
 

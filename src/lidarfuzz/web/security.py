@@ -33,6 +33,8 @@ from typing import Annotated, Any
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from lidarfuzz.plugins import declared
+
 GiB = 1 << 30
 MiB = 1 << 20
 
@@ -310,9 +312,7 @@ IMPORT_SPEC = re.compile(r"^\s*[A-Za-z_][\w.]*\s*:\s*[A-Za-z_][\w.]*\s*$")
 
 
 def _entry_point_modules() -> set[str]:
-    from importlib.metadata import entry_points
-
-    return {entry.value.partition(":")[0].strip() for entry in entry_points(group="lidarfuzz.suts")}
+    return {entry.value.partition(":")[0].strip() for entry in declared("lidarfuzz.suts")}
 
 
 def _forbidden(detail: str) -> HTTPException:
