@@ -38,7 +38,7 @@ from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import create_task
 from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
 from lidarfuzz.store import Dataset, Model, Status, Store, Subtask, Task
-from lidarfuzz.store.catalog import add_dataset, add_model
+from lidarfuzz.store.inventory import add_dataset, add_model
 from lidarfuzz.web import create_app
 
 TARGET_MS = 100.0

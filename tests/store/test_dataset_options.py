@@ -13,7 +13,7 @@ from lidarfuzz.campaign.work import WorkContext, Worker
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.store import Store
-from lidarfuzz.store.catalog import add_dataset, dataset_options, get_dataset, open_registered
+from lidarfuzz.store.inventory import add_dataset, dataset_options, get_dataset, open_registered
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 
 from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
 from lidarfuzz.store import Store
-from lidarfuzz.store.catalog import add_dataset, add_model
+from lidarfuzz.store.inventory import add_dataset, add_model
 from lidarfuzz.web import create_app
 
 BASE = "http://127.0.0.1"

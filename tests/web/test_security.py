@@ -372,7 +372,7 @@ def test_a_subprocess_sut_is_refused_in_a_campaign_too(client: TestClient) -> No
 def test_a_subprocess_sut_registered_from_the_cli_is_listed_and_usable(client: TestClient, tmp_path: Path) -> None:
     """Only registration is refused: a command-line system the CLI recorded shows in the list."""
     from lidarfuzz.store import Store
-    from lidarfuzz.store.catalog import add_model
+    from lidarfuzz.store.inventory import add_model
 
     store = Store(tmp_path / "ws")
     add_model(store, "external", f"subprocess:{sys.executable} -c pass {{points}} {{output}}")

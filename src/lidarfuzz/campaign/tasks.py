@@ -57,7 +57,7 @@ def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None) -> Dat
     ``options``). Options that change how a registered data set is read are refused: register
     it again under another name (lidarfuzz datasets add)."""
     from lidarfuzz.io.open import open_dataset
-    from lidarfuzz.store.catalog import dataset_options
+    from lidarfuzz.store.inventory import dataset_options
 
     given = (options or DatasetOptions()).resolved()
     row = s.scalar(select(Dataset).where(Dataset.name == ref))
@@ -148,8 +148,8 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
     by path; ``allow_unlabelled`` also lets a registered one run with frames that have no labels.
     """
     from lidarfuzz.operators.registry import get
-    from lidarfuzz.store.catalog import dataset_options as stored_options
-    from lidarfuzz.store.catalog import open_registered
+    from lidarfuzz.store.inventory import dataset_options as stored_options
+    from lidarfuzz.store.inventory import open_registered
 
     with store.session() as s:
         dataset = _dataset_row(s, spec.dataset, dataset_options)

@@ -54,7 +54,7 @@ def register(app: typer.Typer) -> None:
         """Validate a data set (never modified) and record it with how to read it."""
         from lidarfuzz.cli.app import console
         from lidarfuzz.io.options import options_from_flags
-        from lidarfuzz.store.catalog import add_dataset
+        from lidarfuzz.store.inventory import add_dataset
 
         options = options_from_flags(layout, allow_unlabelled, intensity_scale, roi_map)
         row = add_dataset(_store(workspace), name, path, notes, options=options)
@@ -66,7 +66,7 @@ def register(app: typer.Typer) -> None:
     def datasets_list(workspace: WorkspaceOption = WORKSPACE) -> None:
         """The recorded data sets."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.store.catalog import list_datasets
+        from lidarfuzz.store.inventory import list_datasets
 
         table = Table("name", "frames", "format", "path", "options", "added", "notes")
         for row in list_datasets(_store(workspace)):
@@ -79,7 +79,7 @@ def register(app: typer.Typer) -> None:
     def datasets_remove(name: str, workspace: WorkspaceOption = WORKSPACE) -> None:
         """Forget a data set (its files stay where they are)."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.store.catalog import remove_dataset
+        from lidarfuzz.store.inventory import remove_dataset
 
         remove_dataset(_store(workspace), name)
         console.print(f"removed data set {name}")
@@ -95,7 +95,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Check that a spec builds a system, and record it with its fingerprint."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.store.catalog import add_model
+        from lidarfuzz.store.inventory import add_model
 
         options = {}
         for item in option or []:
@@ -113,7 +113,7 @@ def register(app: typer.Typer) -> None:
     def models_list(workspace: WorkspaceOption = WORKSPACE) -> None:
         """The recorded systems under test."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.store.catalog import list_models
+        from lidarfuzz.store.inventory import list_models
 
         table = Table("name", "spec", "fingerprint", "added", "notes")
         for row in list_models(_store(workspace)):
@@ -124,7 +124,7 @@ def register(app: typer.Typer) -> None:
     def models_remove(name: str, workspace: WorkspaceOption = WORKSPACE) -> None:
         """Forget a system under test."""
         from lidarfuzz.cli.app import console
-        from lidarfuzz.store.catalog import remove_model
+        from lidarfuzz.store.inventory import remove_model
 
         remove_model(_store(workspace), name)
         console.print(f"removed model {name}")

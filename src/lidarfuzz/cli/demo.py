@@ -60,7 +60,7 @@ def register(app: typer.Typer) -> None:
         from lidarfuzz.cli.app import console
         from lidarfuzz.cli.campaign import execute
         from lidarfuzz.store import Dataset, Model, Store
-        from lidarfuzz.store.catalog import add_dataset, add_model
+        from lidarfuzz.store.inventory import add_dataset, add_model
 
         started = time.perf_counter()
         name = f"sim-world-s{seed}-n{frames}"

@@ -1,4 +1,7 @@
-"""Describing operators to people: parameter values and severity tables as text (CLI and docs)."""
+"""The operator catalogue: parameter values and severity tables as text, as ``lidarfuzz operators``,
+the web app's operator pages and docs/operators.md show them.
+
+(Not the store's inventory of data sets and models: :mod:`lidarfuzz.store.inventory`.)"""
 
 from __future__ import annotations
 

@@ -75,7 +75,7 @@ class WebContext:
     def dataset(self, path: str) -> Any:
         """The data set at ``path``, opened once and kept (the 8 most recent)."""
         from lidarfuzz.io.open import open_dataset
-        from lidarfuzz.store.catalog import options_at
+        from lidarfuzz.store.inventory import options_at
 
         with self._lock:
             if path in self._datasets:

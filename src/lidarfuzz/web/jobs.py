@@ -2,7 +2,7 @@
 
 A job renders with :func:`lidarfuzz.sim.dataset.generate_dataset` — the code of ``lidarfuzz
 gen`` — into ``<workspace>/uploads/<id>/`` and, when it is done, records the data set with
-:func:`lidarfuzz.store.catalog.add_dataset`, as ``lidarfuzz datasets add`` does. Until then
+:func:`lidarfuzz.store.inventory.add_dataset`, as ``lidarfuzz datasets add`` does. Until then
 the data sets list shows it as ``generating`` (with frames done / total), or ``failed`` with
 the reason; jobs live in the server's memory (a failed one is dismissed by deleting it).
 """
@@ -82,7 +82,7 @@ class GenerationJobs:
 
     def _run(self, job: GenerationJob) -> None:
         from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
-        from lidarfuzz.store.catalog import add_dataset
+        from lidarfuzz.store.inventory import add_dataset
 
         def advance(_result: Any) -> None:
             job.done += 1

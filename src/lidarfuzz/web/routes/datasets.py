@@ -26,7 +26,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
 from lidarfuzz.errors import DataFormatError
-from lidarfuzz.store.catalog import add_dataset, get_dataset, list_datasets, remove_dataset
+from lidarfuzz.store.inventory import add_dataset, get_dataset, list_datasets, remove_dataset
 from lidarfuzz.web.app import WebContext, web
 from lidarfuzz.web.events import iso
 from lidarfuzz.web.jobs import jobs_of

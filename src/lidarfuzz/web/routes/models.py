@@ -1,6 +1,6 @@
 """``/api/models``: systems under test — list, register by spec, upload a model file, remove.
 
-Registration is :func:`lidarfuzz.store.catalog.add_model`, as ``lidarfuzz models add`` does: the
+Registration is :func:`lidarfuzz.store.inventory.add_model`, as ``lidarfuzz models add`` does: the
 spec is built once (a bad one fails now) and recorded with its fingerprint. What the API
 accepts is narrower than the CLI (:func:`lidarfuzz.web.security.check_model_spec`): no
 ``subprocess:`` / ``worker:`` commands, no imports outside installed plugins, no server files.
@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from lidarfuzz.store.catalog import add_model, get_model, list_models, remove_model
+from lidarfuzz.store.inventory import add_model, get_model, list_models, remove_model
 from lidarfuzz.web.app import WebContext, web
 from lidarfuzz.web.events import iso
 from lidarfuzz.web.security import check_model_spec, check_name, remove_tree, within

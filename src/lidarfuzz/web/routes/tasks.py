@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import count_tasks, create_task, delete_task, get_task, list_tasks, subtask_label
-from lidarfuzz.store.catalog import list_datasets, list_models
+from lidarfuzz.store.inventory import list_datasets, list_models
 from lidarfuzz.store.models import Status, Task
 from lidarfuzz.web.app import WebContext, web
 from lidarfuzz.web.events import iso, progress_events, progress_snapshot

@@ -1,4 +1,4 @@
-"""Registering data sets and systems under test, from the library and the CLI."""
+"""The store's inventory: registering data sets and systems under test, from the library and the CLI."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 from lidarfuzz.cli.app import app
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.store import Store, Task
-from lidarfuzz.store.catalog import add_dataset, add_model, list_datasets, list_models, remove_dataset, remove_model
+from lidarfuzz.store.inventory import add_dataset, add_model, list_datasets, list_models, remove_dataset, remove_model
 
 runner = CliRunner()
 
