@@ -9,12 +9,11 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, select
 
 from lidarfuzz.io.options import DatasetOptions
-from lidarfuzz.store.errors import ConflictError, NotFoundError
 from lidarfuzz.store.models import Dataset, Model, Task
 from lidarfuzz.store.store import Store, StoreError
 
@@ -37,7 +36,7 @@ def add_dataset(store: Store, name: str, path: str | PathLike[str], notes: str =
     dataset[dataset.frame_ids()[0]]  # a layout that does not fit fails now, not mid-campaign
     with store.session() as s:
         if s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
-            raise ConflictError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
+            raise StoreError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
         row = Dataset(name=name, path=str(source), format=dataset.format, frame_count=frames, notes=notes,
                       options=options.stored())
         s.add(row)
@@ -72,7 +71,7 @@ def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None
     system = create(spec, **(options or {}))
     with store.session() as s:
         if s.scalar(select(Model).where(Model.name == name)) is not None:
-            raise ConflictError(f"a model called {name!r} exists already (lidarfuzz models list)")
+            raise StoreError(f"a model called {name!r} exists already (lidarfuzz models list)")
         row = Model(name=name, spec=spec, options=dict(options or {}), fingerprint=system.fingerprint(), notes=notes)
         s.add(row)
     return row
@@ -82,7 +81,7 @@ def _named(store: Store, table: type[Dataset] | type[Model], name: str, what: st
     with store.session() as s:
         row = s.scalar(select(table).where(table.name == name))
         if row is None:
-            raise NotFoundError(f"no {what} called {name!r} (lidarfuzz {listing} list)")
+            raise StoreError(f"no {what} called {name!r} (lidarfuzz {listing} list)")
         return row
 
 
@@ -106,18 +105,15 @@ def list_models(store: Store) -> list[Model]:
         return list(s.scalars(select(Model).order_by(Model.name)))
 
 
-_Registered = TypeVar("_Registered", Dataset, Model)
-
-
-def _remove(store: Store, table: type[_Registered], name: str, kind: str) -> None:
+def _remove(store: Store, table: type[Dataset] | type[Model], name: str, kind: str) -> None:
     with store.session() as s:
         row = s.scalar(select(table).where(table.name == name))
         if row is None:
-            raise NotFoundError(f"no {kind} called {name!r}")
+            raise StoreError(f"no {kind} called {name!r}")
         column = Task.dataset_id if table is Dataset else Task.model_id
         used = s.scalar(select(func.count()).select_from(Task).where(column == row.id)) or 0
         if used:
-            raise ConflictError(f"{kind} {name!r} is used by {used} task(s); delete those first")
+            raise StoreError(f"{kind} {name!r} is used by {used} task(s); delete those first")
         s.delete(row)
 
 
