@@ -80,7 +80,7 @@ class _SearchRun:
         from lidarfuzz.coverage import ActivationRecorder
         from lidarfuzz.oracles.relations.registry import from_spec
         from lidarfuzz.search.evaluate import SearchEvaluator
-        from lidarfuzz.store.catalog import open_registered
+        from lidarfuzz.store.inventory import open_registered
         from lidarfuzz.suts.registry import create
 
         self.store, self.task, self.progress, self.stop = store, task, progress, stop
@@ -188,7 +188,7 @@ class _SearchRun:
 def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] | None) -> None:
     """Evaluate both subtasks (AP over the generated tests too) and mark them done."""
     from lidarfuzz.campaign.results import evaluate_subtask
-    from lidarfuzz.store.catalog import open_registered
+    from lidarfuzz.store.inventory import open_registered
 
     task = get_task(store, task_id)
     dataset = open_registered(task.dataset)
