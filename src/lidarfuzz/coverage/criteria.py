@@ -74,7 +74,7 @@ def check_values(values: Values, layers: Sequence[str] | None = None) -> list[ND
     missing = [n for n in names if n not in values]
     if missing:
         raise CoverageError(f"neuron values lack layer(s) {missing[:3]}; got {list(values)[:5]}")
-    arrays = []
+    arrays: list[NDArray[np.float64]] = []
     for name in names:
         array = np.asarray(values[name], dtype=np.float64)
         if array.ndim != 2:

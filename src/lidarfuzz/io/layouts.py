@@ -212,8 +212,8 @@ def parse_layout(text: str) -> PointLayout:
         raise LayoutError(f"--layout {text!r}: give the columns' type after the last one, e.g. {given}:f4")
     columns: list[Column] = []
     pending: str | None = None
-    for name, dtype in reversed(parsed):
-        pending = dtype or pending
+    for name, declared in reversed(parsed):
+        pending = declared or pending
         assert pending is not None
         columns.append(Column(name if name == "_" else _channel_name(name), pending))
     columns.reverse()

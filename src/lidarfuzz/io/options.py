@@ -179,7 +179,8 @@ def load_dataset_map(path: str | PathLike[str]) -> DatasetMap:
         raise DataFormatError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
     if not isinstance(obj, dict):
         raise DataFormatError(path, "expected a GeoJSON object", field="<root>")
-    properties = obj.get("properties") if isinstance(obj.get("properties"), dict) else {}
+    given = obj.get("properties")
+    properties = given if isinstance(given, dict) else {}
     frame = obj.get("frame", properties.get("frame", "lidar"))
     if frame not in ("lidar", "world"):
         raise DataFormatError(path, f"{frame!r} is not 'lidar' or 'world'",

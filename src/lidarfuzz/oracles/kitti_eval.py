@@ -118,7 +118,7 @@ reaches at most 2.5 AP|R40 and 9.1 AP|R11 (easy, moderate, hard)'
             for difficulty, n in few.items():
                 by_count.setdefault(n, []).append(difficulty)
             ceilings = "; ".join(
-                "{:.1f} AP|R40 and {:.1f} AP|R11 ({})".format(*ap_ceiling(n), ", ".join(ds))
+                "{:.1f} AP|R40 and {:.1f} AP|R11".format(*ap_ceiling(n)) + f" ({', '.join(ds)})"
                 for n, ds in by_count.items())
             notes.append(f"{cls}: too few objects to score ({counts}; fewer than {min_objects}): a perfect "
                          f"detector reaches at most {ceilings}")
@@ -234,7 +234,7 @@ def _camera_geometry(
     box_frame: NDArray[np.int64],
     frame_group: NDArray[np.int64],
     calibs: list[KittiCalibration],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Fill missing 2D boxes and alphas by projection (in place) and return the footprint
     corners on the camera x–z plane (M×4×2) and the vertical extent ``[y_top, y_bottom]`` (M×2),
     one calibration group at a time."""
@@ -637,13 +637,13 @@ def _match(
     dt_alpha: NDArray[np.float64],
     min_overlap: float,
     compute_fp: bool,
-) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """The devkit's per-frame assignment for N instances at once (N × D detections, N × G GT).
 
     GT are visited in order. Without ``compute_fp`` the candidate with the highest score wins
     (the first on ties); with it, the non-ignored candidate of highest overlap (the first on
     ties), else the first ignored one. Returns (assigned N × D, TP N, FN N, similarity N,
-    TP mask N × G).
+    and per GT the index of the detection that made it a true positive, -1 for none, N × G).
     """
     n, num_dt = active.shape
     rows = np.arange(n)

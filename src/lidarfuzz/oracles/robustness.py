@@ -186,7 +186,8 @@ def robustness_summary(
     for operator in sorted(model):
         severities = tuple(sorted(model[operator]))
         ap = tuple(_score(model[operator][s], metric, cls, difficulty, points) for s in severities)
-        ce, base_ap = NAN, ()
+        ce = NAN
+        base_ap: tuple[float, ...] = ()
         if baseline is not None:
             if tuple(sorted(baseline[operator])) != severities:
                 raise ValueError(
@@ -271,10 +272,10 @@ def violation_rates(
         if not outcome.applicable:
             continue
         base = {"relation": record.relation, "operator": record.operator, "severity": record.severity}
+        classes: set[str | None] = {None}
         if "class" in by:
-            classes = {c for c, n in outcome.checked.items() if n > 0} | {v.cls for v in outcome.violations}
-        else:
-            classes = {None}
+            classes = {c for c, n in outcome.checked.items() if n > 0}
+            classes |= {v.cls for v in outcome.violations}
         for cls in classes:
             key = tuple((k, cls if k == "class" else base[k]) for k in by)
             mine = [v for v in outcome.violations if cls is None or v.cls == cls]

@@ -131,7 +131,7 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         follow_detections = None if follow_failed else decode_boxes(row.boxes, row.labels)
         source_detections = Boxes3D.empty()
         source_failed = original is None or original.failure is not None
-        if not source_failed:
+        if original is not None and original.failure is None:
             source_detections = decode_boxes(original.boxes, original.labels)
 
     path = str(replay.get("dataset", ""))

@@ -42,11 +42,12 @@ import re
 from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from lidarfuzz.errors import LidarfuzzError
 
-KINDS = ("ap_drop", "violations", "violation_rate", "failures")
+GateKind = Literal["ap_drop", "violations", "violation_rate", "failures"]
+KINDS: tuple[GateKind, ...] = ("ap_drop", "violations", "violation_rate", "failures")
 AP_METRICS = ("bbox", "bev", "3d")
 METRIC_NAMES = {"bbox": "bbox", "bev": "BEV", "3d": "3D"}
 CLASSES = ("Car", "Pedestrian", "Cyclist", "mAP")
@@ -67,7 +68,7 @@ class Gate:
     """One parsed rule (see the module docstring for the grammar)."""
 
     text: str
-    kind: Literal["ap_drop", "violations", "violation_rate", "failures"]
+    kind: GateKind
     threshold: float
     metric: str = "3d"
     cls: str = "mAP"
@@ -94,11 +95,14 @@ class GateResult:
         return self.status == "passed"
 
 
+_Option = TypeVar("_Option", bound=str)
+
+
 def _bad(text: str, why: str) -> GateError:
     return GateError(f"gate {text!r}: {why} (grammar: {GRAMMAR})")
 
 
-def _choice(text: str, what: str, value: str, allowed: Iterable[str]) -> str:
+def _choice(text: str, what: str, value: str, allowed: Iterable[_Option]) -> _Option:
     options = list(allowed)
     for option in options:
         if value.lower() == option.lower():

@@ -217,8 +217,8 @@ class _Grid:
 def _grid(s: DrivableSettings) -> _Grid:
     sectors = max(1, round(360.0 / s.sector_deg))
     bins = int(np.ceil(s.max_range / s.bin_m))
-    theta = -np.pi + (np.arange(sectors) + 0.5) * (2 * np.pi / sectors)
-    r = (np.arange(bins) + 0.5) * s.bin_m
+    theta = -np.pi + (np.arange(sectors, dtype=np.float64) + 0.5) * (2 * np.pi / sectors)
+    r = (np.arange(bins, dtype=np.float64) + 0.5) * s.bin_m
     edges = np.asarray(s.ring_edges, np.float64)
     counts = np.asarray(s.ring_sectors, np.int64)
     offset = np.r_[0, np.cumsum(counts)]
@@ -246,7 +246,7 @@ def _fit_planes(x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.fl
                 count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Least-squares plane ``z = a·x + b·y + c`` of each patch's points: (P×3 planes, P counts)."""
     def total(w: NDArray[np.float64] | None) -> NDArray[np.float64]:
-        return np.bincount(patch, w, count)
+        return np.bincount(patch, w, count).astype(np.float64, copy=False)  # counts too: exact in float64
 
     n = total(None)
     sx, sy, sz = total(x), total(y), total(z)
@@ -256,7 +256,7 @@ def _fit_planes(x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.fl
     well_posed = n >= 3
     normal[~well_posed] = np.eye(3)
     normal += np.eye(3) * 1e-6  # a patch whose points lie on a line: the least tilted plane through them
-    planes = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    planes = np.linalg.solve(normal, rhs[..., None])[..., 0].astype(np.float64, copy=False)
     planes[~well_posed] = 0.0
     return planes, n
 
@@ -360,14 +360,14 @@ def road_extent(xyz: NDArray[np.floating], settings: DrivableSettings = DEFAULT_
     with np.errstate(invalid="ignore"):
         ground_point = np.abs(height) <= s.ground_band
         obstacle_point = (height > s.obstacle_height) & (height < s.max_obstacle_height)
-    ground_z = np.full(size + 1, np.inf, np.float32)
-    np.minimum.at(ground_z, cell, np.where(ground_point, p[:, 2], np.float32(np.inf)))
-    ground_z = ground_z[:size].reshape(grid.sectors, grid.bins).astype(np.float64)
+    lowest = np.full(size + 1, np.inf, np.float32)
+    np.minimum.at(lowest, cell, np.where(ground_point, p[:, 2], np.float32(np.inf)))
+    ground_z = lowest[:size].reshape(grid.sectors, grid.bins).astype(np.float64)
     obstacle_n = np.bincount(cell[obstacle_point], minlength=size + 1)[:size].reshape(grid.sectors, grid.bins)
     blocked = obstacle_n >= s.min_obstacle_points
-    ground = np.isfinite(ground_z) & ~blocked
-    ego = _ego_level(grid.theta, grid.r, ground, ground_z, s)
-    end = _walk(ground_z, ground, blocked, ego, grid, s)
+    ground_cell = np.isfinite(ground_z) & ~blocked
+    ego = _ego_level(grid.theta, grid.r, ground_cell, ground_z, s)
+    end = _walk(ground_z, ground_cell, blocked, ego, grid, s)
     if s.smooth_sectors > 1:
         end = median_filter(end, size=s.smooth_sectors, mode="wrap")
     return np.maximum(end, s.ego_radius)
@@ -399,7 +399,7 @@ def _walk(ground_z: NDArray[np.float64], ground: NDArray[np.bool_], blocked: NDA
     base = (np.arange(n_sectors, dtype=np.int32) * n_bins)[:, None]  # flat index of each sector's first cell
 
     def range_of(cell: NDArray[np.int32]) -> NDArray[np.float64]:
-        return (cell + 0.5) * bin_m
+        return (cell.astype(np.float64) + 0.5) * bin_m
 
     def last_at_or_before(mask: NDArray[np.bool_]) -> NDArray[np.int32]:
         return np.maximum.accumulate(np.where(mask, index, np.int32(-1)), axis=1)

@@ -107,7 +107,7 @@ class CameraLabels:
     @property
     def in_image(self) -> NDArray[np.bool_]:
         """Boxes with some area in the image (the others get truncation 1 and no 2D box)."""
-        return np.isfinite(self.bbox2d).all(axis=1)
+        return np.all(np.isfinite(self.bbox2d), axis=1)
 
 
 def camera_labels(calib: KittiCalibration, boxes: ArrayLike) -> CameraLabels:
@@ -119,7 +119,7 @@ def camera_labels(calib: KittiCalibration, boxes: ArrayLike) -> CameraLabels:
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     inside, front_uv = image_coverage(calib, b)
     bbox2d = image_boxes(calib, b, front_uv)
-    truncation = np.round(np.clip(1.0 - inside, 0.0, 1.0), 2)
+    truncation = np.clip(1.0 - inside, 0.0, 1.0).round(2)
     truncation[~np.isfinite(bbox2d).all(axis=1)] = 1.0
     return CameraLabels(truncation=truncation, bbox2d=bbox2d, alpha=calib.alpha(b), inside=inside)
 

@@ -139,9 +139,9 @@ class Receiver(BaseModel):
 
     def _draw_calibration(self, beams: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         rng = np.random.default_rng(np.random.SeedSequence([self.calibration_seed, beams, 0xCA1B]))
-        gain = np.exp(np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.gain_spread)
-        offset = self.offset_mean + np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.offset_spread
-        gain, offset = gain.astype(np.float32), offset.astype(np.float32)
+        gain = np.exp(np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.gain_spread).astype(np.float32)
+        spread = np.clip(rng.standard_normal(beams), -2.5, 2.5) * self.offset_spread
+        offset = (self.offset_mean + spread).astype(np.float32)
         gain.flags.writeable = offset.flags.writeable = False  # shared by every frame (cached)
         return gain, offset
 

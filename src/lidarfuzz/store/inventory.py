@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from os import PathLike
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from sqlalchemy import func, select
 
@@ -105,7 +105,10 @@ def list_models(store: Store) -> list[Model]:
         return list(s.scalars(select(Model).order_by(Model.name)))
 
 
-def _remove(store: Store, table: type[Dataset] | type[Model], name: str, kind: str) -> None:
+_Registered = TypeVar("_Registered", Dataset, Model)
+
+
+def _remove(store: Store, table: type[_Registered], name: str, kind: str) -> None:
     with store.session() as s:
         row = s.scalar(select(table).where(table.name == name))
         if row is None:

@@ -93,7 +93,7 @@ class PythonSut(SystemUnderTest[Scene, Boxes3D]):
         config: Mapping[str, Any] | None = None,
     ) -> None:
         self.target = target
-        self.name = name or getattr(target, "__qualname__", type(target).__name__)  # type: ignore[misc]
+        self.name = name or str(getattr(target, "__qualname__", type(target).__name__))  # type: ignore[misc]
         self.version = version  # type: ignore[misc]
         self.input = input
         self.convention = convention

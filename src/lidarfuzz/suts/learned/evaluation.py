@@ -31,9 +31,16 @@ def detections_in_view(scene: Scene, detections: Boxes3D) -> Boxes3D:
     return detections
 
 
+def kitti_frame(scene: Scene, detections: Boxes3D) -> KittiFrame:
+    """The scene's labels and the detections it sees, for the KITTI evaluator (its default
+    calibration when the scene has none)."""
+    shown = detections_in_view(scene, detections)
+    return KittiFrame(scene.boxes, shown, scene.calib) if scene.calib is not None else KittiFrame(scene.boxes, shown)
+
+
 def split_ap(sut: Any, scenes: Iterable[Scene], classes: Sequence[str] = CLASSES) -> dict[str, Any]:
     """Moderate KITTI AP|R40 (BEV, 3D) per class of a loaded SUT on labelled scenes, with the evaluator's warnings."""
-    frames = [KittiFrame(scene.boxes, detections_in_view(scene, sut.detect(scene)), scene.calib) for scene in scenes]
+    frames = [kitti_frame(scene, sut.detect(scene)) for scene in scenes]
     result = evaluate_kitti(frames)
     ap = {c: {m: round(float(result.get(m, c, "moderate", "R40")), 2) for m in ("bev", "3d")} for c in classes}
     return {"ap_r40_moderate": ap, "frames": len(frames), "warnings": result.sample_warnings()}
@@ -142,11 +149,12 @@ def real_frame_figures(
     """
     pairs = [(scene, sut.detect(scene)) for scene in scenes]
     out: dict[str, Any] = {f"score>={s}": recall_figures(pairs, min_score=s).to_json() for s in min_scores}
-    result = evaluate_kitti([KittiFrame(s.boxes, detections_in_view(s, d), s.calib) for s, d in pairs])
+    result = evaluate_kitti([kitti_frame(s, d) for s, d in pairs])
     out["ap_r40_moderate"] = {c: {m: round(float(result.get(m, c, "moderate", "R40")), 2) for m in ("bev", "3d")}
                               for c in CLASSES}
     out["ap_warnings"] = result.sample_warnings()
     return out
 
 
-__all__ = ["CLASSES", "RecallFigures", "detections_in_view", "real_frame_figures", "recall_figures", "split_ap"]
+__all__ = ["CLASSES", "RecallFigures", "detections_in_view", "kitti_frame", "real_frame_figures", "recall_figures",
+           "split_ap"]

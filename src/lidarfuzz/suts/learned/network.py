@@ -184,7 +184,9 @@ class CenterHead(nn.Module):
         self.shared = nn.Sequential(*_conv(cin, config.head_channels))
         self.heatmap = nn.Conv2d(config.head_channels, len(config.classes), 1)
         self.regression = nn.Conv2d(config.head_channels, len(REGRESSION), 1)
-        nn.init.constant_(self.heatmap.bias, -2.19)  # prior 0.1, as CenterNet
+        bias = self.heatmap.bias
+        assert bias is not None  # nn.Conv2d has one unless built with bias=False
+        nn.init.constant_(bias, -2.19)  # prior 0.1, as CenterNet
 
     def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
         x = self.shared(features)

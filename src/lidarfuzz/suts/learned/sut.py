@@ -187,7 +187,7 @@ class PillarsDetector(SystemUnderTest[Scene, Boxes3D]):
             boxes = apply_size_prior(boxes_t, classes_t, cfg).double().cpu().numpy()
             scores = scores_t.double().cpu().numpy()
             classes = classes_t.cpu().numpy()
-            keep = []
+            keep: list[int] = []
             for c in np.unique(classes):
                 idx = np.flatnonzero(classes == c)
                 keep.extend(idx[rotated_nms(boxes[idx], scores[idx], opts.nms_iou)])

@@ -206,7 +206,7 @@ class ObjectInsertionConfig(Config):
 class ObjectInsertionParams(Params):
     insertions: tuple[Insertion, ...]
     library: str = Field(description="fingerprint of the library the entries come from")
-    reason: str = Field("", description="why fewer objects were inserted than drawn ('' when none is missing)")
+    reason: str = Field(default="", description="why fewer objects were inserted than drawn ('' when none is missing)")
 
     def is_identity(self) -> bool:
         return not self.insertions
