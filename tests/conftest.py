@@ -1,7 +1,8 @@
 # ruff: noqa: E501
 """Shared fixtures: a small labelled log from the simulator, KITTI calib and label text, and a
 throwaway PostgreSQL server (skipped, with the reason, when the server binaries are not installed:
-``apt-get install postgresql``; ``.ci/run`` installs them)."""
+``apt-get install postgresql``; under CI — ``CI`` set, as ``.ci/run`` does after installing them —
+the tests that need it fail instead, naming the package)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import pytest
 from lidarfuzz.io import write_kitti
 from lidarfuzz.scene import Scene
 from lidarfuzz.sim import GenerationConfig, render_frames
+from tests.requirements import missing
 
 # Calibration of KITTI object training frame 000000 (as published with the data set).
 KITTI_000000_CALIB = """\
@@ -80,7 +82,7 @@ def postgres_url() -> Iterator[str]:
         return
     initdb, pg_ctl = _binary("initdb"), _binary("pg_ctl")
     if initdb is None or pg_ctl is None:
-        pytest.skip("PostgreSQL server binaries not installed (apt-get install postgresql)")
+        missing("PostgreSQL server binaries (initdb, pg_ctl) not found", "the Debian package postgresql")
     root = Path(tempfile.mkdtemp(prefix="lfpg-"))
     data, sockets = root / "data", root / "s"
     sockets.mkdir()
@@ -88,7 +90,8 @@ def postgres_url() -> Iterator[str]:
     if os.geteuid() == 0:  # PostgreSQL refuses to run as root: run it as the postgres user
         runuser = shutil.which("runuser")
         if runuser is None:
-            pytest.skip("running as root without runuser: cannot start PostgreSQL")
+            missing("running as root without runuser: cannot start PostgreSQL as its own user",
+                    "the Debian package util-linux (runuser)")
         prefix = [runuser, "-u", "postgres", "--"]
         shutil.chown(root, "postgres")
         shutil.chown(sockets, "postgres")

@@ -29,12 +29,17 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.requirements import missing
+
 pytestmark = pytest.mark.browser
 
 CHROMIUM = Path(os.environ.get("LIDARFUZZ_CHROMIUM", "/usr/bin/chromium"))
 if not CHROMIUM.exists():
-    pytest.skip(f"{CHROMIUM} is missing (apt-get install chromium; .ci/run does)", allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is missing (pip install -e '.[test]')")
+    missing(f"{CHROMIUM} not found", "the Debian package chromium (.ci/run installs it)", module=True)
+try:
+    from playwright import sync_api
+except ImportError:
+    missing("Playwright not importable", "the Python package playwright (pip install -e '.[test]')", module=True)
 uvicorn = pytest.importorskip("uvicorn")
 
 from lidarfuzz.web.app import create_app  # noqa: E402

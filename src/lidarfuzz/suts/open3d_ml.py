@@ -1,5 +1,9 @@
 """Open3D-ML's PointPillars as a system under test (extra ``open3d``; CPU, ``torch==2.13.0``).
 
+``open3d.ml.torch`` refuses a PyTorch whose major.minor differs from the one Open3D was built
+against (``open3d-cpu`` 0.20.0: 2.13); that refusal is reported as one line naming both versions
+and the extra that pins a matching pair.
+
 The user supplies the checkpoint (lidarfuzz downloads nothing); the model's configuration is
 one of Open3D-ML's bundled YAML files (default ``pointpillars_kitti``) or a path to one.
 Checkpoints are read with ``torch.load(weights_only=True)``: plain tensors only, no code.
@@ -26,10 +30,18 @@ from lidarfuzz.suts.base import SystemUnderTest
 def _modules() -> tuple[Any, Any, Any]:
     try:
         import open3d
-        import open3d.ml.torch as ml3d
         import torch
     except (ImportError, OSError) as exc:
         raise MissingDependencyError("open3d-cpu", "open3d", f"Open3D-ML PointPillars ({exc})") from None
+    try:
+        import open3d.ml.torch as ml3d
+    except (ImportError, OSError) as exc:
+        raise MissingDependencyError("open3d-cpu", "open3d", f"Open3D-ML PointPillars ({exc})") from None
+    except RuntimeError as exc:  # open3d.ml.torch's own check: "Version mismatch: Open3D needs PyTorch ..."
+        built = getattr(open3d, "_build_config", {}).get("Pytorch_VERSION") or "of Open3D's build"
+        why = " ".join(str(exc).split())
+        raise MissingDependencyError(f"torch {built}", "open3d",
+                                     f"Open3D-ML PointPillars (open3d {open3d.__version__}: {why})") from None
     return open3d, ml3d, torch
 
 
@@ -105,7 +117,8 @@ class Open3DPointPillars(SystemUnderTest[Scene, Boxes3D]):
 
         model = self._model
         points = np.ascontiguousarray(sample.points.data[:, :4], dtype=np.float32)
-        data = {"point": points, "full_point": points, "feat": None, "calib": None, "bounding_boxes": []}
+        data: dict[str, Any] = {"point": points, "full_point": points, "feat": None, "calib": None,
+                                "bounding_boxes": []}
         attr = {"split": "test"}
         batch = model.transform(model.preprocess(data, attr), attr)
         inputs = ConcatBatcher("cpu", model="PointPillars").collate_fn([{"data": batch, "attr": attr}])
