@@ -1,4 +1,11 @@
-"""Root of the ``lidarfuzz`` command line: global options and command registration."""
+"""Root of the ``lidarfuzz`` command line: global options, and the commands assembled.
+
+Each command is a plain function in its own module (:mod:`lidarfuzz.cli.info`,
+:mod:`lidarfuzz.cli.campaign`, ...); this module only names and orders them. The command
+modules import the shared pieces from :mod:`lidarfuzz.cli.common`, never this module, and
+import heavy libraries (numpy, the engine, SQLAlchemy, FastAPI) inside the command bodies, so
+``lidarfuzz --help`` loads Typer, Rich and the command signatures only.
+"""
 
 from __future__ import annotations
 
@@ -6,10 +13,26 @@ import sys
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 
-from lidarfuzz import __version__
+from lidarfuzz.cli import (
+    campaign,
+    catalog,
+    convert,
+    coverage,
+    demo,
+    evaluate,
+    gen,
+    info,
+    operators,
+    relations,
+    replay,
+    reporting,
+    serve,
+    suts,
+    train,
+)
+from lidarfuzz.cli.common import console, err_console
 from lidarfuzz.errors import LidarfuzzError
 
 app = typer.Typer(
@@ -20,12 +43,12 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
-console = Console()
-err_console = Console(stderr=True)
 
 
 def _version(value: bool) -> None:
     if value:
+        from lidarfuzz import __version__
+
         console.print(f"lidarfuzz {__version__}")
         raise typer.Exit()
 
@@ -39,29 +62,40 @@ def root(
     """Test LiDAR perception software: mutate point clouds, run the system under test, report where it breaks."""
 
 
-def _register() -> None:
-    from lidarfuzz.cli import (
-        campaign,
-        catalog,
-        convert,
-        coverage,
-        demo,
-        evaluate,
-        gen,
-        info,
-        operators,
-        relations,
-        serve,
-        suts,
-        train,
-    )
+# In the order `lidarfuzz --help` lists them.
+app.command("demo")(demo.demo)
+app.command("gen")(gen.gen_command)
+app.command("info")(info.info)
+app.command("convert")(convert.convert_command)
+app.command("operators")(operators.operators_command)
+app.command("mutate")(operators.mutate_command)
+app.command("relations")(relations.relations_command)
+app.command("suts")(suts.suts_command)
+app.command("detect")(suts.detect_command)
+app.command("eval")(evaluate.eval_command)
+app.command("run")(campaign.run)
+app.command("resume")(campaign.resume)
+app.command("cancel")(campaign.cancel)
+app.command("delete")(campaign.delete)
+app.command("list")(campaign.list_tasks_command)
+app.command("status")(campaign.status)
+app.command("report")(reporting.report)
+app.command("replay")(replay.replay)
+app.command("profile")(coverage.profile)
+app.command("serve")(serve.serve)
+app.command("train")(train.train_command)
 
-    for module in (demo, gen, info, convert, operators, relations, suts, evaluate, catalog, campaign, coverage,
-                   serve, train):
-        module.register(app)
+datasets = typer.Typer(help="Data sets campaigns run on: add, list, remove.", no_args_is_help=True)
+datasets.command("add")(catalog.datasets_add)
+datasets.command("list")(catalog.datasets_list)
+datasets.command("remove")(catalog.datasets_remove)
+app.add_typer(datasets, name="datasets")
 
-
-_register()
+models = typer.Typer(help="Systems under test campaigns run against: add, list, remove.", no_args_is_help=True)
+models.command("add")(catalog.models_add)
+models.command("list")(catalog.models_list)
+models.command("remove")(catalog.models_remove)
+app.add_typer(models, name="models")
 
 
 def main() -> None:

@@ -8,14 +8,13 @@ violation summary, writes the HTML report (with JSON, CSV and JUnit XML beside i
 where. A second run reuses the world and, through the SUT output cache, every output.
 """
 
-from __future__ import annotations
-
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from lidarfuzz.cli.common import console
 from lidarfuzz.settings import settings
 
 DEFAULT_WORKSPACE = Path(settings().workspace)
@@ -27,7 +26,6 @@ DEMO_OPERATORS: tuple[str, ...] = ("gaussian_noise_addition", "uniform_point_del
 def build_world(root: Path, frames: int, seed: int, *, sequence: bool = False) -> tuple[Path, bool]:
     """The simulator's world — ``frames`` frames — under ``root``, generated on first use and
     reused while complete; returns the folder and whether it was generated now."""
-    from lidarfuzz.cli.app import console
     from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset, is_complete
 
     config = GenerationConfig(frames=frames, seed=seed, sequence=sequence)
@@ -38,51 +36,48 @@ def build_world(root: Path, frames: int, seed: int, *, sequence: bool = False) -
     return root, True
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def demo(
-        workspace: Annotated[Path, typer.Option(help="Folder for the demo's data, store and report "
-                                                "(env LIDARFUZZ_WORKSPACE).")] = DEFAULT_WORKSPACE,
-        frames: Annotated[int, typer.Option(min=1, max=1000, help="Frames of the simulated world.")] = 40,
-        seed: Annotated[int, typer.Option(help="Seed of the world and of the campaign.")] = 0,
-        workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")] = None,
-    ) -> None:
-        """Run the main job on the built-in data: the classic pipeline against every operator family.
+def demo(
+    workspace: Annotated[Path, typer.Option(help="Folder for the demo's data, store and report "
+                                            "(env LIDARFUZZ_WORKSPACE).")] = DEFAULT_WORKSPACE,
+    frames: Annotated[int, typer.Option(min=1, max=1000, help="Frames of the simulated world.")] = 40,
+    seed: Annotated[int, typer.Option(help="Seed of the world and of the campaign.")] = 0,
+    workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")] = None,
+) -> None:
+    """Run the main job on the built-in data: the classic pipeline against every operator family.
 
-        Simulates the world (first run only), runs originals and mutants (7 operators × severities
-        1, 3, 5) through the classic pipeline, checks every applicable metamorphic relation,
-        prints the AP table and the violation summary and writes the HTML report.
-        """
-        from sqlalchemy import select
+    Simulates the world (first run only), runs originals and mutants (7 operators × severities
+    1, 3, 5) through the classic pipeline, checks every applicable metamorphic relation,
+    prints the AP table and the violation summary and writes the HTML report.
+    """
+    from sqlalchemy import select
 
-        from lidarfuzz.campaign.spec import parse_campaign
-        from lidarfuzz.campaign.tasks import create_task
-        from lidarfuzz.cli.app import console
-        from lidarfuzz.cli.campaign import execute
-        from lidarfuzz.store import Dataset, Model, Store
-        from lidarfuzz.store.inventory import add_dataset, add_model
+    from lidarfuzz.campaign.spec import parse_campaign
+    from lidarfuzz.campaign.tasks import create_task
+    from lidarfuzz.cli.campaign import execute
+    from lidarfuzz.store import Dataset, Model, Store
+    from lidarfuzz.store.inventory import add_dataset, add_model
 
-        started = time.perf_counter()
-        name = f"sim-world-s{seed}-n{frames}"
-        dataset_dir, fresh = build_world(workspace / "datasets" / name, frames, seed)
-        state = "generated now" if fresh else "reused from an earlier run"
-        console.rule(f"[bold]the simulator's world: {frames} labelled frames in KITTI layout ({state})")
-        store = Store(workspace)
-        with store.session() as s:
-            have_data = s.scalar(select(Dataset).where(Dataset.name == name)) is not None
-            have_model = s.scalar(select(Model).where(Model.name == "classic")) is not None
-        if not have_data:
-            add_dataset(store, name, dataset_dir, notes="the demo's simulated world")
-        if not have_model:
-            add_model(store, "classic", "classic", notes="the classic Apollo-style obstacle pipeline")
-        spec = parse_campaign({"name": "demo", "dataset": name, "sut": "classic", "seed": seed,
-                               "operators": [{"name": op, "severities": [1, 3, 5]} for op in DEMO_OPERATORS]})
-        task_id = create_task(store, spec)
-        console.rule(f"[bold]campaign: classic pipeline × {len(DEMO_OPERATORS)} operators × 3 severities")
-        code = execute(str(workspace), task_id, workers=workers, inline=False)
-        console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
-        console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
-                      f"[cyan]lidarfuzz replay FINDING --workspace {workspace}[/]   "
-                      f"[cyan]lidarfuzz run --help[/]")
-        console.print(f"done in {time.perf_counter() - started:.1f} s")
-        raise typer.Exit(code)
+    started = time.perf_counter()
+    name = f"sim-world-s{seed}-n{frames}"
+    dataset_dir, fresh = build_world(workspace / "datasets" / name, frames, seed)
+    state = "generated now" if fresh else "reused from an earlier run"
+    console.rule(f"[bold]the simulator's world: {frames} labelled frames in KITTI layout ({state})")
+    store = Store(workspace)
+    with store.session() as s:
+        have_data = s.scalar(select(Dataset).where(Dataset.name == name)) is not None
+        have_model = s.scalar(select(Model).where(Model.name == "classic")) is not None
+    if not have_data:
+        add_dataset(store, name, dataset_dir, notes="the demo's simulated world")
+    if not have_model:
+        add_model(store, "classic", "classic", notes="the classic Apollo-style obstacle pipeline")
+    spec = parse_campaign({"name": "demo", "dataset": name, "sut": "classic", "seed": seed,
+                           "operators": [{"name": op, "severities": [1, 3, 5]} for op in DEMO_OPERATORS]})
+    task_id = create_task(store, spec)
+    console.rule(f"[bold]campaign: classic pipeline × {len(DEMO_OPERATORS)} operators × 3 severities")
+    code = execute(str(workspace), task_id, workers=workers, inline=False)
+    console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
+    console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
+                  f"[cyan]lidarfuzz replay FINDING --workspace {workspace}[/]   "
+                  f"[cyan]lidarfuzz run --help[/]")
+    console.print(f"done in {time.perf_counter() - started:.1f} s")
+    raise typer.Exit(code)

@@ -1,73 +1,80 @@
 """``lidarfuzz gen``: render a labelled KITTI-layout data set with the built-in simulator."""
 
-from __future__ import annotations
-
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
 
-from lidarfuzz.sim.sensor import preset_names
+from lidarfuzz.cli.common import console, print_table
+
+#: The simulator's sensor presets (lidarfuzz.sim.sensor.preset_names()), for the help text without
+#: importing the simulator (tests/cli checks that the two agree).
+SENSOR_PRESETS: tuple[str, ...] = ("HDL-64E", "HDL-32E", "VLP-16", "OS1-64")
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("gen")
-    def gen_command(
-        out: Annotated[Path, typer.Option("--out", "-o", help="New folder for the data set (KITTI layout).")],
-        frames: Annotated[int, typer.Option(min=1, max=1_000_000, help="Number of frames.")] = 100,
-        seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same bytes.")] = 0,
-        scene: Annotated[Path | None, typer.Option(help="Scene description (YAML/JSON) to render instead of "
-                                                   "generated scenes; its frames form a sequence.")] = None,
-        sensor: Annotated[str | None, typer.Option(help=f"Sensor preset ({', '.join(preset_names())}) or a "
-                                                   "YAML/JSON beam table; default: the scene's, else HDL-64E.")]
-        = None,
-        sequence: Annotated[bool, typer.Option(help="One generated scene driven through at 10 Hz, written as a "
-                                               "log with timestamps and poses (default: independent scenes).")]
-        = False,
-        kind: Annotated[str | None, typer.Option(help="Scene kind: urban or suburban (default: a mix).")] = None,
-        workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: CPU cores).")] = None,
-        val_fraction: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of frames in ImageSets/val.txt "
-                                                    "(the last ones).")] = 0.5,
-        overwrite: Annotated[bool, typer.Option(help="Replace an existing data set in OUT.")] = False,
-        resume: Annotated[bool, typer.Option(help="Finish an interrupted run into OUT (same options), keeping the "
-                                             "frames already written.")] = False,
-    ) -> None:
-        """Generate a labelled data set: procedural scenes (or your scene file) ray-cast with a spinning LiDAR.
+def gen_command(
+    out: Annotated[Path, typer.Option("--out", "-o", help="New folder for the data set (KITTI layout).")],
+    frames: Annotated[int, typer.Option(min=1, max=1_000_000, help="Number of frames.")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same bytes.")] = 0,
+    scene: Annotated[Path | None, typer.Option(help="Scene description (YAML/JSON) to render instead of "
+                                               "generated scenes; its frames form a sequence.")] = None,
+    sensor: Annotated[str | None, typer.Option(help=f"Sensor preset ({', '.join(SENSOR_PRESETS)}) or a "
+                                               "YAML/JSON beam table; default: the scene's, else HDL-64E.")]
+    = None,
+    sequence: Annotated[bool, typer.Option(help="One generated scene driven through at 10 Hz, written as a "
+                                           "log with timestamps and poses (default: independent scenes).")]
+    = False,
+    kind: Annotated[str | None, typer.Option(help="Scene kind: urban or suburban (default: a mix).")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: CPU cores).")] = None,
+    val_fraction: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of frames in ImageSets/val.txt "
+                                                "(the last ones).")] = 0.5,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing data set in OUT.")] = False,
+    resume: Annotated[bool, typer.Option(help="Finish an interrupted run into OUT (same options), keeping the "
+                                         "frames already written.")] = False,
+) -> None:
+    """Generate a labelled data set: procedural scenes (or your scene file) ray-cast with a spinning LiDAR.
 
-        Writes velodyne/, velodyne_extra/ (ring, time, semantic label, instance), label_2/ (with
-        truncation, occlusion and DontCare), label_2_extra/ (track ids, points per object), calib/,
-        roi/ (drivable area), ImageSets/ (train/val), scenes/ (each frame's scene description) and,
-        for a sequence, timestamps.txt and poses.txt.
-        """
-        from lidarfuzz.cli.app import console
-        from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
-        from lidarfuzz.sim.spec import load_scene
+    Writes velodyne/, velodyne_extra/ (ring, time, semantic label, instance), label_2/ (with
+    truncation, occlusion and DontCare), label_2_extra/ (track ids, points per object), calib/,
+    roi/ (drivable area), ImageSets/ (train/val), scenes/ (each frame's scene description) and,
+    for a sequence, timestamps.txt and poses.txt.
+    """
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.table import Table
 
-        if kind is not None and kind not in ("urban", "suburban"):
-            raise typer.BadParameter(f"{kind!r} is not one of urban, suburban", param_hint="--kind")
-        if overwrite and resume:
-            raise typer.BadParameter("choose one of --overwrite and --resume", param_hint="--resume")
-        spec = load_scene(scene) if scene is not None else None
-        config = GenerationConfig(frames=frames, seed=seed, scene=spec, sensor=sensor, sequence=sequence, kind=kind,
-                                  val_fraction=val_fraction)
-        columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
-                   TimeElapsedColumn(), TimeRemainingColumn())
-        try:
-            with Progress(*columns, console=console, transient=True) as progress:
-                task = progress.add_task("rendering", total=frames)
-                summary = generate_dataset(out, config, workers=workers, overwrite=overwrite, resume=resume,
-                                           on_frame=lambda _result: progress.advance(task))
-        except KeyboardInterrupt:
-            console.print(f"interrupted: the frames written so far are kept; finish with the same command "
-                          f"and [bold]--resume[/] (out: {out})")
-            raise typer.Exit(130) from None
-        table = Table("class", "objects", title=f"labels in {summary.frames} frame(s)")
-        for name, count in sorted(summary.label_counts.items(), key=lambda kv: -kv[1]):
-            table.add_row(name, str(count))
-        console.print(table)
-        kept = f", {summary.resumed} kept from the interrupted run" if summary.resumed else ""
-        rate = summary.generated / summary.seconds if summary.seconds > 0 else 0.0
-        console.print(f"wrote {summary.frames} frame(s) to [bold]{summary.root}[/] in {summary.seconds:.1f} s "
-                      f"({rate:.1f} frames/s{kept}); {summary.points_per_frame:,.0f} points per frame")
+    from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
+    from lidarfuzz.sim.spec import load_scene
+
+    if kind is not None and kind not in ("urban", "suburban"):
+        raise typer.BadParameter(f"{kind!r} is not one of urban, suburban", param_hint="--kind")
+    if overwrite and resume:
+        raise typer.BadParameter("choose one of --overwrite and --resume", param_hint="--resume")
+    spec = load_scene(scene) if scene is not None else None
+    config = GenerationConfig(frames=frames, seed=seed, scene=spec, sensor=sensor, sequence=sequence, kind=kind,
+                              val_fraction=val_fraction)
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
+               TimeElapsedColumn(), TimeRemainingColumn())
+    try:
+        with Progress(*columns, console=console, transient=True) as progress:
+            task = progress.add_task("rendering", total=frames)
+            summary = generate_dataset(out, config, workers=workers, overwrite=overwrite, resume=resume,
+                                       on_frame=lambda _result: progress.advance(task))
+    except KeyboardInterrupt:
+        console.print(f"interrupted: the frames written so far are kept; finish with the same command "
+                      f"and [bold]--resume[/] (out: {out})")
+        raise typer.Exit(130) from None
+    table = Table("class", "objects", title=f"labels in {summary.frames} frame(s)")
+    for name, count in sorted(summary.label_counts.items(), key=lambda kv: -kv[1]):
+        table.add_row(name, str(count))
+    print_table(table)
+    kept = f", {summary.resumed} kept from the interrupted run" if summary.resumed else ""
+    rate = summary.generated / summary.seconds if summary.seconds > 0 else 0.0
+    console.print(f"wrote {summary.frames} frame(s) to [bold]{summary.root}[/] in {summary.seconds:.1f} s "
+                  f"({rate:.1f} frames/s{kept}); {summary.points_per_frame:,.0f} points per frame")

@@ -1,20 +1,20 @@
 """``lidarfuzz info PATH``: what a frame file, data set folder or log holds, and what is wrong with it."""
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.table import Table
 
-from lidarfuzz.cli.catalog import AllowUnlabelledOption, LayoutOption
-from lidarfuzz.io.inspect import DatasetReport, inspect_source
+from lidarfuzz.cli.common import AllowUnlabelledOption, LayoutOption, console, print_table
+
+if TYPE_CHECKING:
+    from lidarfuzz.io.inspect import DatasetReport
 
 
-def render(report: DatasetReport) -> None:
-    from lidarfuzz.cli.app import console
+def render(report: "DatasetReport") -> None:
+    """Print an inspection report: the summary lines, the channel, label and topic tables, the problems."""
+    from rich.table import Table
 
     status = []
     if report.unreadable:
@@ -33,12 +33,12 @@ def render(report: DatasetReport) -> None:
         table = Table("channel", "min", "max", title="channels")
         for name, stats in report.channels.items():
             table.add_row(name, f"{stats.minimum:.4g}", f"{stats.maximum:.4g}")
-        console.print(table)
+        print_table(table)
     if report.classes:
         table = Table("class", "objects", title=f"labels ({report.labelled_frames} labelled frame(s))")
         for name, count in sorted(report.classes.items()):
             table.add_row(name, str(count))
-        console.print(table)
+        print_table(table)
     if report.unlabelled_frames:
         console.print(f"[yellow]unlabelled frames (no label file): {report.unlabelled_frames}[/] — info, detect, "
                       "mutate and convert use them; run scores AP without them only with --allow-unlabelled")
@@ -48,7 +48,7 @@ def render(report: DatasetReport) -> None:
         table = Table("topic", "type", "messages", title=f"log topics ({report.log.get('format')})")
         for topic in report.log.get("topics", []):
             table.add_row(topic.get("name", ""), topic.get("type", ""), str(topic.get("count", "")))
-        console.print(table)
+        print_table(table)
     if report.problems:
         console.print(f"[bold]{len(report.problems)} problem(s):[/]")
         for problem in report.problems[:50]:
@@ -60,35 +60,33 @@ def render(report: DatasetReport) -> None:
         console.print("[green]no problems found[/]")
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def info(
-        path: Annotated[Path, typer.Argument(help="A frame file, a data set folder (KITTI layout or frame files), "
-                                             "a ROS1/ROS2 bag or an MCAP file.")],
-        topic: Annotated[str | None, typer.Option(help="PointCloud2 topic of a log (default: the only one).")] = None,
-        limit: Annotated[int | None, typer.Option(min=1, help="Inspect only the first N frames.")] = None,
-        json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report as JSON to this file "
-                                                      "('-' for standard output).")] = None,
-        layout: LayoutOption = None,
-        allow_unlabelled: AllowUnlabelledOption = False,
-    ) -> None:
-        """Summarise a frame, data set or log: counts, channels and ranges, classes, problems found.
+def info(
+    path: Annotated[Path, typer.Argument(help="A frame file, a data set folder (KITTI layout or frame files), "
+                                         "a ROS1/ROS2 bag or an MCAP file.")],
+    topic: Annotated[str | None, typer.Option(help="PointCloud2 topic of a log (default: the only one).")] = None,
+    limit: Annotated[int | None, typer.Option(min=1, help="Inspect only the first N frames.")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the report as JSON to this file "
+                                                  "('-' for standard output).")] = None,
+    layout: LayoutOption = None,
+    allow_unlabelled: AllowUnlabelledOption = False,
+) -> None:
+    """Summarise a frame, data set or log: counts, channels and ranges, classes, problems found.
 
-        Exits with code 1 when an error-level problem is found, so scripts can gate on it. Frames
-        without a label file in a labelled data set are a warning (only AP needs labels); with
-        --allow-unlabelled they are counted without one.
-        """
-        from lidarfuzz.cli.app import console
-        from lidarfuzz.io.options import options_from_flags
+    Exits with code 1 when an error-level problem is found, so scripts can gate on it. Frames
+    without a label file in a labelled data set are a warning (only AP needs labels); with
+    --allow-unlabelled they are counted without one.
+    """
+    from lidarfuzz.io.inspect import inspect_source
+    from lidarfuzz.io.options import options_from_flags
 
-        report = inspect_source(path, topic=topic, limit=limit, options=options_from_flags(layout, allow_unlabelled))
-        if allow_unlabelled:
-            report.problems = [p for p in report.problems if not p.message.endswith(": unlabelled")]
-        if json_out is not None and str(json_out) == "-":
-            console.print_json(json.dumps(report.as_dict()))
-        else:
-            render(report)
-            if json_out is not None:
-                json_out.write_text(json.dumps(report.as_dict(), indent=2), encoding="utf-8")
-        if report.errors:
-            raise typer.Exit(1)
+    report = inspect_source(path, topic=topic, limit=limit, options=options_from_flags(layout, allow_unlabelled))
+    if allow_unlabelled:
+        report.problems = [p for p in report.problems if not p.message.endswith(": unlabelled")]
+    if json_out is not None and str(json_out) == "-":
+        console.print_json(json.dumps(report.as_dict()))
+    else:
+        render(report)
+        if json_out is not None:
+            json_out.write_text(json.dumps(report.as_dict(), indent=2), encoding="utf-8")
+    if report.errors:
+        raise typer.Exit(1)

@@ -1,87 +1,103 @@
 """``lidarfuzz operators`` (what exists) and ``lidarfuzz mutate`` (apply one)."""
 
-from __future__ import annotations
-
 import inspect
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
-from rich.progress import Progress
-from rich.table import Table
 
-from lidarfuzz.cli.catalog import LayoutOption
-from lidarfuzz.operators.catalogue import format_value, severity_rows
+from lidarfuzz.cli.common import Column, JsonOption, LayoutOption, PlainOption, console, print_listing, print_table
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("operators")
-    def operators_command(
-        name: Annotated[str | None, typer.Argument(help="Show one operator in full (name or alias).")] = None,
-    ) -> None:
-        """List the mutation operators: family, relation, targets, parameters and severity table."""
-        from lidarfuzz.cli.app import console
-        from lidarfuzz.operators import available, get
+def operators_command(
+    name: Annotated[str | None, typer.Argument(help="Show one operator in full (name or alias).")] = None,
+    as_json: JsonOption = False,
+    plain: PlainOption = False,
+) -> None:
+    """List the mutation operators: family, relation, targets, parameters and severity table."""
+    from lidarfuzz.operators import available, get
+    from lidarfuzz.operators.catalogue import format_value, severity_rows
 
-        if name is not None:
-            cls = get(name)
-            console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.family}, "
-                          f"{cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
-            console.print(inspect.getdoc(cls) or "")
-            table = Table("parameter", "description", *(f"severity {s}" for s in (0, *cls.SEVERITIES)))
-            for field, description, values in severity_rows(cls):
-                table.add_row(field, description, *values)
-            console.print(table)
+    if name is not None:
+        cls = get(name)
+        if as_json or plain:
+            rows = [[field, description, *values] for field, description, values in severity_rows(cls)]
+            record = {**_record(cls), "doc": inspect.getdoc(cls) or "",
+                      "parameters": [{"name": row[0], "description": row[1], "severities": row[2:]} for row in rows]}
+            print_listing([], rows, record, as_json=as_json, plain=plain)
             return
-        table = Table("name", "aliases", "family", "relation", "changes", "severity 1 … 5")
-        for op_name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
-            low, high = cls.SEVERITIES.get(1, {}), cls.SEVERITIES.get(max(cls.SEVERITIES, default=1), {})
-            span = "; ".join(f"{k} {format_value(low[k])} … {format_value(high.get(k))}" for k in low)
-            table.add_row(op_name, ", ".join(cls.aliases), cls.family, cls.relation.value,
-                          ", ".join(sorted(t.value for t in cls.targets)), span)
-        console.print(table)
-        console.print("details: [cyan]lidarfuzz operators NAME[/]")
+        from rich.table import Table
 
-    @app.command("mutate")
-    def mutate_command(
-        src: Annotated[Path, typer.Argument(help="Frame file, data set folder or log to mutate (never modified).")],
-        dst: Annotated[Path, typer.Argument(help="Where to write the mutants (any destination `convert` takes).")],
-        op: Annotated[str, typer.Option("--op", help="Operator name or alias (see lidarfuzz operators).")],
-        severity: Annotated[int | None, typer.Option(min=0, max=5, help="Severity 0–5 (default 3).")] = None,
-        param: Annotated[list[str] | None, typer.Option(help="Config field as key=value (repeatable), e.g. "
-                                                        "ratio=0.2 or angle_range=[10,20]; instead of "
-                                                        "--severity.")] = None,
-        seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same mutants.")] = 0,
-        to: Annotated[str | None, typer.Option(help="Destination format, as for convert.")] = None,
-        overwrite: Annotated[bool, typer.Option(help="Replace an existing destination.")] = False,
-        interleave: Annotated[bool, typer.Option(help="For a log: write a new log with each mutant after its "
-                                                 "source frame (Neves et al.); with --op AVG, each average of "
-                                                 "two consecutive frames between them.")] = False,
-        layout: LayoutOption = None,
-    ) -> None:
-        """Apply one operator to every frame; labels are updated with the points and each frame's
-        concrete params are saved (mutations.jsonl) so every mutant replays exactly."""
-        from lidarfuzz.cli.app import console
-        from lidarfuzz.io.options import options_from_flags
-        from lidarfuzz.operators.lidar.log import FrameAverage
-        from lidarfuzz.operators.mutate import build_operator, is_frame_average, mutate, mutate_log, parse_assignments
+        console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.family}, "
+                      f"{cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
+        console.print(inspect.getdoc(cls) or "")
+        table = Table("parameter", "description", *(f"severity {s}" for s in (0, *cls.SEVERITIES)))
+        table.columns[0].no_wrap, table.columns[0].overflow = True, "fold"
+        for field, description, values in severity_rows(cls):
+            table.add_row(field, description, *values)
+        print_table(table)
+        return
+    rows: list[list[str]] = []
+    records: list[dict[str, Any]] = []
+    for op_name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+        low, high = cls.SEVERITIES.get(1, {}), cls.SEVERITIES.get(max(cls.SEVERITIES, default=1), {})
+        span = "; ".join(f"{k} {format_value(low[k])} … {format_value(high.get(k))}" for k in low)
+        rows.append([op_name, ", ".join(cls.aliases), cls.family, cls.relation.value,
+                     ", ".join(sorted(t.value for t in cls.targets)), span])
+        records.append({**_record(cls), "name": op_name})
+    columns = [Column("name", name=True), Column("aliases"), Column("family"), Column("relation"),
+               Column("changes"), Column("severity 1 … 5")]
+    print_listing(columns, rows, records, as_json=as_json, plain=plain,
+                  footer="details: [cyan]lidarfuzz operators NAME[/]")
 
-        options = options_from_flags(layout)
-        if is_frame_average(op):
-            if not interleave:
-                raise typer.BadParameter("AVG combines consecutive frames of a log: add --interleave",
-                                         param_hint="--op")
-            written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite, options=options)
-            console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
-            return
-        operator = build_operator(op, severity, parse_assignments(param or []))
-        if interleave:
-            written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options)
-            console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
-            return
-        with Progress(console=console, transient=True) as progress:
-            task = progress.add_task(f"mutating ({operator.name})", total=None)
-            result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options,
-                            on_frame=lambda done, total: progress.update(task, completed=done, total=total))
-        console.print(f"wrote {result.conversion.frames} mutant(s) of {src} to {result.conversion.destination} "
-                      f"({result.conversion.target}); params: {result.record}")
+
+def _record(cls: Any) -> dict[str, Any]:
+    """An operator class as JSON: names, family, relation, targets and its parameters at each severity."""
+    return {"name": cls.name, "aliases": list(cls.aliases), "family": cls.family, "relation": cls.relation.value,
+            "targets": sorted(t.value for t in cls.targets),
+            "severities": {str(level): params for level, params in sorted(cls.SEVERITIES.items())}}
+
+
+def mutate_command(
+    src: Annotated[Path, typer.Argument(help="Frame file, data set folder or log to mutate (never modified).")],
+    dst: Annotated[Path, typer.Argument(help="Where to write the mutants (any destination `convert` takes).")],
+    op: Annotated[str, typer.Option("--op", help="Operator name or alias (see lidarfuzz operators).")],
+    severity: Annotated[int | None, typer.Option(min=0, max=5, help="Severity 0–5 (default 3).")] = None,
+    param: Annotated[list[str] | None, typer.Option(help="Config field as key=value (repeatable), e.g. "
+                                                    "ratio=0.2 or angle_range=[10,20]; instead of "
+                                                    "--severity.")] = None,
+    seed: Annotated[int, typer.Option(help="Seed: the same seed gives the same mutants.")] = 0,
+    to: Annotated[str | None, typer.Option(help="Destination format, as for convert.")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing destination.")] = False,
+    interleave: Annotated[bool, typer.Option(help="For a log: write a new log with each mutant after its "
+                                             "source frame (Neves et al.); with --op AVG, each average of "
+                                             "two consecutive frames between them.")] = False,
+    layout: LayoutOption = None,
+) -> None:
+    """Apply one operator to every frame; labels are updated with the points and each frame's
+    concrete params are saved (mutations.jsonl) so every mutant replays exactly."""
+    from rich.progress import Progress
+
+    from lidarfuzz.io.options import options_from_flags
+    from lidarfuzz.operators.lidar.log import FrameAverage
+    from lidarfuzz.operators.mutate import build_operator, is_frame_average, mutate, mutate_log, parse_assignments
+
+    options = options_from_flags(layout)
+    if is_frame_average(op):
+        if not interleave:
+            raise typer.BadParameter("AVG combines consecutive frames of a log: add --interleave",
+                                     param_hint="--op")
+        written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite, options=options)
+        console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
+        return
+    operator = build_operator(op, severity, parse_assignments(param or []))
+    if interleave:
+        written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options)
+        console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
+        return
+    with Progress(console=console, transient=True) as progress:
+        task = progress.add_task(f"mutating ({operator.name})", total=None)
+        result = mutate(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options,
+                        on_frame=lambda done, total: progress.update(task, completed=done, total=total))
+    console.print(f"wrote {result.conversion.frames} mutant(s) of {src} to {result.conversion.destination} "
+                  f"({result.conversion.target}); params: {result.record}")

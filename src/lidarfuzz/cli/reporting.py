@@ -1,0 +1,161 @@
+"""``lidarfuzz report``: a task's report files, and the tables ``run``, ``resume`` and ``report`` print."""
+
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.markup import escape
+
+from lidarfuzz.cli.common import WORKSPACE, WorkspaceOption, console, open_store, print_table
+
+
+def fmt(value: float | None, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    return f"{value:.{digits}f}"
+
+
+def reports_dir(workspace: str, task_id: int) -> Path:
+    """Where a task's report goes: under the workspace folder, or ./lidarfuzz-reports for a database URL."""
+    base = Path("lidarfuzz-reports") if "://" in workspace else Path(workspace) / "reports"
+    return base / f"task-{task_id}"
+
+
+def write_report(store: Any, task_id: int, out: Path, gates: list[str], baseline: int | None = None) -> int:
+    """Write a task's report into ``out`` and say where; returns 1 when a gate failed, else 0."""
+    try:
+        from lidarfuzz.report import parse_gate
+        from lidarfuzz.report import write_report as write
+    except ImportError:  # pragma: no cover - the report package is part of lidarfuzz
+        console.print("[yellow]the report package is not available[/]")
+        return 0
+    files = write(store, task_id, out, baseline=baseline, gates=[parse_gate(g) for g in gates])
+    console.print(f"report: [bold]{escape(str(Path(files.html).resolve()))}[/]  "
+                  f"(JSON, CSV and JUnit XML beside it)")
+    if not files.passed:
+        console.print("[red]gates failed[/] (see junit.xml)")
+        return 1
+    return 0
+
+
+def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> None:
+    """The thesis's AP table (3D, BEV and bbox AP|R40) and the violation summary."""
+    from rich.table import Table
+
+    from lidarfuzz.campaign.results import summarise
+
+    data = summarise(store, task_id)
+    classes = data["classes"]
+    table = Table(title=f"KITTI AP|R40, {difficulty} (task {task_id})", show_lines=False)
+    table.add_column("subtask", no_wrap=True, overflow="fold")
+    table.add_column("metric")
+    for cls in [*classes, "mAP"]:
+        table.add_column(cls, justify="right")
+    table.add_column("Δ3D mAP", justify="right")
+    clean = data["subtasks"][0].get("ap")
+    for entry in data["subtasks"]:
+        ap = entry.get("ap")
+        if ap is None:
+            continue
+        for i, metric in enumerate(("bbox", "bev", "3d")):
+            row = [fmt(ap["ap"][metric][c][difficulty]["R40"]) for c in classes]
+            row.append(fmt(ap["map"][metric][difficulty]["R40"]))
+            delta = ""
+            if metric == "3d" and clean is not None and entry is not data["subtasks"][0]:
+                d = ap["map"]["3d"][difficulty]["R40"] - clean["map"]["3d"][difficulty]["R40"]
+                delta = f"[red]{d:+.1f}[/]" if d < -0.05 else f"{d:+.1f}"
+            table.add_row(entry["label"] if i == 0 else "", metric.upper() if metric != "bbox" else "bbox", *row,
+                          delta, end_section=metric == "3d")
+    if clean is None:
+        console.print("[yellow]the data set has no labels: no AP (relations still apply)[/]")
+    else:
+        print_table(table)
+    excluded = data["subtasks"][0].get("ap_excluded")
+    if data["task"].get("unlabelled_frames") and excluded:
+        console.print(f"[yellow]AP from the labelled frames only: {excluded['frames']} frame(s) without a label "
+                      f"file left out ({', '.join(excluded['examples'])}"
+                      f"{', …' if excluded['frames'] > len(excluded['examples']) else ''}); every frame ran "
+                      "through the system and the relations[/]")
+    for note in data.get("ap_warnings", []):
+        console.print(f"[yellow]AP warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
+    rates = Table(title="metamorphic relations: frames violated / checked (rate)")
+    rates.add_column("operator", no_wrap=True, overflow="fold")
+    relations = [r["relation"] for r in data["violations"]["relation"]]
+    for relation in relations:
+        rates.add_column(relation, justify="right")
+    by = {(r["relation"], r["operator"]): r for r in data["violations"]["relation_operator"]}
+
+    def cell(r: dict[str, Any] | None) -> str:
+        if r is None:
+            return ""
+        text = f"{r['violated']}/{r['checked']} ({fmt(None if r['rate'] is None else 100 * r['rate'], 0)}%)"
+        return f"[red]{text}[/]" if r["violated"] else text
+
+    for op in sorted({r["operator"] for r in data["violations"]["relation_operator"]}):
+        rates.add_row(op, *[cell(by.get((relation, op))) for relation in relations])
+    rates.add_row("all", *[cell(r) for r in data["violations"]["relation"]], style="bold")
+    print_table(rates)
+    kinds = data["findings"]["by_kind"]
+    failures = {k: v for k, v in kinds.items() if k in ("crash", "timeout", "invalid_output", "operator_error")}
+    console.print(f"findings: {data['findings']['total']} "
+                  f"({', '.join(f'{k} {v}' for k, v in sorted(kinds.items())) or 'none'})"
+                  + (f"; [red]system failures: {failures}[/]" if failures else ""))
+    print_search(store, task_id)
+
+
+def print_search(store: Any, task_id: int) -> None:
+    """A guided / fuzz task's coverage and search statistics."""
+    from rich.table import Table
+
+    from lidarfuzz.campaign.tasks import get_task
+
+    task = get_task(store, task_id)
+    kind = task.options.get("kind", "mutation")
+    sub = next((s for s in task.subtasks if s.name == kind), None)
+    if sub is None or "search" not in sub.results:
+        return
+    info = sub.results["search"]
+    seeds = next((s for s in task.subtasks if s.name != kind), None)
+    table = Table(title=f"{kind} search: neuron coverage (task {task_id})")
+    table.add_column("criterion")
+    table.add_column("seeds alone", justify="right")
+    table.add_column("after the search", justify="right")
+    seed_cov: dict[str, float] = {}
+    if seeds is not None:
+        from sqlalchemy import select
+
+        from lidarfuzz.store.models import FrameResult
+
+        with store.session() as s:
+            last = s.scalars(select(FrameResult.params).where(FrameResult.subtask_id == seeds.id).order_by(
+                FrameResult.id.desc()).limit(1)).first()
+        seed_cov = (last or {}).get("coverage", {})
+    for name, value in info["coverage"].items():
+        show = (lambda v: f"{v:.0f} patterns") if name == "tknp" else (lambda v: f"{100 * v:.1f}%")
+        before = seed_cov.get(name)
+        table.add_row(name.upper(), "" if before is None else show(before), show(value))
+    print_table(table)
+    st = info["stats"]
+    console.print(f"tests {st['tests']}: accepted (new coverage) {st['accepted']}, invalid {st['invalid']}, "
+                  f"violating {st['violating']}; unique findings {st['findings']}"
+                  + (f" (minimising took {st['minimise_runs']} extra runs)" if st.get("minimise_runs") else ""))
+
+
+def report(
+    task: int,
+    out: Annotated[Path | None, typer.Option(help="Folder for report.html, JSON, CSV and JUnit XML "
+                                                  "(default: <workspace>/reports/task-ID).")] = None,
+    baseline: Annotated[int | None, typer.Option(help="A task of a baseline system on the same campaign "
+                                                      "(for Robo3D's corruption error, CE/mCE).")] = None,
+    gate: Annotated[list[str] | None, typer.Option(help="JUnit gate, e.g. ap_drop:3d:Car:fog@3>10 or "
+                                                        "violations:preservation>0 (repeatable).")] = None,
+    quiet: Annotated[bool, typer.Option(help="Do not print the tables.")] = False,
+    workspace: WorkspaceOption = WORKSPACE,
+) -> None:
+    """Write a task's report (self-contained HTML, JSON, CSV, JUnit XML) and print its tables."""
+    store = open_store(workspace)
+    if not quiet:
+        print_summary(store, task)
+    target = out or reports_dir(workspace, task)
+    raise typer.Exit(write_report(store, task, target, gate or [], baseline))
