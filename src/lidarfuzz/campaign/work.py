@@ -197,76 +197,94 @@ class Worker:
 
     # -- one unit ---------------------------------------------------------------------
     def run(self, unit: WorkUnit) -> UnitResult:
-        from lidarfuzz.operators.base import generator
-        from lidarfuzz.suts.guard import run_guarded
-
-        timings: dict[str, float] = {}
+        """Load the source frame, mutate it, detect (or find the output cached), check the
+        relations and save the mutant — each step timed in ``result.timings``."""
         result = UnitResult(unit)
+        timings = result.timings
         t0 = time.perf_counter()
         source = self.load(unit.frame_id)
         timings["load"] = time.perf_counter() - t0
-        follow, operator, params = source, None, None
-        if unit.operator is not None:
+        mutated = self._mutate(unit, source, result)
+        if mutated is None:
+            return result  # the operator failed on this frame: recorded as its failure
+        follow, operator, params = mutated
+        result.gt_boxes, result.gt_labels = encode_boxes(follow.boxes)
+        output = self._detect(unit, source, follow, result)
+        if operator is not None and output is not None and unit.relations and not unit.source_failed:
+            self._check_relations(unit, source, follow, output, operator, params, result)
+        if self.context.save_mutants and operator is not None:
             t0 = time.perf_counter()
-            try:
-                operator = self.operator(unit.operator)
-                if unit.params is not None:
-                    params = operator.parse_params(unit.params)
-                    follow = operator.apply(source, params)
-                else:
-                    follow, params = operator(source, generator(unit.seed, unit.frame_id, unit.op_index, unit.trial))
-            except Exception as exc:  # an operator that fails on this frame is a finding, not a crash
-                result.failure = {"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
-                result.timings = timings
-                return result
-            result.params = json_safe(params.model_dump(mode="json"))
-            timings["mutate"] = time.perf_counter() - t0
-        gt_blob, gt_labels = encode_boxes(follow.boxes)
-        result.gt_boxes, result.gt_labels = gt_blob, gt_labels
+            self._save(unit, follow)
+            timings["save"] = time.perf_counter() - t0
+        return result
+
+    def _mutate(self, unit: WorkUnit, source: Scene, result: UnitResult) -> tuple[Scene, Any, Any] | None:
+        """The frame the system sees, its operator and params (the source itself, None, None for an
+        original); None when the operator fails on this frame (``result.failure`` says how)."""
+        if unit.operator is None:
+            return source, None, None
+        from lidarfuzz.operators.base import generator
+
+        t0 = time.perf_counter()
+        try:
+            operator = self.operator(unit.operator)
+            if unit.params is not None:
+                params = operator.parse_params(unit.params)
+                follow = operator.apply(source, params)
+            else:
+                follow, params = operator(source, generator(unit.seed, unit.frame_id, unit.op_index, unit.trial))
+        except Exception as exc:  # an operator that fails on this frame is a finding, not a crash
+            result.failure = {"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
+            return None
+        result.params = json_safe(params.model_dump(mode="json"))
+        result.timings["mutate"] = time.perf_counter() - t0
+        return follow, operator, params
+
+    def _detect(self, unit: WorkUnit, source: Scene, follow: Scene, result: UnitResult) -> Any:
+        """The system's output on ``follow``: from the cache when this input was seen before, else
+        run guarded (a crash, timeout or invalid output is ``result.failure``, and None returned)."""
+        from lidarfuzz.suts.guard import run_guarded
 
         t0 = time.perf_counter()
         digest = self.digest(source)
         key = digest if unit.operator is None else mutant_key(digest, unit.operator, result.params)
         result.input_key = key
         hit = self._cached(key)
-        timings["cache"] = time.perf_counter() - t0
-        output = None
+        result.timings["cache"] = time.perf_counter() - t0
         if hit is not None:
             result.boxes, result.labels = hit
             result.cached = True
-            output = decode_boxes(*hit)
-        else:
-            t0 = time.perf_counter()
-            outcome = run_guarded(self.sut, follow)
-            timings["detect"] = time.perf_counter() - t0
-            result.seconds = outcome.seconds
-            if outcome.failure is not None:
-                result.failure = outcome.failure.to_dict()
-            else:
-                output = outcome.output
-                result.boxes, result.labels = encode_boxes(output)
+            return decode_boxes(*hit)
+        t0 = time.perf_counter()
+        outcome = run_guarded(self.sut, follow)
+        result.timings["detect"] = time.perf_counter() - t0
+        result.seconds = outcome.seconds
+        if outcome.failure is not None:
+            result.failure = outcome.failure.to_dict()
+            return None
+        output = outcome.output
+        assert output is not None  # run_guarded gives an output or a failure
+        result.boxes, result.labels = encode_boxes(output)
+        return output
 
-        if operator is not None and output is not None and unit.relations and not unit.source_failed:
-            from lidarfuzz.operators.base import Relation
-            from lidarfuzz.oracles.relations.base import Pair
+    def _check_relations(self, unit: WorkUnit, source: Scene, follow: Scene, output: Any, operator: Any,
+                         params: Any, result: UnitResult) -> None:
+        """Every relation of the unit on (source, its output; mutant, its output), into
+        ``result.relations``; a relation that raises is an ``oracle_error`` failure."""
+        from lidarfuzz.operators.base import Relation
+        from lidarfuzz.oracles.relations.base import Pair
 
-            t0 = time.perf_counter()
-            kind = Relation(unit.operator_relation) if unit.operator_relation else operator.relation
-            pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
-                        operator_relation=kind, transform=operator.transform(params))
-            for spec in unit.relations:
-                try:
-                    result.relations.append(json_safe(self.relation(spec)(pair).to_dict()))
-                except Exception as exc:  # a broken oracle is reported, and the campaign goes on
-                    result.failure = {"kind": "oracle_error", "detail": spec.get("name", ""),
-                                      "message": f"relation {spec.get('name')}: {type(exc).__name__}: {exc}"}
-            timings["relations"] = time.perf_counter() - t0
-        if self.context.save_mutants and operator is not None:
-            t0 = time.perf_counter()
-            self._save(unit, follow)
-            timings["save"] = time.perf_counter() - t0
-        result.timings = timings
-        return result
+        t0 = time.perf_counter()
+        kind = Relation(unit.operator_relation) if unit.operator_relation else operator.relation
+        pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
+                    operator_relation=kind, transform=operator.transform(params))
+        for spec in unit.relations:
+            try:
+                result.relations.append(json_safe(self.relation(spec)(pair).to_dict()))
+            except Exception as exc:  # a broken oracle is reported, and the campaign goes on
+                result.failure = {"kind": "oracle_error", "detail": spec.get("name", ""),
+                                  "message": f"relation {spec.get('name')}: {type(exc).__name__}: {exc}"}
+        result.timings["relations"] = time.perf_counter() - t0
 
     def _save(self, unit: WorkUnit, mutant: Scene) -> None:
         from lidarfuzz.io.kitti import write_kitti_frame
