@@ -43,7 +43,7 @@ def ensure_data() -> list[str]:
 
 
 def setup(relations: list[Any] | None = None) -> tuple[Any, Any, Any]:
-    from lidarfuzz.campaign.search import coverage_profile
+    from lidarfuzz.campaign.coverage_search import coverage_profile, profile_dirs
     from lidarfuzz.coverage import ActivationRecorder
     from lidarfuzz.io.kitti import open_kitti
     from lidarfuzz.oracles.relations.registry import from_spec
@@ -54,7 +54,7 @@ def setup(relations: list[Any] | None = None) -> tuple[Any, Any, Any]:
     sut.load()
     evaluator = SearchEvaluator(open_kitti(DATA), sut, relations or [from_spec("preservation")],
                                 ActivationRecorder(sut.module))
-    return sut, evaluator, coverage_profile(sut.module)
+    return sut, evaluator, coverage_profile(sut.module, profile_dirs(sut))
 
 
 #: Text after this heading is written by hand (a manual look at results) and kept when a page is regenerated.

@@ -13,9 +13,9 @@ pytest.importorskip("torch")
 from sqlalchemy import select
 from typer.testing import CliRunner
 
+from lidarfuzz.campaign.coverage_search import MINIMISED
 from lidarfuzz.campaign.replay import replay_finding
 from lidarfuzz.campaign.runner import run_task
-from lidarfuzz.campaign.search import MINIMISED
 from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import create_task, get_task, list_tasks
 from lidarfuzz.cli.app import app

@@ -15,11 +15,12 @@ from typing import Any
 from sqlalchemy import select
 
 from lidarfuzz.campaign.codec import decode_boxes
-from lidarfuzz.campaign.tasks import ORIGINAL
+from lidarfuzz.campaign.plan import ORIGINAL
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
 from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
-from lidarfuzz.store.store import Store, StoreError
+from lidarfuzz.store.store import Store
 
 
 @dataclass
@@ -49,7 +50,7 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
     with store.session() as s:
         finding = s.get(Finding, finding_id)
         if finding is None:
-            raise StoreError(f"no finding {finding_id} (lidarfuzz report TASK lists them)")
+            raise NotFoundError(f"no finding {finding_id} (lidarfuzz report TASK lists them)")
         row = s.get(FrameResult, finding.frame_result_id)
         assert row is not None
         original = s.scalar(select(FrameResult).join(Subtask).where(

@@ -23,7 +23,8 @@ from numpy.typing import NDArray
 from sqlalchemy import func, select
 
 from lidarfuzz.campaign.codec import decode_boxes, json_safe
-from lidarfuzz.campaign.tasks import ORIGINAL, get_task, subtask_label
+from lidarfuzz.campaign.lifecycle import get_task
+from lidarfuzz.campaign.plan import ORIGINAL, subtask_label
 from lidarfuzz.operators.base import Relation
 from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult, KittiFrame, evaluate_kitti
 from lidarfuzz.oracles.relations.base import RelationOutcome, Violation

@@ -27,6 +27,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from lidarfuzz.campaign.kinds import DEFAULT_KIND, TASK_KINDS, find_kind, task_kind
 from lidarfuzz.errors import DataFormatError, validation_error
 
 
@@ -94,8 +95,7 @@ class CampaignSpec(_Model):
     name: str = ""
     dataset: str = Field(description="registered data set name, or a path to data")
     sut: str = Field(description="registered model name, or a SUT spec (lidarfuzz suts)")
-    kind: Literal["mutation", "guided", "fuzz"] = Field(
-        default="mutation", description="mutation: operators × severities; guided / fuzz: coverage-guided search")
+    kind: str = Field(default=DEFAULT_KIND, description="; ".join(f"{k.name}: {k.help}" for k in TASK_KINDS))
     operators: list[OperatorChoice] = Field(
         default_factory=list, validate_default=True,
         description="mutation: what to run; guided / fuzz: the operator pool (default pool if empty)")
@@ -107,29 +107,26 @@ class CampaignSpec(_Model):
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only the first N frames")
 
+    @field_validator("kind")
+    @classmethod
+    def _known_kind(cls, value: str) -> str:
+        try:
+            return task_kind(value).name
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+
     @field_validator("operators")
     @classmethod
     def _operators(cls, value: list[OperatorChoice], info: ValidationInfo) -> list[OperatorChoice]:
-        if info.data.get("kind", "mutation") == "mutation" and not value:
-            raise ValueError("a mutation campaign needs at least one operator")
+        kind = find_kind(info.data.get("kind", DEFAULT_KIND))
+        if kind is not None and kind.requires_operators and not value:
+            raise ValueError(f"a {kind.name} campaign needs at least one operator")
         return value
 
     @model_validator(mode="after")
     def _kind(self) -> CampaignSpec:
-        if self.kind != "mutation":
-            self.search_config()  # fail early on a bad search section
-        elif self.search:
-            raise ValueError("search: only guided and fuzz campaigns take a search section")
+        task_kind(self.kind).implementation().check_spec(self)  # e.g. a search section it cannot use
         return self
-
-    def search_config(self) -> Any:
-        """The :class:`~lidarfuzz.search.algorithms.SearchConfig` of a guided / fuzz campaign."""
-        from lidarfuzz.search.algorithms import SearchConfig
-
-        values: dict[str, Any] = {**self.search, "kind": self.kind}
-        if self.operators:
-            values["operators"] = tuple(choice.name for choice in self.operators)
-        return SearchConfig.model_validate(values)
 
     @field_validator("relations")
     @classmethod

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from sqlalchemy import func, select
 
 from lidarfuzz.io.options import DatasetOptions
+from lidarfuzz.store.errors import ConflictError, NotFoundError
 from lidarfuzz.store.models import Dataset, Model, Task
 from lidarfuzz.store.store import Store, StoreError
 
@@ -36,7 +37,7 @@ def add_dataset(store: Store, name: str, path: str | PathLike[str], notes: str =
     dataset[dataset.frame_ids()[0]]  # a layout that does not fit fails now, not mid-campaign
     with store.session() as s:
         if s.scalar(select(Dataset).where(Dataset.name == name)) is not None:
-            raise StoreError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
+            raise ConflictError(f"a data set called {name!r} exists already (lidarfuzz datasets list)")
         row = Dataset(name=name, path=str(source), format=dataset.format, frame_count=frames, notes=notes,
                       options=options.stored())
         s.add(row)
@@ -71,7 +72,7 @@ def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None
     system = create(spec, **(options or {}))
     with store.session() as s:
         if s.scalar(select(Model).where(Model.name == name)) is not None:
-            raise StoreError(f"a model called {name!r} exists already (lidarfuzz models list)")
+            raise ConflictError(f"a model called {name!r} exists already (lidarfuzz models list)")
         row = Model(name=name, spec=spec, options=dict(options or {}), fingerprint=system.fingerprint(), notes=notes)
         s.add(row)
     return row
@@ -81,7 +82,7 @@ def _named(store: Store, table: type[Dataset] | type[Model], name: str, what: st
     with store.session() as s:
         row = s.scalar(select(table).where(table.name == name))
         if row is None:
-            raise StoreError(f"no {what} called {name!r} (lidarfuzz {listing} list)")
+            raise NotFoundError(f"no {what} called {name!r} (lidarfuzz {listing} list)")
         return row
 
 
@@ -112,11 +113,11 @@ def _remove(store: Store, table: type[_Registered], name: str, kind: str) -> Non
     with store.session() as s:
         row = s.scalar(select(table).where(table.name == name))
         if row is None:
-            raise StoreError(f"no {kind} called {name!r}")
+            raise NotFoundError(f"no {kind} called {name!r}")
         column = Task.dataset_id if table is Dataset else Task.model_id
         used = s.scalar(select(func.count()).select_from(Task).where(column == row.id)) or 0
         if used:
-            raise StoreError(f"{kind} {name!r} is used by {used} task(s); delete those first")
+            raise ConflictError(f"{kind} {name!r} is used by {used} task(s); delete those first")
         s.delete(row)
 
 

@@ -12,13 +12,10 @@ from sqlalchemy import Engine, create_engine, event, inspect
 from sqlalchemy.orm import Session, sessionmaker
 
 from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.store.errors import ConflictError, NotFoundError, StoreError
 
 MIGRATIONS = Path(__file__).with_name("migrations")
 DATABASE_FILE = "lidarfuzz.db"
-
-
-class StoreError(LidarfuzzError):
-    """The store cannot be opened or is not at a schema this version understands."""
 
 
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
@@ -111,3 +108,6 @@ class Store:
 
     def close(self) -> None:
         self.engine.dispose()
+
+
+__all__ = ["DATABASE_FILE", "MIGRATIONS", "ConflictError", "NotFoundError", "Store", "StoreError", "store_url"]

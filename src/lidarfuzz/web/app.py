@@ -24,6 +24,7 @@ from fastapi.staticfiles import StaticFiles
 
 from lidarfuzz import __version__
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
+from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.store import Store, StoreError
 from lidarfuzz.web.security import Limits, RequestGuard, token_dependency
 from lidarfuzz.web.workers import TaskWorkers
@@ -176,7 +177,8 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
 
 
 def _errors(app: FastAPI) -> None:
-    """The engine's errors as HTTP answers: bad data 422, a state conflict 409, the rest 422."""
+    """The engine's errors as HTTP answers, by type: bad data 422, no such row 404, a state
+    conflict (any other store error) 409, the rest 422."""
 
     @app.exception_handler(DataFormatError)
     async def data_error(_request: Request, exc: DataFormatError) -> JSONResponse:
@@ -184,9 +186,8 @@ def _errors(app: FastAPI) -> None:
 
     @app.exception_handler(StoreError)
     async def store_error(_request: Request, exc: StoreError) -> JSONResponse:
-        text = str(exc)
-        code = 404 if text.startswith("no ") else 409
-        return JSONResponse({"detail": text}, status_code=code)
+        code = 404 if isinstance(exc, NotFoundError) else 409
+        return JSONResponse({"detail": str(exc)}, status_code=code)
 
     @app.exception_handler(LidarfuzzError)
     async def lidarfuzz_error(_request: Request, exc: LidarfuzzError) -> JSONResponse:

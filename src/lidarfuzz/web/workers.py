@@ -20,6 +20,7 @@ import threading
 from dataclasses import dataclass, field
 
 from lidarfuzz.campaign.tasks import cancel_task, get_task, list_tasks, looks_alive
+from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.models import Status, Task
 from lidarfuzz.store.store import Store, StoreError
 
@@ -101,7 +102,7 @@ class TaskWorkers:
         with self.store.session() as s:
             task = s.get(Task, task_id)
             if task is None:
-                raise StoreError(f"no task {task_id} (lidarfuzz list)")
+                raise NotFoundError(f"no task {task_id} (lidarfuzz list)")
             if task.status == Status.DONE or looks_alive(task) or self.is_active(task_id):
                 return task.status
             task.status, task.error = Status.PENDING, ""

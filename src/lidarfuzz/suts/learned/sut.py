@@ -143,6 +143,10 @@ class PillarsDetector(SystemUnderTest[Scene, Boxes3D]):
     def close(self) -> None:
         self.net = None
 
+    def profile_dirs(self) -> list[Path]:
+        """Where the training profiles of the built-in weights are shipped (for KMNC, NBC, SNAC)."""
+        return [WEIGHTS_DIR]
+
     @property
     def module(self) -> Any:
         """The ``torch.nn.Module`` (loaded on first use), for neuron coverage."""

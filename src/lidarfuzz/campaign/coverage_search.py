@@ -1,4 +1,5 @@
-"""Coverage-guided campaigns: the ``guided`` and ``fuzz`` kinds on the campaign engine.
+"""Coverage-guided searches: the ``guided`` and ``fuzz`` task kinds on the campaign engine
+(the search algorithms themselves are :mod:`lidarfuzz.search`).
 
 A search task has two subtasks: the seed frames (``original``: the SUT's outputs and
 coverage on the data as it is) and the search (``guided`` or ``fuzz``: every generated
@@ -9,33 +10,33 @@ signatures) — is committed in one transaction, so ``lidarfuzz resume`` continu
 interrupted search exactly where it stopped and gives the same tests as an uninterrupted
 run. ``lidarfuzz cancel``, the heartbeat, reports and ``lidarfuzz replay`` work as for any
 campaign: a test's operator is a ``sequence`` of its chain, with exact params.
+
+The engine knows no particular system: a criterion that needs a training profile finds it in
+the profile cache or in the folders the SUT names through ``profile_dirs()`` (see
+:func:`profile_dirs`). The hooks of :class:`~lidarfuzz.campaign.lifecycle.KindImplementation`
+are at the end; the lifecycle around them is :mod:`lidarfuzz.campaign.lifecycle`.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, insert, select, update
 
 from lidarfuzz.campaign.codec import encode_boxes, json_safe
-from lidarfuzz.campaign.runner import (
-    CancelledError,
-    ProgressEvent,
-    RunOutcome,
-    RunStats,
-    _now,
-    _set_status,
-    mark_running,
-)
-from lidarfuzz.campaign.tasks import ORIGINAL, get_task
+from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
+from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for_kind
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.search.algorithms import SearchConfig, TestRecord, make_search
-from lidarfuzz.store.models import Finding, FrameResult, Status, Subtask, Task
+from lidarfuzz.store.errors import ConflictError
+from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
 
-KINDS = ("guided", "fuzz")
+if TYPE_CHECKING:
+    from lidarfuzz.campaign.spec import CampaignSpec
+
 #: Trials of minimised tests: MINIMISED × (1 + variant) + the test's number.
 MINIMISED = 1_000_000
 
@@ -44,13 +45,19 @@ class SearchSetupError(LidarfuzzError, ValueError):
     """A search that cannot start (no torch module, no profile for a criterion that needs one)."""
 
 
-def coverage_profile(module: Any) -> Any:
-    """The training profile of a module: the cache (``$LIDARFUZZ_CACHE/profiles``) or the
-    profiles shipped beside built-in weights; None when there is none."""
-    from lidarfuzz.coverage import ProfileStore, module_fingerprint
-    from lidarfuzz.suts.learned.sut import WEIGHTS_DIR
+def profile_dirs(sut: Any) -> list[Path]:
+    """Read-only folders where ``sut`` keeps training profiles of its module (e.g. shipped beside
+    its weights): what its ``profile_dirs()`` returns; none when it has no such method."""
+    offered = getattr(sut, "profile_dirs", None)
+    return [Path(folder) for folder in offered()] if callable(offered) else []
 
-    return ProfileStore(extra=[WEIGHTS_DIR]).get(module_fingerprint(module))
+
+def coverage_profile(module: Any, folders: list[Path] | tuple[Path, ...] = ()) -> Any:
+    """The training profile of a module: the cache (``$LIDARFUZZ_CACHE/profiles``), then
+    ``folders`` (a SUT's :func:`profile_dirs`); None when there is none."""
+    from lidarfuzz.coverage import ProfileStore, module_fingerprint
+
+    return ProfileStore(extra=folders).get(module_fingerprint(module))
 
 
 def torch_module(sut: Any) -> Any:
@@ -62,11 +69,13 @@ def torch_module(sut: Any) -> Any:
     return module
 
 
-def build_criteria(specs: tuple[str, ...], module: Any) -> list[Any]:
+def build_criteria(specs: tuple[str, ...], module: Any, folders: list[Path] | tuple[Path, ...] = ()) -> list[Any]:
+    """Coverage criteria from their specs; those that need a training profile (KMNC, NBC, SNAC)
+    get the module's, from the cache or ``folders``."""
     from lidarfuzz.coverage import make_criteria
 
     needs = [s for s in specs if s.split(":")[0].lower() in ("kmnc", "nbc", "snac")]
-    profile = coverage_profile(module) if needs else None
+    profile = coverage_profile(module, folders) if needs else None
     if needs and profile is None:
         raise SearchSetupError(
             f"criteria {needs} need a training profile of this model's neurons and none is stored; "
@@ -83,14 +92,15 @@ class _SearchRun:
         from lidarfuzz.store.inventory import open_registered
         from lidarfuzz.suts.registry import create
 
-        self.store, self.task, self.progress, self.stop = store, task, progress, stop
+        self.store, self.task, self.progress = store, task, progress
+        self.watch = Watch(store, task.id, stop)
         self.config = SearchConfig.model_validate(task.options["search"])
         subs = {sub.name: sub for sub in task.subtasks}
         self.original, self.sub = subs[ORIGINAL], subs[self.config.kind]
         self.sut = create(task.model.spec, **task.model.options)
         self.sut.load()
         module = torch_module(self.sut)
-        self.criteria = build_criteria(self.config.criteria, module)
+        self.criteria = build_criteria(self.config.criteria, module, profile_dirs(self.sut))
         relations = [from_spec(spec) for spec in self.sub.results.get("relation_specs", [])]
         self.evaluator = SearchEvaluator(open_registered(task.dataset), self.sut, relations,
                                          ActivationRecorder(module), keep_share=self.config.keep_share)
@@ -100,7 +110,6 @@ class _SearchRun:
             self.search.load_state_dict(state)
         self.stats = RunStats()
         self.connection = store.engine.connect()
-        self._last_check = 0.0
 
     def _replay(self, record: TestRecord, relation: dict[str, Any] | None) -> dict[str, Any]:
         task, e = self.task, record.evaluation
@@ -128,7 +137,7 @@ class _SearchRun:
                         {"role": "seed", "gains": record.gains, "coverage": record.coverage}),
                     "boxes": boxes, "labels": labels, "gt_boxes": gt_boxes, "gt_labels": gt_labels,
                     "failure": e.failure, "relations": json_safe(e.relations), "seconds": e.seconds,
-                    "cached": False, "created_at": _now()}).scalar_one()
+                    "cached": False, "created_at": now()}).scalar_one()
                 counts[sub.id] += 0 if record.role == "minimised" else 1
                 rows = []
                 if e.failure is not None:
@@ -152,24 +161,12 @@ class _SearchRun:
                     done=Subtask.done + n, status=Status.RUNNING))
             self.connection.execute(update(Subtask).where(Subtask.id == self.sub.id).values(results=results))
             self.connection.execute(update(Task).where(Task.id == self.task.id).values(
-                done=Task.done + sum(counts.values()), heartbeat_at=_now()))
-
-    def check(self) -> None:
-        if self.stop is not None and self.stop.is_set():
-            raise CancelledError
-        now = time.monotonic()
-        if now - self._last_check < 0.5:
-            return
-        self._last_check = now
-        status = self.connection.execute(select(Task.status).where(Task.id == self.task.id)).scalar_one()
-        self.connection.rollback()
-        if status == Status.CANCELLED:
-            raise CancelledError
+                done=Task.done + sum(counts.values()), heartbeat_at=now()))
 
     def execute(self) -> None:
         total = self.task.total
         while not self.search.finished:
-            self.check()
+            self.watch.check()
             records = self.search.step(self.evaluator)
             if not records and self.search.finished:
                 break
@@ -179,6 +176,15 @@ class _SearchRun:
             if self.progress is not None:
                 label = "seeds" if records and records[0].role == "seed" else self.config.kind
                 self.progress(ProgressEvent(done, total, self.sub.id, label, done, total))
+
+    def summary(self) -> dict[str, Any]:
+        from lidarfuzz.campaign.results import summarise
+
+        finish_subtasks(self.store, self.task.id, None)
+        summary = summarise(self.store, self.task.id)
+        summary["search"] = json_safe({"kind": self.config.kind, "coverage": self.search.coverage(),
+                                       "stats": self.search.stats, "signatures": self.search.known})
+        return summary
 
     def close(self) -> None:
         self.connection.close()
@@ -214,42 +220,60 @@ def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] |
         row.total = row.done = sum(sub.done for sub in row.subtasks)
 
 
-def run_search_task(store: Store, task_id: int, *, progress: Callable[[ProgressEvent], None] | None = None,
-                    stop: Any = None) -> RunOutcome:
-    """Run (or resume) a ``guided`` or ``fuzz`` task to its budget."""
-    from lidarfuzz.campaign.results import summarise
+# -- the kinds' hooks (lidarfuzz.campaign.lifecycle.KindImplementation) ----------------
+#: Progress counts the generated tests, not their minimised copies.
+counted_below: int | None = MINIMISED
 
-    mark_running(store, task_id, below_trial=MINIMISED)  # counts what is stored: a crashed step committed nothing
-    task = get_task(store, task_id)
-    started = time.perf_counter()
-    status = Status.DONE
-    run: _SearchRun | None = None
-    try:
-        run = _SearchRun(store, task, progress, stop)
-        run.execute()
-        finish_subtasks(store, task_id, None)
-        summary = summarise(store, task_id)
-        summary["search"] = json_safe({"kind": run.config.kind, "coverage": run.search.coverage(),
-                                       "stats": run.search.stats, "signatures": run.search.known})
-        run.stats.wall = time.perf_counter() - started
-        summary["run"] = run.stats.to_dict()
-        with store.session() as s:
-            row = s.get(Task, task_id)
-            assert row is not None
-            row.summary, row.status, row.finished_at = json_safe(summary), Status.DONE, _now()
-        stats = run.stats
-    except CancelledError:
-        status = Status.CANCELLED
-        _set_status(store, task_id, Status.CANCELLED, "")
-        stats = run.stats if run else RunStats()
-    except KeyboardInterrupt:
-        _set_status(store, task_id, Status.PENDING, "interrupted; lidarfuzz resume finishes it")
-        raise
-    except BaseException as exc:
-        _set_status(store, task_id, Status.FAILED, f"{type(exc).__name__}: {exc}")
-        raise
-    finally:
-        if run is not None:
-            run.close()
-    stats.wall = time.perf_counter() - started
-    return RunOutcome(task_id, status, stats)
+
+def search_config(spec: CampaignSpec) -> SearchConfig:
+    """The search settings of a guided / fuzz campaign: its ``search`` section, its kind, and its
+    operators as the pool."""
+    values: dict[str, Any] = {**spec.search, "kind": spec.kind}
+    if spec.operators:
+        values["operators"] = tuple(choice.name for choice in spec.operators)
+    return SearchConfig.model_validate(values)
+
+
+def check_spec(spec: CampaignSpec) -> None:
+    search_config(spec)  # fail early on a bad search section
+
+
+def _check_searchable(model: Model) -> None:
+    """A coverage-guided search hooks the SUT's ``torch.nn.Module``: refuse a SUT without one
+    now, not when the task runs (the weights are not loaded to find out)."""
+    from lidarfuzz.suts.registry import create
+
+    system = create(model.spec, **model.options)
+    if not hasattr(type(system), "module") and "module" not in vars(system):
+        raise ConflictError(f"a coverage-guided search needs a SUT built on a torch.nn.Module exposed as `.module`; "
+                            f"model {model.name!r} ({type(system).__name__}) has none (e.g. --sut pillars)")
+
+
+def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
+    """One subtask holds every generated test (the budget's worth). Valid tests preserve labels,
+    so the relations that apply to invariant operators are checked; "auto" means Zhou & Sun's
+    MR1 (an object found before is found after)."""
+    from lidarfuzz.operators.base import Relation
+    from lidarfuzz.oracles.relations.registry import from_spec as relation
+
+    search = search_config(spec)
+    _check_searchable(model)
+    choice = spec.relations
+    relation_specs = ([relation("preservation").spec()] if choice == "auto"
+                      else relations_for_kind(Relation.INVARIANT, choice))
+    options = search.model_dump(mode="json")
+    return KindPlan([SubtaskPlan(search.kind, {"name": search.kind, "search": options}, search.budget,
+                                 relations=relation_specs)], {"search": options})
+
+
+def start(store: Store, task: Task, options: RunOptions) -> _SearchRun:
+    return _SearchRun(store, task, options.progress, options.stop)
+
+
+def describe(task: Task) -> str:
+    return (f"{task.options.get('kind')} search of {task.options['search']['budget']} tests from "
+            f"{len(task.options['frame_ids'])} seed frames")
+
+
+__all__ = ["MINIMISED", "SearchSetupError", "build_criteria", "check_spec", "counted_below", "coverage_profile",
+           "describe", "plan", "profile_dirs", "search_config", "start", "torch_module"]

@@ -1,0 +1,328 @@
+"""The life of a task, the same for every kind: claimed, running (progress, heartbeat, cancel),
+then done, cancelled, failed or back to pending — and what a kind implements to take part.
+
+A task kind (:mod:`lidarfuzz.campaign.kinds` lists them) plans its subtasks and runs its units;
+everything around that is here, once:
+
+* status transitions: :func:`mark_running` claims a task (and :func:`recount` re-derives its
+  counters from the stored results, so a resumed task goes on where the last one stopped);
+  :func:`drive` ends it as done (with its summary), cancelled, failed (with the error) or, on
+  Ctrl-C, pending again;
+* liveness: a running task's worker writes a heartbeat (:class:`Watch`); :func:`looks_alive`
+  tells a live task from one whose process died (``lidarfuzz resume`` and the web app's
+  workers resume only the latter);
+* cancelling is cooperative: :func:`cancel_task` sets the status in the store (from any
+  process), and the running task's :class:`Watch` sees it within :data:`CHECK_EVERY` seconds
+  and stops, keeping what is done.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any, Protocol
+
+from sqlalchemy import func, select, update
+
+from lidarfuzz.campaign.codec import json_safe
+from lidarfuzz.store.errors import NotFoundError, StoreError
+from lidarfuzz.store.models import FrameResult, Model, Status, Subtask, Task
+from lidarfuzz.store.store import Store
+
+if TYPE_CHECKING:
+    from lidarfuzz.campaign.executor import Executor
+    from lidarfuzz.campaign.plan import KindPlan
+    from lidarfuzz.campaign.spec import CampaignSpec
+
+CHECK_EVERY = 0.5  # seconds between looks at the task's status (cancel) and heartbeats
+STALE_AFTER = 30.0  # seconds without a heartbeat before a "running" task is taken as dead
+
+
+@dataclass(frozen=True)
+class ProgressEvent:
+    task_done: int
+    task_total: int
+    subtask_id: int
+    label: str
+    subtask_done: int
+    subtask_total: int
+
+
+@dataclass
+class RunStats:
+    """Where the time of one run went (seconds, summed over units; wall is elapsed)."""
+
+    units: int = 0
+    cached: int = 0
+    failures: int = 0
+    wall: float = 0.0
+    sut: float = 0.0
+    stages: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    store: float = 0.0  # committing results
+    evaluate: float = 0.0  # AP and summaries at the end of subtasks
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"units": self.units, "cached": self.cached, "failures": self.failures, "wall": self.wall,
+                "sut": self.sut, "stages": dict(self.stages), "store": self.store, "evaluate": self.evaluate}
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    task_id: int
+    status: Status
+    stats: RunStats
+
+
+class CancelledError(Exception):
+    """The task was cancelled while running."""
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+def worker_name() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+# -- finding tasks ----------------------------------------------------------------------
+def task_row(session: Any, task_id: int) -> Task:
+    """Task ``task_id`` in ``session``.
+
+    Raises:
+        NotFoundError: There is no such task.
+    """
+    task = session.get(Task, task_id)
+    if task is None:
+        raise NotFoundError(f"no task {task_id} (lidarfuzz list)")
+    return task
+
+
+def get_task(store: Store, task_id: int) -> Task:
+    """A task with its data set, model and subtasks loaded."""
+    with store.session() as s:
+        task = task_row(s, task_id)
+        task.dataset, task.model, list(task.subtasks)  # loaded before the session closes
+        return task
+
+
+# -- liveness and cancelling ------------------------------------------------------------
+def heartbeat_age(task: Task) -> float | None:
+    """Seconds since the process running ``task`` last reported (None: it never did)."""
+    moment = task.heartbeat_at
+    if moment is None:
+        return None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=UTC)
+    return (datetime.now(UTC) - moment).total_seconds()
+
+
+def _process_gone(worker: str) -> bool:
+    """True when ``worker`` (``host:pid``) names a process of this host that no longer exists."""
+    host, _, pid = worker.rpartition(":")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # exists, owned by someone else
+        return False
+    return False
+
+
+def looks_alive(task: Task, stale_after: float = STALE_AFTER) -> bool:
+    """Whether a process seems to be running ``task`` now: it is marked running, its worker
+    reported within ``stale_after`` seconds, and (on this host) that process still exists.
+    ``lidarfuzz resume`` and the web app's workers resume only tasks that do not look alive."""
+    if task.status != Status.RUNNING:
+        return False
+    age = heartbeat_age(task)
+    if age is None or age >= stale_after:
+        return False
+    return not _process_gone(task.worker)
+
+
+def cancel_task(store: Store, task_id: int) -> Status:
+    """Ask a task to stop: a running one stops at its next unit (what is done stays done)."""
+    with store.session() as s:
+        task = task_row(s, task_id)
+        if task.status in (Status.DONE, Status.FAILED, Status.CANCELLED):
+            return task.status
+        task.status = Status.CANCELLED
+        return task.status
+
+
+class Watch:
+    """A running task's look-out: raises :class:`CancelledError` once the task is cancelled (in
+    the store, or by ``stop`` in this process), and writes the heartbeat while it is not. Cheap to
+    call after every unit: it reads the store at most every :data:`CHECK_EVERY` seconds."""
+
+    def __init__(self, store: Store, task_id: int, stop: threading.Event | None) -> None:
+        self.store, self.task_id, self.stop = store, task_id, stop
+        self._last = time.monotonic()
+
+    def check(self) -> None:
+        if self.stop is not None and self.stop.is_set():
+            raise CancelledError
+        moment = time.monotonic()
+        if moment - self._last < CHECK_EVERY:
+            return
+        self._last = moment
+        with self.store.session() as s:
+            status = s.scalar(select(Task.status).where(Task.id == self.task_id))
+            if status == Status.CANCELLED:
+                raise CancelledError
+            s.execute(update(Task).where(Task.id == self.task_id).values(heartbeat_at=now()))
+
+
+# -- status transitions -----------------------------------------------------------------
+def mark_running(store: Store, task_id: int, *, below_trial: int | None = None) -> None:
+    """Claim a task for this process (status, worker, heartbeat, start time), then recount it."""
+    with store.session() as s:
+        row = task_row(s, task_id)
+        row.status, row.error, row.worker, row.heartbeat_at = Status.RUNNING, "", worker_name(), now()
+        row.started_at = row.started_at or now()
+        row.finished_at = None
+    recount(store, task_id, below_trial=below_trial)
+
+
+def recount(store: Store, task_id: int, *, below_trial: int | None = None) -> None:
+    """Counters and subtask states from the results actually stored (only trials below
+    ``below_trial`` count, when given: a search's minimised copies are extra rows)."""
+    with store.session() as s:
+        task = task_row(s, task_id)
+        query = select(FrameResult.subtask_id, func.count()).join(Subtask).where(Subtask.task_id == task_id)
+        if below_trial is not None:
+            query = query.where(FrameResult.trial < below_trial)
+        counts = dict(s.execute(query.group_by(FrameResult.subtask_id)).all())
+        for sub in task.subtasks:
+            sub.done = int(counts.get(sub.id, 0))
+            if sub.done >= sub.total and sub.status != Status.DONE:
+                sub.status = Status.RUNNING  # complete but not evaluated: finished below
+            elif sub.done < sub.total:
+                sub.status = Status.RUNNING if sub.done else Status.PENDING
+        task.done = sum(sub.done for sub in task.subtasks)
+
+
+def set_status(store: Store, task_id: int, status: Status, error: str) -> None:
+    """End a run that did not finish: the task's status and error; its unfinished subtasks back to
+    pending (left as they are when it failed, to show where)."""
+    with store.session() as s:
+        row = s.get(Task, task_id)
+        if row is None:
+            raise StoreError(f"task {task_id} vanished while running")
+        row.status, row.error = status, error
+        for sub in row.subtasks:
+            if sub.status == Status.RUNNING and sub.done < sub.total:
+                sub.status = Status.PENDING if status != Status.FAILED else sub.status
+
+
+def finish(store: Store, task_id: int, summary: dict[str, Any]) -> None:
+    """A run that finished: the task done, with its summary."""
+    with store.session() as s:
+        row = task_row(s, task_id)
+        row.summary, row.status, row.finished_at = json_safe(summary), Status.DONE, now()
+
+
+# -- what a task kind implements --------------------------------------------------------
+@dataclass(frozen=True)
+class RunOptions:
+    """How to run a task (what ``lidarfuzz run`` / ``resume`` and the web app's workers choose).
+
+    Attributes:
+        executor: Where units run (a kind that runs units in this process ignores it).
+        workers: Processes of the default executor.
+        progress: Called after every committed result (or step).
+        stop: Set it to stop the run cleanly (as ``lidarfuzz cancel`` does from outside).
+    """
+
+    executor: Executor | None = None
+    workers: int | None = None
+    progress: Callable[[ProgressEvent], None] | None = None
+    stop: threading.Event | None = None
+
+
+class KindRun(Protocol):
+    """One run of a task, as a kind's ``start`` returns it."""
+
+    stats: RunStats
+
+    def execute(self) -> None:
+        """Run every unit that has no result, committing each; raise :class:`CancelledError` when
+        the :class:`Watch` says so."""
+
+    def summary(self) -> dict[str, Any]:
+        """After :meth:`execute`: evaluate what is left and return the task's summary."""
+
+    def close(self) -> None:
+        """Release what the run holds (connections, workers, the system under test)."""
+
+
+class KindImplementation(Protocol):
+    """What a task kind's module provides (the row in :data:`lidarfuzz.campaign.kinds.TASK_KINDS`
+    names the module).
+
+    Attributes:
+        counted_below: Only results with a trial below this count towards progress (None: all).
+    """
+
+    counted_below: int | None
+
+    def check_spec(self, spec: CampaignSpec) -> None:
+        """Refuse a campaign this kind cannot run (ValueError, named by pydantic)."""
+
+    def plan(self, spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
+        """The subtasks after the originals, and the kind's own task options."""
+
+    def start(self, store: Store, task: Task, options: RunOptions) -> KindRun:
+        """Set up a run of ``task`` (already marked running)."""
+
+    def describe(self, task: Task) -> str:
+        """One line on what the task runs (``lidarfuzz run`` prints it first)."""
+
+
+def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOptions) -> RunOutcome:
+    """Run (or resume) task ``task_id`` with its kind's implementation, through the lifecycle
+    above: a done task is left alone; else claimed, run, and ended in one of the four states."""
+    if get_task(store, task_id).status == Status.DONE:
+        return RunOutcome(task_id, Status.DONE, RunStats())
+    mark_running(store, task_id, below_trial=kind.counted_below)
+    task = get_task(store, task_id)
+    started = time.perf_counter()
+    status = Status.DONE
+    run: KindRun | None = None
+    try:
+        run = kind.start(store, task, options)
+        run.execute()
+        summary = run.summary()
+        run.stats.wall = time.perf_counter() - started
+        summary["run"] = run.stats.to_dict()
+        finish(store, task_id, summary)
+    except CancelledError:
+        status = Status.CANCELLED
+        set_status(store, task_id, Status.CANCELLED, "")
+    except KeyboardInterrupt:
+        set_status(store, task_id, Status.PENDING, "interrupted; lidarfuzz resume finishes it")
+        raise
+    except BaseException as exc:
+        set_status(store, task_id, Status.FAILED, f"{type(exc).__name__}: {exc}")
+        raise
+    finally:
+        if run is not None:
+            run.close()
+    stats = run.stats if run is not None else RunStats()
+    stats.wall = time.perf_counter() - started
+    return RunOutcome(task_id, status, stats)
+
+
+__all__ = ["CHECK_EVERY", "STALE_AFTER", "CancelledError", "KindImplementation", "KindRun", "ProgressEvent",
+           "RunOptions", "RunOutcome", "RunStats", "Watch", "cancel_task", "drive", "finish", "get_task",
+           "heartbeat_age", "looks_alive", "mark_running", "now", "recount", "set_status", "task_row",
+           "worker_name"]

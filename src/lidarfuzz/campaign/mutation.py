@@ -1,0 +1,309 @@
+"""The detection campaign (kind ``mutation``): every frame through each operator × severity.
+
+Order: the originals first (their outputs are the source side of every relation), then each
+operator × severity in the task's order. A result is one transaction: its frame result, its
+findings, the cache entry and the counters, so a kill at any instant leaves whole results and
+counters that agree with them (and :func:`~lidarfuzz.campaign.lifecycle.recount` re-derives the
+counters anyway on every start). Units are keyed by (subtask, frame, trial) under a unique
+constraint: a resumed task runs exactly the units that have no result, and nothing is counted
+twice. Units run on an :class:`~lidarfuzz.campaign.executor.Executor`; this process is the single
+writer.
+
+The hooks of :class:`~lidarfuzz.campaign.lifecycle.KindImplementation` are at the end; the
+lifecycle around them (status, heartbeat, cancel) is :mod:`lidarfuzz.campaign.lifecycle`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any
+
+from sqlalchemy import bindparam, insert, select, update
+from sqlalchemy.exc import IntegrityError
+
+from lidarfuzz.campaign.codec import json_safe
+from lidarfuzz.campaign.executor import Executor, ProcessExecutor
+from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
+from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for, subtask_label
+from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
+from lidarfuzz.store.errors import StoreError
+from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
+from lidarfuzz.store.store import Store
+
+if TYPE_CHECKING:
+    from lidarfuzz.campaign.spec import CampaignSpec
+
+BLOCK = 16  # frames per block (see _Run._units); a worker's scene cache holds one block
+#: Every stored result counts towards progress.
+counted_below: int | None = None
+
+
+class _Run:
+    def __init__(self, store: Store, task: Task, executor: Executor,
+                 progress: Callable[[ProgressEvent], None] | None, stop: threading.Event | None) -> None:
+        self.store, self.task, self.executor = store, task, executor
+        self.progress = progress
+        self.watch = Watch(store, task.id, stop)
+        self.stats = RunStats()
+        self.subtasks = {sub.id: sub for sub in task.subtasks}
+        self.done = {sub.id: sub.done for sub in task.subtasks}
+        self.task_done = task.done
+        options = task.options
+        self.frame_ids: list[str] = list(options.get("frame_ids", []))
+        self.trials = int(options.get("trials", 1))
+        self._calibs: dict[str, Any] = {}
+        self._connection = store.engine.connect()  # one for every commit: no pool check-out per result
+        # statements built once (building one costs more than running it)
+        self._insert_result = insert(FrameResult).returning(FrameResult.id)
+        self._insert_finding = insert(Finding)
+        self._bump_subtask = update(Subtask).where(Subtask.id == bindparam("subtask")).values(
+            done=Subtask.done + 1, status=Status.RUNNING)
+        self._bump_task = update(Task).where(Task.id == bindparam("task")).values(
+            done=Task.done + 1, heartbeat_at=bindparam("now"))
+        dialect = store.engine.dialect.name
+        if dialect not in ("sqlite", "postgresql"):
+            raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect}")
+        dialect_insert = importlib.import_module(f"sqlalchemy.dialects.{dialect}").insert
+        self._cache_insert: Any = dialect_insert(SutOutput).on_conflict_do_nothing()  # a concurrent twin: fine
+        self._dataset: Any = None
+
+    # -- units ------------------------------------------------------------------------
+    def _finished_keys(self) -> set[tuple[int, str, int]]:
+        with self.store.session() as s:
+            rows = s.execute(select(FrameResult.subtask_id, FrameResult.frame_id, FrameResult.trial).join(
+                Subtask).where(Subtask.task_id == self.task.id))
+            return {(a, b, c) for a, b, c in rows}
+
+    def _sources(self, original: Subtask) -> dict[str, tuple[bytes | None, tuple[str, ...], bool]]:
+        with self.store.session() as s:
+            rows = s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
+                                    FrameResult.failure).where(FrameResult.subtask_id == original.id))
+            return {f: (b, tuple(labels), failure is not None) for f, b, labels, failure in rows}
+
+    def _units(self, subtasks: Iterable[Subtask], done: set[tuple[int, str, int]],
+               sources: dict[str, tuple[bytes | None, tuple[str, ...], bool]],
+               block: list[str]) -> Iterator[WorkUnit]:
+        """Pending units of ``subtasks`` on a block of frames, subtask by subtask."""
+        for sub in subtasks:
+            is_original = sub.name == ORIGINAL
+            trials = 1 if is_original else self.trials
+            relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
+            label = subtask_label(sub.name, sub.severity)
+            for frame_id in block:
+                for trial in range(trials):
+                    if (sub.id, frame_id, trial) in done:
+                        continue
+                    if is_original:
+                        yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
+                        continue
+                    blob, labels, failed = sources.get(frame_id, (None, (), True))
+                    yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
+                                   relations, blob, labels, failed)
+
+    # -- results ----------------------------------------------------------------------
+    def _replay(self, result: UnitResult, relation: dict[str, Any] | None = None) -> dict[str, Any]:
+        unit = self.task
+        return {"dataset": unit.dataset.path, "frame_id": result.unit.frame_id, "trial": result.unit.trial,
+                "seed": unit.seed, "op_index": result.unit.op_index, "operator": result.unit.operator,
+                "params": result.params, "sut": unit.model.spec, "options": unit.model.options,
+                "fingerprint": unit.model.fingerprint, "relation": relation}
+
+    def _findings(self, result: UnitResult, frame_result_id: int) -> list[dict[str, Any]]:
+        """Rows of the findings table: a failure, and per violated relation one per class."""
+        findings = []
+        if result.failure is not None:
+            findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id, cls="", magnitude=None,
+                                 kind=result.failure["kind"], message=result.failure["message"],
+                                 detail={"detail": result.failure.get("detail", "")},
+                                 replay=self._replay(result)))
+        specs = {spec["name"]: spec for spec in result.unit.relations}
+        for outcome in result.relations:
+            if outcome["holds"] or not outcome["violations"]:
+                continue
+            by_class: dict[str, list[dict[str, Any]]] = defaultdict(list)
+            for violation in outcome["violations"]:
+                by_class[violation["cls"]].append(violation)
+            for cls, violations in sorted(by_class.items()):
+                first = violations[0]["message"]
+                more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
+                findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id,
+                                     kind=outcome["relation"], cls=cls, magnitude=float(len(violations)),
+                                     message=first + more, detail={"violations": violations},
+                                     replay=self._replay(result, specs.get(outcome["relation"]))))
+        return findings
+
+    def commit(self, result: UnitResult) -> bool:
+        """Store one result with its findings and counters in one transaction (SQLAlchemy Core:
+        the ORM's unit of work costs more than the insert); False when it was stored already."""
+        start = time.perf_counter()
+        unit = result.unit
+        fingerprint = self.task.model.fingerprint
+        try:
+            connection = self._connection
+            with connection.begin():
+                row_id = connection.execute(self._insert_result, {
+                    "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
+                    "params": result.params, "boxes": result.boxes, "labels": result.labels,
+                    "gt_boxes": result.gt_boxes, "gt_labels": result.gt_labels, "failure": result.failure,
+                    "relations": result.relations, "seconds": result.seconds, "cached": result.cached,
+                    "created_at": now()}).scalar_one()
+                findings = self._findings(result, row_id)
+                if findings:
+                    connection.execute(self._insert_finding, findings)
+                if result.boxes is not None and not result.cached and result.input_key:
+                    connection.execute(self._cache_insert, {
+                        "fingerprint": fingerprint, "digest": result.input_key, "boxes": result.boxes,
+                        "labels": result.labels, "seconds": result.seconds})
+                connection.execute(self._bump_subtask, {"subtask": unit.subtask_id})
+                connection.execute(self._bump_task, {"task": self.task.id, "now": now()})
+        except IntegrityError:
+            return False  # another run stored this unit first
+        finally:
+            self.stats.store += time.perf_counter() - start
+        self.done[unit.subtask_id] += 1
+        self.task_done += 1
+        self.stats.units += 1
+        self.stats.cached += int(result.cached)
+        self.stats.failures += int(result.failure is not None)
+        self.stats.sut += result.seconds
+        for stage, seconds in result.timings.items():
+            self.stats.stages[stage] += seconds
+        return True
+
+    def consume(self, results: Iterator[UnitResult]) -> None:
+        for result in results:
+            self.commit(result)
+            sub = self.subtasks[result.unit.subtask_id]
+            if self.progress is not None:
+                self.progress(ProgressEvent(self.task_done, self.task.total, sub.id,
+                                            subtask_label(sub.name, sub.severity), self.done[sub.id], sub.total))
+            if self.done[sub.id] >= sub.total:
+                self.finish(sub)
+            self.watch.check()
+
+    def finish(self, sub: Subtask) -> None:
+        """A complete subtask: its AP and relation figures, then done."""
+        from lidarfuzz.campaign.results import evaluate_subtask
+        from lidarfuzz.operators.registry import from_spec
+
+        start = time.perf_counter()
+        with self.store.session() as s:
+            row = s.get(Subtask, sub.id)
+            assert row is not None
+            if row.status == Status.DONE:
+                return
+            rows = list(s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
+                                         FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
+                                         FrameResult.relations, FrameResult.seconds, FrameResult.cached,
+                                         FrameResult.params).where(FrameResult.subtask_id == sub.id)))
+            results = dict(row.results)
+            operator = from_spec(row.operator) if row.operator else None
+            results.update(evaluate_subtask(rows, self.calibration, operator=operator,
+                                            unlabelled=self.task.options.get("unlabelled_frames", ())))
+            row.results = json_safe(results)
+            row.status = Status.DONE
+        self.stats.evaluate += time.perf_counter() - start
+
+    def calibration(self, frame_id: str) -> Any:
+        if frame_id not in self._calibs:
+            if self._dataset is None:
+                from lidarfuzz.io.open import open_dataset
+                from lidarfuzz.io.options import DatasetOptions
+
+                self._dataset = open_dataset(self.task.dataset.path,
+                                             options=DatasetOptions.from_stored(self.task.dataset.options))
+            load_calib = getattr(self._dataset, "load_calib", None)
+            self._calibs[frame_id] = load_calib(frame_id) if load_calib else self._dataset.load(frame_id).calib
+        return self._calibs[frame_id]
+
+    def close(self) -> None:
+        try:
+            self.executor.close()
+        finally:
+            self._connection.close()
+
+    # -- the whole run ------------------------------------------------------------------
+    def execute(self) -> None:
+        """A block of frames at a time: the block's originals (the sources of its relations), then
+        every subtask over the block. Workers keep a block of frames loaded, so each frame is
+        loaded about once per worker, and the subtasks still advance in turn."""
+        subs = sorted(self.subtasks.values(), key=lambda x: (x.name != ORIGINAL, x.id))
+        original = subs[0]
+        done = self._finished_keys()
+        for start in range(0, len(self.frame_ids), BLOCK):
+            block = self.frame_ids[start:start + BLOCK]
+            self.consume(self.executor.run(self._units([original], done, {}, block)))
+            sources = self._sources(original)
+            self.consume(self.executor.run(self._units(subs[1:], done, sources, block)))
+        for sub in subs:
+            if self.done[sub.id] >= sub.total:
+                self.finish(sub)
+
+    def summary(self) -> dict[str, Any]:
+        from lidarfuzz.campaign.results import summarise
+
+        start = time.perf_counter()
+        summary = summarise(self.store, self.task.id)
+        self.stats.evaluate += time.perf_counter() - start
+        return summary
+
+
+# -- the kind's hooks (lidarfuzz.campaign.lifecycle.KindImplementation) ----------------
+def check_spec(spec: CampaignSpec) -> None:
+    if spec.search:
+        from lidarfuzz.campaign.kinds import TASK_KINDS
+
+        searches = " and ".join(kind.name for kind in TASK_KINDS if kind.module == "lidarfuzz.campaign.coverage_search")
+        raise ValueError(f"search: only {searches} campaigns take a search section")
+
+
+def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
+    """One subtask per operator × severity (or per operator with an explicit config), in the
+    campaign's order, each with the relations that apply to its operator."""
+    from lidarfuzz.operators.registry import get
+
+    subtasks = []
+    for index, choice in enumerate(spec.operators):
+        cls = get(choice.name)
+        units = len(frame_ids) * spec.trials
+        if choice.config is not None:
+            op = cls(**choice.config)
+            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, 0, index, relations_for(op, spec.relations)))
+            continue
+        for severity in choice.severities:
+            op = cls.at_severity(severity)
+            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, severity, index,
+                                        relations_for(op, spec.relations)))
+    return KindPlan(subtasks)
+
+
+def start(store: Store, task: Task, options: RunOptions) -> _Run:
+    in_memory = store.url.startswith("sqlite://") and store.url in ("sqlite://", "sqlite:///:memory:")
+    stored = task.options
+    context = WorkContext(task.dataset.path, task.model.spec, dict(task.model.options), task.model.fingerprint,
+                          store_url=None if in_memory else store.url, isolate=bool(stored.get("isolate")),
+                          timeout=float(stored.get("timeout", 60.0)), save_mutants=stored.get("save_mutants"),
+                          dataset_options=dict(task.dataset.options or {}))
+    executor = options.executor or ProcessExecutor(options.workers)
+    try:
+        run = _Run(store, task, executor, options.progress, options.stop)
+    except BaseException:
+        executor.close()
+        raise
+    try:
+        executor.open(context)
+    except BaseException:
+        run.close()
+        raise
+    return run
+
+
+def describe(task: Task) -> str:
+    return f"{len(task.subtasks) - 1} operator × severity subtasks"
+
+
+__all__ = ["BLOCK", "check_spec", "counted_below", "describe", "plan", "start"]

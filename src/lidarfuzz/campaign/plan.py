@@ -1,0 +1,78 @@
+"""How a task is laid out in the store, whatever its kind: the originals' subtask, the key and
+label of every other subtask, the relations that apply to it, and the plan a task kind returns
+when a task is created (:class:`KindPlan`, one :class:`SubtaskPlan` per subtask).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+ORIGINAL = "original"
+
+
+def operator_key(spec: dict[str, Any] | None) -> str:
+    """A stable key of an operator spec ("original" for none)."""
+    if spec is None:
+        return ORIGINAL
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:32]
+
+
+def subtask_label(name: str, severity: int) -> str:
+    """How reports name a subtask: ``fog@3``, ``fog (config)`` or ``original``."""
+    if name == ORIGINAL:
+        return ORIGINAL
+    return f"{name}@{severity}" if severity else f"{name} (config)"
+
+
+def relations_for_kind(relation: Any, choice: Any) -> list[dict[str, Any]]:
+    """Relation specs to check on outputs whose operator relation kind (invariant, equivariant,
+    degrading) is ``relation``: every applicable one for ``auto``, else the chosen ones (names or
+    ``{name, config}``) that apply to that kind."""
+    from lidarfuzz.oracles.relations.registry import for_operator, from_spec
+
+    if choice == "auto":
+        return [r.spec() for r in for_operator(relation)]
+    chosen = [from_spec(item if isinstance(item, str) else item.model_dump()) for item in choice]
+    return [r.spec() for r in chosen if relation in r.applies_to]
+
+
+def relations_for(operator: Any, choice: Any) -> list[dict[str, Any]]:
+    """Relation specs to check for ``operator`` (see :func:`relations_for_kind`)."""
+    return relations_for_kind(operator.relation, choice)
+
+
+@dataclass(frozen=True)
+class SubtaskPlan:
+    """One subtask of a new task (the originals' subtask is planned for every kind).
+
+    Attributes:
+        name: The subtask's name (an operator's, or the kind's for a search).
+        operator: The operator spec its units apply (what :func:`operator_key` hashes; None for
+            the originals).
+        units: How many frame results complete it.
+        severity: 1–5, or 0 for an explicit config (or none).
+        op_index: Position of its operator in the campaign (part of every mutant's seed).
+        relations: Relation specs its results are checked against.
+    """
+
+    name: str
+    operator: dict[str, Any] | None
+    units: int
+    severity: int = 0
+    op_index: int = 0
+    relations: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class KindPlan:
+    """What a task kind adds to a new task: its subtasks after the originals, and options of its own."""
+
+    subtasks: list[SubtaskPlan]
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+__all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "operator_key", "relations_for", "relations_for_kind",
+           "subtask_label"]
