@@ -99,7 +99,7 @@ def test_declared_lists_without_loading(extra_entry_points):
 
 
 def test_the_web_allows_modules_of_declared_sut_plugins_even_unloaded(extra_entry_points):
-    from lidarfuzz.web.security import _entry_point_modules
+    from lidarfuzz.web.security.specs import _entry_point_modules
 
     extra_entry_points.append(EntryPoint(name="mine", value="my_package.detector:Mine", group=suts.GROUP))
     assert "my_package.detector" in _entry_point_modules()

@@ -1,5 +1,6 @@
 """The FastAPI application: :func:`create_app` wires the store, the task workers, the security
-rules, the API routes, the offline OpenAPI docs and the built front end together.
+rules, the API routes, the offline OpenAPI docs and the built front end together. What the
+routes share (:class:`~lidarfuzz.web.context.WebContext`) is in :mod:`lidarfuzz.web.context`.
 
 Example:
     >>> app = create_app("lidarfuzz-workspace", workers=1)  # doctest: +SKIP
@@ -10,10 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import threading
-from collections import OrderedDict
 from collections.abc import AsyncIterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,77 +24,14 @@ from lidarfuzz import __version__
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.store import Store, StoreError
+from lidarfuzz.web.context import WebContext, files_root
+from lidarfuzz.web.routes import catalogue, datasets, findings, frames, models, reports, tasks
 from lidarfuzz.web.security import Limits, RequestGuard, token_dependency
 from lidarfuzz.web.workers import TaskWorkers
 
 STATIC = Path(__file__).with_name("static")
 SWAGGER = "/static/vendor/swagger-ui"
 log = logging.getLogger("lidarfuzz.web")
-
-
-def files_root(workspace: str) -> Path:
-    """Where the app keeps uploads, reports and caches: the workspace folder, or
-    ``./lidarfuzz-web`` next to a database URL."""
-    return Path("lidarfuzz-web") if "://" in workspace else Path(workspace)
-
-
-@dataclass
-class WebContext:
-    """What every route needs, one per app (``request.app.state.web``)."""
-
-    workspace: str
-    store: Store
-    files: Path
-    limits: Limits
-    token: str | None
-    workers: TaskWorkers
-    processes: int | None
-    _datasets: OrderedDict[str, Any] = field(default_factory=OrderedDict)
-    _lock: threading.Lock = field(default_factory=threading.Lock)
-    _locks: dict[str, threading.Lock] = field(default_factory=dict)
-    extras: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def uploads(self) -> Path:
-        return self.files / "uploads"
-
-    @property
-    def reports(self) -> Path:
-        return self.files / "reports"
-
-    @property
-    def cache(self) -> Path:
-        return self.files / "cache" / "web"
-
-    def lock(self, key: str) -> threading.Lock:
-        """A lock per key (one report written at a time per task, one preview per operator...)."""
-        with self._lock:
-            return self._locks.setdefault(key, threading.Lock())
-
-    def dataset(self, path: str) -> Any:
-        """The data set at ``path``, opened once and kept (the 8 most recent)."""
-        from lidarfuzz.io.open import open_dataset
-        from lidarfuzz.store.inventory import options_at
-
-        with self._lock:
-            if path in self._datasets:
-                self._datasets.move_to_end(path)
-                return self._datasets[path]
-        opened = open_dataset(path, options=options_at(self.store, path))
-        with self._lock:
-            self._datasets[path] = opened
-            while len(self._datasets) > 8:
-                self._datasets.popitem(last=False)
-        return opened
-
-    def forget_dataset(self, path: str) -> None:
-        with self._lock:
-            self._datasets.pop(path, None)
-
-
-def web(request: Request) -> WebContext:
-    """The app's :class:`WebContext` (a FastAPI dependency)."""
-    return request.app.state.web  # type: ignore[no-any-return]
 
 
 def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | None = None, workers: int = 1,
@@ -146,8 +81,6 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
                        same_origin_writes=token is None)
     _errors(app)
 
-    from lidarfuzz.web.routes import catalogue, datasets, findings, frames, models, reports, tasks
-
     api = [Depends(token_dependency(token))]
     for module in (tasks, reports, findings, frames, datasets, models, catalogue):
         app.include_router(module.router, prefix="/api", dependencies=api)
@@ -194,4 +127,4 @@ def _errors(app: FastAPI) -> None:
         return JSONResponse({"detail": str(exc)}, status_code=422)
 
 
-__all__ = ["WebContext", "create_app", "files_root", "web"]
+__all__ = ["create_app"]

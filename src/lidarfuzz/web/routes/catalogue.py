@@ -10,7 +10,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Query, Response, status
 from starlette.concurrency import run_in_threadpool
 
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 
 router = APIRouter(tags=["catalogue"])
 Web = Annotated[WebContext, Depends(web)]

@@ -27,7 +27,7 @@ from starlette.datastructures import UploadFile
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.store.inventory import add_dataset, get_dataset, list_datasets, remove_dataset
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.events import iso
 from lidarfuzz.web.jobs import jobs_of
 from lidarfuzz.web.security import check_name, extract_zip, remove_tree, safe_component, within

@@ -9,7 +9,7 @@ from sqlalchemy import func, select
 
 from lidarfuzz.campaign.tasks import get_task, subtask_label
 from lidarfuzz.store.models import Finding, FrameResult, Subtask
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 
 router = APIRouter(tags=["findings"])
 Web = Annotated[WebContext, Depends(web)]

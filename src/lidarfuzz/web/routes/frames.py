@@ -8,7 +8,7 @@ from fastapi import APIRouter, Depends, HTTPException, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.store.inventory import get_dataset
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.frames import MEDIA_TYPE, pair_payload, scene_payload
 from lidarfuzz.web.security import check_frame_id
 

@@ -22,7 +22,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
 from lidarfuzz.store.inventory import add_model, get_model, list_models, remove_model
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.events import iso
 from lidarfuzz.web.security import check_model_spec, check_name, remove_tree, within
 

@@ -17,7 +17,7 @@ from fastapi.responses import FileResponse
 from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.tasks import get_task
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 
 router = APIRouter(tags=["reports"])
 Web = Annotated[WebContext, Depends(web)]

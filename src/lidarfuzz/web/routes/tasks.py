@@ -12,7 +12,7 @@ from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import count_tasks, create_task, delete_task, get_task, list_tasks, subtask_label
 from lidarfuzz.store.inventory import list_datasets, list_models
 from lidarfuzz.store.models import Status, Task
-from lidarfuzz.web.app import WebContext, web
+from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.events import iso, progress_events, progress_snapshot
 from lidarfuzz.web.security import check_model_spec
 
