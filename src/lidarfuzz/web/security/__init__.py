@@ -20,9 +20,9 @@
 The names below are re-exported here, so a route imports the rules from one place.
 """
 
+from lidarfuzz.web.security.guard import RequestGuard, UploadTooLarge, is_loopback
 from lidarfuzz.web.security.limits import GiB, Limits, MiB, format_bytes
 from lidarfuzz.web.security.paths import check_frame_id, check_name, remove_tree, safe_component, within
-from lidarfuzz.web.security.guard import RequestGuard, UploadTooLarge, is_loopback
 from lidarfuzz.web.security.specs import check_model_spec, check_options
 from lidarfuzz.web.security.tokens import token_dependency
 from lidarfuzz.web.security.zips import check_zip, extract_zip
