@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -178,3 +179,40 @@ def test_the_extras_message_is_one_line_from_the_entry_point(tmp_path: Path) -> 
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "pip install 'lidarfuzz[web]'" in lines[0]
+
+
+BLOCK_EXTRAS = """
+import importlib.abc, sys
+BLOCKED = {"fastapi", "starlette", "uvicorn", "python_multipart", "multipart", "psycopg", "psycopg2", "httpx"}
+class Uninstalled(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in BLOCKED:
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+sys.meta_path.insert(0, Uninstalled())
+import importlib.util
+real = importlib.util.find_spec
+importlib.util.find_spec = lambda name, *a, **k: None if name.split(".")[0] in BLOCKED else real(name, *a, **k)
+from lidarfuzz.cli.app import main
+sys.argv = ["lidarfuzz", *sys.argv[1:]]
+main()
+"""
+
+
+def test_the_core_runs_a_campaign_without_the_web_and_postgres_extras(kitti_log: Path, tmp_path: Path) -> None:
+    """What `pip install lidarfuzz` (no extras) gives: a campaign and its report, with FastAPI,
+    Uvicorn, python-multipart and psycopg unimportable; `serve` then names the web extra."""
+    def cli(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-c", BLOCK_EXTRAS, *args], capture_output=True, text=True,
+                              timeout=300, env={**os.environ, "COLUMNS": "160"})
+
+    ws = ["--workspace", str(tmp_path / "ws")]
+    run = cli("run", "--dataset", str(kitti_log), "--sut", "classic", "--op", "fog@1", "--frames", "1",
+              "--inline", *ws)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert (tmp_path / "ws" / "reports" / "task-1" / "report.html").is_file()
+    serve = cli("serve", *ws)
+    assert serve.returncode == 2 and serve.stderr.strip().count("\n") == 0
+    assert "pip install 'lidarfuzz[web]'" in serve.stderr
+    store = cli("list", "--workspace", "postgresql+psycopg://nobody@localhost/none")
+    assert store.returncode == 2 and "pip install 'lidarfuzz[postgres]'" in store.stderr

@@ -1,14 +1,20 @@
 """The committed front-end bundle (``src/lidarfuzz/web/static``) is built from the committed sources
 (``web/frontend``): ``static/build.json`` records a sha256 of the sources, which this test recomputes
-exactly as ``web/frontend/build.mjs`` does, and a sha256 of every built file. No Node needed."""
+exactly as ``web/frontend/build.mjs`` does, and a sha256 of every built file (no Node needed); and,
+with Node and the front end's packages (marker ``node``), that a fresh build writes the committed
+files byte for byte."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
+
+from tests.requirements import missing
 
 ROOT = Path(__file__).resolve().parents[2]
 FRONTEND = ROOT / "web" / "frontend"
@@ -76,3 +82,40 @@ def test_bundle_is_complete_and_offline(build: dict) -> None:
 def test_bundle_is_lean(build: dict) -> None:
     own = sum((STATIC / p).stat().st_size for p in build["files"] if not p.startswith("vendor/"))
     assert own < 900_000, f"the app and viewer weigh {own} bytes: is three.js tree-shaken and minified?"
+
+
+@pytest.mark.node
+def test_the_bundle_rebuilds_byte_for_byte(tmp_path: Path) -> None:
+    """`npm run build` on the committed sources writes exactly the committed static/ (no network:
+    the packages come from web/frontend/node_modules, which `npm ci` installs; .ci/run does)."""
+    if shutil.which("node") is None:
+        missing("node is not on PATH", "the Debian package nodejs")
+    modules = FRONTEND / "node_modules"
+    if not all((modules / name / "package.json").is_file() for name in ("esbuild", "three", "swagger-ui-dist")):
+        missing(f"{modules} lacks esbuild, three or swagger-ui-dist", "the front end's packages (cd web/frontend "
+                                                                      "&& npm ci)")
+    lock = json.loads((FRONTEND / "package-lock.json").read_text())
+    for name in ("esbuild", "three", "swagger-ui-dist"):
+        installed = json.loads((modules / name / "package.json").read_text())["version"]
+        assert installed == lock["packages"][f"node_modules/{name}"]["version"], \
+            f"node_modules/{name} is {installed}, not the locked version: cd web/frontend && npm ci"
+    # build.mjs writes to ../../src/lidarfuzz/web/static from where it lies: a copy of the sources
+    # in the same layout under tmp_path leaves the committed bundle alone
+    frontend = tmp_path / "web" / "frontend"
+    frontend.mkdir(parents=True)
+    shutil.copytree(FRONTEND / "src", frontend / "src")
+    for name in ("build.mjs", "package.json", "package-lock.json"):
+        shutil.copy2(FRONTEND / name, frontend / name)
+    shutil.copytree(modules, frontend / "node_modules", symlinks=True)  # a link would change the chunk hashes
+    result = subprocess.run(["node", "build.mjs"], cwd=frontend, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    built = tmp_path / "src" / "lidarfuzz" / "web" / "static"
+
+    def tree(root: Path) -> dict[str, str]:
+        return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    rebuilt, committed = tree(built), tree(STATIC)
+    assert sorted(rebuilt) == sorted(committed), "the build writes other files than static/ holds: rebuild"
+    differ = [path for path in committed if rebuilt[path] != committed[path]]
+    assert not differ, f"static/ differs from a fresh build in {differ}: rebuild ({REBUILD})"
