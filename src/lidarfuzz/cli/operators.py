@@ -21,10 +21,10 @@ def operators_command(
     if name is not None:
         cls = get(name)
         if as_json or plain:
-            rows = [[field, description, *values] for field, description, values in severity_rows(cls)]
-            record = {**_record(cls), "doc": inspect.getdoc(cls) or "",
-                      "parameters": [{"name": row[0], "description": row[1], "severities": row[2:]} for row in rows]}
-            print_listing([], rows, record, as_json=as_json, plain=plain)
+            parameter_rows = [[field, description, *values] for field, description, values in severity_rows(cls)]
+            parameters = [{"name": row[0], "description": row[1], "severities": row[2:]} for row in parameter_rows]
+            record = {**_record(cls), "doc": inspect.getdoc(cls) or "", "parameters": parameters}
+            print_listing([], parameter_rows, record, as_json=as_json, plain=plain)
             return
         from rich.table import Table
 

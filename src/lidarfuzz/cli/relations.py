@@ -22,8 +22,8 @@ def relations_command(
             record = {**_record(cls), "parameters": [{"name": shown, "default": info.default,
                                                       "description": info.description or ""}
                                                      for shown, info in fields]}
-            rows = [[shown, repr(info.default), info.description or ""] for shown, info in fields]
-            print_listing([], rows, record, as_json=as_json, plain=plain)
+            parameter_rows = [[shown, repr(info.default), info.description or ""] for shown, info in fields]
+            print_listing([], parameter_rows, record, as_json=as_json, plain=plain)
             return
         from rich.table import Table
 

@@ -76,6 +76,7 @@ def detect_command(
             else:
                 calib = scene.calib or KittiCalibration.default()
                 boxes = result.output
+                assert boxes is not None  # run_guarded gives an output whenever it gives no failure
                 if not all_boxes and len(boxes):
                     boxes = boxes.select(calib.in_view(boxes.centers))
                 text = format_labels(boxes, calib, complete=True)

@@ -76,7 +76,6 @@ from typing import Any
 import numpy as np
 import shapely
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
 from shapely.geometry import MultiPolygon, Polygon
 
 from lidarfuzz.scene.boxes import Boxes3D
@@ -369,6 +368,8 @@ def road_extent(xyz: NDArray[np.floating], settings: DrivableSettings = DEFAULT_
     ego = _ego_level(grid.theta, grid.r, ground_cell, ground_z, s)
     end = _walk(ground_z, ground_cell, blocked, ego, grid, s)
     if s.smooth_sectors > 1:
+        from scipy.ndimage import median_filter  # here: scipy.ndimage takes 0.3 s to import, and io imports this module
+
         end = median_filter(end, size=s.smooth_sectors, mode="wrap")
     return np.maximum(end, s.ego_radius)
 

@@ -29,7 +29,6 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
-from scipy.signal import find_peaks, peak_prominences
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
 from lidarfuzz.operators.lidar.common import scene_intensity_scale
@@ -78,6 +77,9 @@ def estimate_rings(xyz: NDArray[np.floating], bin_deg: float = RING_BIN_DEG,
     width = max(1, round(smooth_deg / bin_deg))
     counts = np.bincount(bins, minlength=int(bins.max()) + width + 1).astype(np.float64)
     smooth = np.convolve(counts, np.ones(width) / width, mode="same")
+    # here: scipy.signal takes about 1 s to import, and every operator listing imports this module
+    from scipy.signal import find_peaks, peak_prominences
+
     peaks, _ = find_peaks(np.concatenate([[0.0], smooth, [0.0]]), distance=max(1, round(min_spacing_deg / bin_deg)))
     peaks -= 1
     if len(peaks) == 0:

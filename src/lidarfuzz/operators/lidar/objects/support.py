@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
-from scipy import ndimage
 
 from lidarfuzz.operators.base import Config, Params, Target
 from lidarfuzz.operators.lidar.common import intensity_scale
@@ -364,6 +363,9 @@ def _silhouette(key: NDArray[np.intp], depth: F64, shape: tuple[int, int],
     nearest = np.full(shape[0] * shape[1], np.inf)
     np.minimum.at(nearest, key, depth)
     image = np.where(np.isfinite(nearest), nearest, 0.0).reshape(shape)
+    # here: scipy.ndimage takes 0.3 s to import, and every operator listing imports this module
+    from scipy import ndimage
+
     filled = ndimage.binary_closing(image > 0, structure=np.ones(size, bool), border_value=0) | (image > 0)
     occluder = np.where(image > 0, image, ndimage.maximum_filter(image, size=size)).ravel()
     return filled.ravel() & (occluder > 0), occluder
