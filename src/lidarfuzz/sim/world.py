@@ -70,7 +70,8 @@ class Trajectory:
     def distance(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
         return np.asarray(t, dtype=np.float64) * self.speed
 
-    def at(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], ...]:
+    def at(self, t: NDArray[np.float64] | float
+           ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(x, y, yaw) at time(s) ``t`` (seconds from the scene's start)."""
         s = np.atleast_1d(self.distance(t))
         cum, unit, heading = self._arc
