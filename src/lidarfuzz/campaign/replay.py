@@ -80,7 +80,7 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
             failure_now = source.failure
         else:
             follow = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"], replay["operator"],
-                                         replay["op_index"], replay["seed"], info["subtask"], relations,
+                                         replay["op_index"], replay["seed"], sub.name, relations,
                                          source.boxes, tuple(source.labels), source.failure is not None,
                                          params=replay["params"], operator_relation=replay.get("operator_relation")))
             failure_now = follow.failure

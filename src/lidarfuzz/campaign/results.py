@@ -38,8 +38,12 @@ TOP_FINDINGS = 24
 
 
 def outcome_from_dict(data: Mapping[str, Any]) -> RelationOutcome:
-    violations = tuple(Violation(**{k: (math.nan if v is None and k in ("magnitude", "range_m") else v)
-                                    for k, v in item.items()}) for item in data.get("violations", []))
+    def violation(item: Mapping[str, Any]) -> Violation:
+        fields: dict[str, Any] = {k: (math.nan if v is None and k in ("magnitude", "range_m") else v)
+                                  for k, v in item.items()}
+        return Violation(**fields)
+
+    violations = tuple(violation(item) for item in data.get("violations", []))
     return RelationOutcome(data["relation"], bool(data["holds"]), violations, dict(data.get("checked", {})),
                            dict(data.get("stats", {})), bool(data.get("applicable", True)))
 
@@ -214,24 +218,28 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
             if result is None:
                 continue
             for metric in AP_METRICS:
-                for cls in [*result.ap[metric], "mAP"]:
+                for class_name in [*result.ap[metric], "mAP"]:
                     for difficulty in DIFFICULTIES:
-                        if cls == "mAP":
+                        if class_name == "mAP":
                             c, m = clean.mean_ap(metric, difficulty), result.mean_ap(metric, difficulty)
                         else:
-                            c, m = clean.get(metric, cls, difficulty), result.get(metric, cls, difficulty)
+                            c, m = clean.get(metric, class_name, difficulty), result.get(metric, class_name, difficulty)
                         delta_rows.append({"label": entry["label"], "operator": entry["operator"],
-                                           "severity": entry["severity"], "metric": metric, "class": cls,
+                                           "severity": entry["severity"], "metric": metric, "class": class_name,
                                            "difficulty": difficulty, "clean": c, "corrupted": m, "delta": m - c})
 
     robustness: dict[str, Any] = {}
     if clean is not None and corrupted:
-        base_clean = base_corrupted = None
+        base_clean: KittiEvalResult | None = None
+        base_corrupted: dict[tuple[str, int], KittiEvalResult] | None = None
         if baseline is not None:
             other = summarise(store, baseline)
             base_clean = ap_result(other["subtasks"][0].get("ap"))
-            base_corrupted = {(e["operator"], e["severity"]): ap_result(e["ap"]) for e in other["subtasks"][1:]
-                              if e.get("ap") and e["severity"] > 0}
+            base_corrupted = {}
+            for e in other["subtasks"][1:]:
+                found = ap_result(e.get("ap")) if e["severity"] > 0 else None
+                if found is not None:
+                    base_corrupted[(e["operator"], e["severity"])] = found
         for metric in AP_METRICS:
             try:
                 summary = robustness_summary(clean, corrupted, baseline_clean=base_clean,
@@ -292,7 +300,8 @@ def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[
             FrameResult, Finding.frame_result_id == FrameResult.id).join(
             Subtask, FrameResult.subtask_id == Subtask.id).where(Finding.task_id == task_id).order_by(
             Finding.magnitude.desc().nulls_first(), Finding.id).limit(2000)).all()
-    chosen, per_group = [], Counter()
+    chosen: list[dict[str, Any]] = []
+    per_group: Counter[tuple[str, str]] = Counter()
     for finding, frame_id, trial, name, severity in rows:
         group = (finding.kind, name)
         if per_group[group] >= 3:

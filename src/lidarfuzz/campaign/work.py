@@ -85,7 +85,7 @@ def content_digest(scene: Scene) -> str:
     """A digest of everything a system may read from a frame."""
     h = hashlib.sha256()
     data = np.ascontiguousarray(scene.points.data)
-    h.update(memoryview(data).cast("B"))
+    h.update(data.data.cast("B"))  # the array's own buffer: no copy
     h.update(json.dumps(list(scene.points.channels)).encode())
     if scene.calib is not None:
         h.update(scene.calib.to_text().encode())
