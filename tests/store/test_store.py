@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -101,3 +102,9 @@ def test_a_bad_url_is_a_clear_error(tmp_path: Path) -> None:
         Store("nosuchdialect://x")
     with pytest.raises(StoreError, match="cannot migrate"):
         Store("postgresql+psycopg://nobody@/nodb?host=/nonexistent&connect_timeout=1")
+
+
+def test_a_postgresql_url_without_its_driver_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "psycopg", None)  # import psycopg now raises ImportError
+    with pytest.raises(StoreError, match=r"pip install 'lidarfuzz\[postgres\]'"):
+        Store("postgresql+psycopg://user@localhost/none", migrate=False)

@@ -47,7 +47,8 @@ class SearchSetupError(LidarfuzzError, ValueError):
 
 def profile_dirs(sut: Any) -> list[Path]:
     """Read-only folders where ``sut`` keeps training profiles of its module (e.g. shipped beside
-    its weights): what its ``profile_dirs()`` returns; none when it has no such method."""
+    its weights): what its ``profile_dirs()`` returns (:meth:`SystemUnderTest.profile_dirs`); none
+    for an object without that method (a search may run any module-backed object)."""
     offered = getattr(sut, "profile_dirs", None)
     return [Path(folder) for folder in offered()] if callable(offered) else []
 

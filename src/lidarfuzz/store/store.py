@@ -55,7 +55,10 @@ class Store:
         self.url = store_url(target)
         try:
             self.engine: Engine = create_engine(self.url, future=True, pool_pre_ping=True)
-        except Exception as exc:  # bad URL, missing driver
+        except ImportError as exc:  # the database's driver is an extra
+            hint = " (pip install 'lidarfuzz[postgres]')" if self.url.startswith("postgresql") else ""
+            raise StoreError(f"cannot open the store at {self.url}: {exc}{hint}") from None
+        except Exception as exc:  # bad URL
             raise StoreError(f"cannot open the store at {self.url}: {exc}") from None
         if self.engine.dialect.name == "sqlite":
             event.listen(self.engine, "connect", _sqlite_pragmas)

@@ -105,6 +105,11 @@ class SystemUnderTest(ABC, Generic[S, O]):
         """Files whose content determines the output (weights, models); hashed into the fingerprint."""
         return ()
 
+    def profile_dirs(self) -> Sequence[Path]:
+        """Read-only folders holding training profiles of the system's network (neuron coverage
+        criteria that need one look there after the cache), e.g. the folder its weights ship in."""
+        return ()
+
     def fingerprint(self) -> str:
         """A stable hash of name, version, configuration and weight files (hex, 16 chars)."""
         payload = {
