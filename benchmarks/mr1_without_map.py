@@ -4,9 +4,10 @@ on frames without a map, at n = 10, 100 and 1000 scattered points.
 Usage: ``.venv/bin/python benchmarks/mr1_without_map.py [--frames 12] [--trials 3] [--real DIR] [--real-trials 10]``
 
 Frames: simulator frames (HDL-64E, rendered here) with their map removed and their intensities mapped
-by rank onto the distribution of real KITTI scans (9 % read 0; the same constants as
-``tests/operators/test_roi_estimate.py``), and — when ``--real`` names a KITTI folder (by default
-``../shared/realdata/kitti`` when present) — those real frames as they are. Configurations:
+by rank onto the distribution of real KITTI scans (9 % read 0:
+:func:`lidarfuzz.sim.realism.real_intensities`, as ``tests/operators/test_roi_estimate.py`` does),
+and — when ``--real`` names a KITTI folder (by default ``../shared/realdata/kitti`` when present) —
+those real frames as they are. Configurations:
 
 * ``boxes``: the region before the estimate (outside the labelled boxes grown by 1 m);
 * ``estimated, no map for the SUT``: the points avoid the estimated region, the pipeline has no map;
@@ -25,28 +26,17 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
 from lidarfuzz.operators import generator
 from lidarfuzz.operators.lidar.points import OutsideRoiScatter
 from lidarfuzz.oracles.relations.base import Pair
 from lidarfuzz.oracles.relations.detection import Preservation
 from lidarfuzz.scene.drivable import with_estimated_roi
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.sim.realism import real_intensities
 from lidarfuzz.suts.classic.pipeline import ClassicPipeline
 
-ZERO_SHARE = 0.09  # real KITTI 000000-000002: 8.5-10.4 % of the returns read 0
-NONZERO_DECILES = np.array([0.01, 0.16, 0.21, 0.25, 0.28, 0.30, 0.32, 0.34, 0.37, 0.42, 0.99])
 COUNTS = (10, 100, 1000)
 REAL_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "kitti"
-
-
-def real_intensities(scene: Scene) -> Scene:
-    values = scene.points.intensity.astype(np.float64)
-    rank = (np.argsort(np.argsort(values, kind="stable"), kind="stable") + 0.5) / len(values)
-    mapped = np.where(rank < ZERO_SHARE, 0.0,
-                      np.interp((rank - ZERO_SHARE) / (1 - ZERO_SHARE), np.linspace(0, 1, 11), NONZERO_DECILES))
-    return scene.with_points(scene.points.with_channel("intensity", mapped.astype(np.float32)))
 
 
 def rates(frames: list[Scene], region: str, trials: int) -> dict[int, tuple[int, int, int]]:

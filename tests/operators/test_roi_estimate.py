@@ -246,21 +246,6 @@ def test_params_of_older_campaigns_still_replay(street):
 
 
 # --------------------------------------------------------------------------- MR1 on the correct pipeline
-# Intensity statistics of the real KITTI frames 000000–000002 (HDL-64E): 8.5–10.4 % of the returns read
-# exactly 0; the deciles of the non-zero readings (0 %, 10 %, …, 100 %), averaged over the three frames.
-ZERO_SHARE = 0.09
-NONZERO_DECILES = np.array([0.01, 0.16, 0.21, 0.25, 0.28, 0.30, 0.32, 0.34, 0.37, 0.42, 0.99])
-
-
-def real_intensities(scene: Scene) -> Scene:
-    """The simulator's intensities mapped by rank onto the real distribution (order kept)."""
-    values = scene.points.intensity.astype(np.float64)
-    rank = (np.argsort(np.argsort(values, kind="stable"), kind="stable") + 0.5) / len(values)
-    mapped = np.where(rank < ZERO_SHARE, 0.0,
-                      np.interp((rank - ZERO_SHARE) / (1 - ZERO_SHARE), np.linspace(0, 1, 11), NONZERO_DECILES))
-    return scene.with_points(scene.points.with_channel("intensity", mapped.astype(np.float32)))
-
-
 def mr1_violations(frames: list[Scene], region: str, trials: int) -> tuple[int, int]:
     from lidarfuzz.oracles.relations.base import Pair
     from lidarfuzz.oracles.relations.detection import Preservation
@@ -283,6 +268,7 @@ def mr1_violations(frames: list[Scene], region: str, trials: int) -> tuple[int, 
 @pytest.mark.slow
 def test_mr1_with_an_estimated_roi_is_rarely_violated_by_the_correct_pipeline():
     from lidarfuzz.sim import GenerationConfig, render_frames
+    from lidarfuzz.sim.realism import real_intensities
 
     frames = [real_intensities(scene.replace(roi=None, metadata={}))
               for scene in render_frames(GenerationConfig(frames=4, seed=21))]

@@ -38,11 +38,18 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, field_validator
 
+from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.sensor import LidarSensor, clean_sensor, sensor_with
 
 Range = tuple[float, float]
+
+#: Share of the returns of real KITTI scans (HDL-64E, training 000000–000002: 8.5–10.4 %) that read exactly 0.
+KITTI_ZERO_SHARE = 0.09
+#: Deciles (0 %, 10 %, …, 100 %) of those scans' non-zero intensities, averaged over the three frames.
+KITTI_NONZERO_DECILES = np.array([0.01, 0.16, 0.21, 0.25, 0.28, 0.30, 0.32, 0.34, 0.37, 0.42, 0.99])
 
 #: Where each receiver/loss knob lives on :class:`~lidarfuzz.sim.sensor.LidarSensor`:
 #: ``RealismConfig`` field (without ``_range``) → (section, field); section ``None`` is the sensor itself.
@@ -213,4 +220,29 @@ class RealismConfig(BaseModel):
         return sensor_with(sensor, **update)
 
 
-__all__ = ["SENSOR_KNOBS", "Range", "RealismConfig"]
+def real_intensities(scene: Scene) -> Scene:
+    """``scene`` with its intensities mapped by rank onto the distribution of real KITTI scans.
+
+    The order of the readings is kept: the lowest :data:`KITTI_ZERO_SHARE` of them read 0, the
+    rest follow :data:`KITTI_NONZERO_DECILES` (linear between deciles). For frames whose
+    intensity statistics should look like a real sensor's whatever the simulator's receiver
+    produced (tests and benchmarks that compare with real frames); points, boxes and the rest
+    of the scene are left alone.
+
+    Example:
+        >>> from lidarfuzz.scene.points import PointCloud
+        >>> cloud = PointCloud(np.c_[np.zeros((100, 3)), np.arange(100.0)])
+        >>> mapped = real_intensities(Scene(cloud)).points.intensity
+        >>> int((mapped == 0).sum()), float(mapped.max()) <= 0.99
+        (9, True)
+    """
+    values = scene.points.intensity.astype(np.float64)
+    order = np.argsort(np.argsort(values, kind="stable"), kind="stable")
+    rank: NDArray[np.float64] = (order + 0.5) / len(values)
+    mapped = np.where(rank < KITTI_ZERO_SHARE, 0.0,
+                      np.interp((rank - KITTI_ZERO_SHARE) / (1 - KITTI_ZERO_SHARE), np.linspace(0, 1, 11),
+                                KITTI_NONZERO_DECILES))
+    return scene.with_points(scene.points.with_channel("intensity", mapped.astype(np.float32)))
+
+
+__all__ = ["KITTI_NONZERO_DECILES", "KITTI_ZERO_SHARE", "SENSOR_KNOBS", "Range", "RealismConfig", "real_intensities"]
