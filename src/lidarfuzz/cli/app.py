@@ -10,7 +10,8 @@ import heavy libraries (numpy, the engine, SQLAlchemy, FastAPI) inside the comma
 from __future__ import annotations
 
 import sys
-from typing import Annotated
+import warnings
+from typing import Annotated, TextIO
 
 import typer
 from rich.markup import escape
@@ -98,8 +99,24 @@ models.command("remove")(catalog.models_remove)
 app.add_typer(models, name="models")
 
 
+_python_show_warning = warnings.showwarning
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None) -> None:
+    """A plugin left out is the user's to act on, not a line of lidarfuzz's code: show it as
+    ``lidarfuzz: warning: <message>``, one line on stderr. Other warnings as Python shows them."""
+    from lidarfuzz.plugins import PluginWarning  # here, not at start-up (``--help`` needs no plugins)
+
+    if issubclass(category, PluginWarning):
+        print(f"lidarfuzz: warning: {message}", file=file or sys.stderr)
+    else:
+        _python_show_warning(message, category, filename, lineno, file, line)
+
+
 def main() -> None:
     """Entry point: user-facing errors become one clear line and exit code 2, not a traceback."""
+    previous, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         app()
     except LidarfuzzError as exc:
@@ -108,3 +125,5 @@ def main() -> None:
     except OSError as exc:  # permission denied, disk full, ...: the OS message names the file
         err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(2)
+    finally:
+        warnings.showwarning = previous
