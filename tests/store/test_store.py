@@ -24,9 +24,9 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Store:
 
 
 def test_schema_is_migrated_once_and_idempotently(store: Store) -> None:
-    assert store.revision() == "0003"
+    assert store.revision() == "0004"
     store.migrate()
-    assert store.revision() == "0003"
+    assert store.revision() == "0004"
     assert {"datasets", "models", "tasks", "subtasks", "frame_results", "findings"} <= set(store.tables())
 
 
@@ -52,8 +52,8 @@ def seed(store: Store) -> int:
         s.flush()
         boxes = np.array([[10, 0, -0.9, 4, 1.7, 1.5, 0.1, 0.9]], dtype=np.float32)
         result = FrameResult(subtask_id=task.subtasks[1].id, frame_id="000001", params={"mor": 120.5},
-                             boxes=boxes.tobytes(), labels=["Car"], relations=[{"relation": "preservation"}],
-                             seconds=0.04)
+                             boxes=boxes.tobytes(), labels=["Car"], seconds=0.04,
+                             relations=[{"relation": "preservation", "holds": True}])
         s.add(result)
         s.flush()
         s.add(Finding(task_id=task.id, frame_result_id=result.id, kind="preservation", cls="Car", magnitude=0.2,

@@ -8,7 +8,6 @@ can see, and a frame's 30 boxes take under 2 kB.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -50,16 +49,3 @@ def decode_boxes(blob: bytes | None, labels: Sequence[Any]) -> Boxes3D:
         scores=rows[:, 7], truncation=rows[:, 8], occlusion=np.nan_to_num(rows[:, 9], nan=-1).astype(np.int64),
         alpha=rows[:, 10], bbox2d=rows[:, 11:15], track_ids=np.nan_to_num(rows[:, 15], nan=-1).astype(np.int64),
     )
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with NaN and ±Inf as None (JSON has no such numbers; PostgreSQL rejects them)."""
-    if isinstance(value, float):
-        return None if math.isnan(value) or math.isinf(value) else value
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        return json_safe(value.item())
-    return value

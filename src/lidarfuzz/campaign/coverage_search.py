@@ -25,11 +25,12 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, insert, select, update
 
-from lidarfuzz.campaign.codec import encode_boxes, json_safe
+from lidarfuzz.campaign.codec import encode_boxes
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for_kind
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.search.algorithms import SearchConfig, TestRecord, make_search
+from lidarfuzz.store.contracts import SearchProgress, SearchSummary, TaskSummary
 from lidarfuzz.store.errors import ConflictError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
@@ -95,18 +96,18 @@ class _SearchRun:
 
         self.store, self.task, self.progress = store, task, progress
         self.watch = Watch(store, task.id, stop)
-        self.config = SearchConfig.model_validate(task.options["search"])
+        self.config = SearchConfig.model_validate(task.options.kind_options)
         subs = {sub.name: sub for sub in task.subtasks}
         self.original, self.sub = subs[ORIGINAL], subs[self.config.kind]
         self.sut = create(task.model.spec, **task.model.options)
         self.sut.load()
         module = torch_module(self.sut)
         self.criteria = build_criteria(self.config.criteria, module, profile_dirs(self.sut))
-        relations = [from_spec(spec) for spec in self.sub.results.get("relation_specs", [])]
+        relations = [from_spec(spec) for spec in self.sub.plan.relation_specs]
         self.evaluator = SearchEvaluator(open_registered(task.dataset), self.sut, relations,
                                          ActivationRecorder(module), keep_share=self.config.keep_share)
-        self.search = make_search(self.config, task.options["frame_ids"], self.criteria, task.seed)
-        state = self.sub.results.get("state")
+        self.search = make_search(self.config, task.options.frame_ids, self.criteria, task.seed)
+        state = self.sub.state
         if state:
             self.search.load_state_dict(state)
         self.stats = RunStats()
@@ -120,8 +121,8 @@ class _SearchRun:
                 "relation": relation, "operator_relation": "invariant" if e.valid and e.chain else None}
 
     def commit(self, records: list[TestRecord]) -> None:
-        specs = {spec["name"]: spec for spec in self.sub.results.get("relation_specs", [])}
-        state = json_safe(self.search.state_dict())
+        specs = {spec["name"]: spec for spec in self.sub.plan.relation_specs}
+        state = self.search.state_dict()
         with self.connection.begin():
             counts = {self.original.id: 0, self.sub.id: 0}
             for record in records:
@@ -134,10 +135,10 @@ class _SearchRun:
                 gt_boxes, gt_labels = encode_boxes(e.scene.boxes) if e.scene is not None else (None, [])
                 row_id = self.connection.execute(insert(FrameResult).returning(FrameResult.id), {
                     "subtask_id": sub.id, "frame_id": e.frame_id, "trial": trial,
-                    "params": json_safe(record.params()) if record.role != "seed" else json_safe(
-                        {"role": "seed", "gains": record.gains, "coverage": record.coverage}),
+                    "params": record.params() if record.role != "seed" else {
+                        "role": "seed", "gains": record.gains, "coverage": record.coverage},
                     "boxes": boxes, "labels": labels, "gt_boxes": gt_boxes, "gt_labels": gt_labels,
-                    "failure": e.failure, "relations": json_safe(e.relations), "seconds": e.seconds,
+                    "failure": e.failure, "relations": e.relations, "seconds": e.seconds,
                     "cached": False, "created_at": now()}).scalar_one()
                 counts[sub.id] += 0 if record.role == "minimised" else 1
                 rows = []
@@ -153,14 +154,14 @@ class _SearchRun:
                 self.stats.units += 1
                 self.stats.sut += e.seconds
                 self.stats.failures += int(e.failure is not None)
-            results = dict(self.sub.results)
-            results["state"] = state
-            results["search"] = json_safe({"coverage": self.search.coverage(), "stats": self.search.stats})
-            self.sub.results = results
+            results = self.sub.results.model_copy(update={"search": SearchProgress(
+                coverage=self.search.coverage(), stats=self.search.stats)})
+            self.sub.results, self.sub.state = results, state
             for sub_id, n in counts.items():
                 self.connection.execute(update(Subtask).where(Subtask.id == sub_id).values(
                     done=Subtask.done + n, status=Status.RUNNING))
-            self.connection.execute(update(Subtask).where(Subtask.id == self.sub.id).values(results=results))
+            self.connection.execute(update(Subtask).where(Subtask.id == self.sub.id).values(
+                results=results, state=state))
             self.connection.execute(update(Task).where(Task.id == self.task.id).values(
                 done=Task.done + sum(counts.values()), heartbeat_at=now()))
 
@@ -178,13 +179,13 @@ class _SearchRun:
                 label = "seeds" if records and records[0].role == "seed" else self.config.kind
                 self.progress(ProgressEvent(done, total, self.sub.id, label, done, total))
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> TaskSummary:
         from lidarfuzz.campaign.results import summarise
 
-        finish_subtasks(self.store, self.task.id, None)
+        finish_subtasks(self.store, self.task.id)
         summary = summarise(self.store, self.task.id)
-        summary["search"] = json_safe({"kind": self.config.kind, "coverage": self.search.coverage(),
-                                       "stats": self.search.stats, "signatures": self.search.known})
+        summary.search = SearchSummary(kind=self.config.kind, coverage=self.search.coverage(),
+                                       stats=self.search.stats, signatures=self.search.known)
         return summary
 
     def close(self) -> None:
@@ -192,7 +193,7 @@ class _SearchRun:
         self.sut.close()
 
 
-def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] | None) -> None:
+def finish_subtasks(store: Store, task_id: int) -> None:
     """Evaluate both subtasks (AP over the generated tests too) and mark them done."""
     from lidarfuzz.campaign.results import evaluate_subtask
     from lidarfuzz.store.inventory import open_registered
@@ -210,9 +211,8 @@ def finish_subtasks(store: Store, task_id: int, search_results: dict[str, Any] |
                                          FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
                                          FrameResult.relations, FrameResult.seconds, FrameResult.cached).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)))
-            results = dict(sub.results)
-            results.update(evaluate_subtask(rows, calibration, unlabelled=task.options.get("unlabelled_frames", ())))
-            sub.results = json_safe(results)
+            figures = evaluate_subtask(rows, calibration, unlabelled=task.options.unlabelled_frames)
+            sub.results = figures.model_copy(update={"search": sub.results.search})
             sub.total = sub.done = int(s.scalar(select(func.count()).select_from(FrameResult).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)) or 0)
             sub.status = Status.DONE
@@ -264,7 +264,7 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
                       else relations_for_kind(Relation.INVARIANT, choice))
     options = search.model_dump(mode="json")
     return KindPlan([SubtaskPlan(search.kind, {"name": search.kind, "search": options}, search.budget,
-                                 relations=relation_specs)], {"search": options})
+                                 relations=relation_specs)], options)
 
 
 def start(store: Store, task: Task, options: RunOptions) -> _SearchRun:
@@ -272,8 +272,8 @@ def start(store: Store, task: Task, options: RunOptions) -> _SearchRun:
 
 
 def describe(task: Task) -> str:
-    return (f"{task.options.get('kind')} search of {task.options['search']['budget']} tests from "
-            f"{len(task.options['frame_ids'])} seed frames")
+    config = SearchConfig.model_validate(task.options.kind_options)
+    return f"{config.kind} search of {config.budget} tests from {len(task.options.frame_ids)} seed frames"
 
 
 __all__ = ["MINIMISED", "SearchSetupError", "build_criteria", "check_spec", "counted_below", "coverage_profile",

@@ -87,8 +87,8 @@ def task_kind(name: str) -> TaskKind:
 
 
 def kind_of(task: Any) -> TaskKind:
-    """The row of a stored task (tasks from before kinds existed are mutation campaigns)."""
-    return task_kind(task.options.get("kind", DEFAULT_KIND))
+    """The row of a stored task."""
+    return task_kind(task.options.kind)
 
 
 __all__ = ["DEFAULT_KIND", "TASK_KINDS", "TaskKind", "UnknownKindError", "find_kind", "kind_names", "kind_of",

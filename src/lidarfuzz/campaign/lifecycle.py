@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from sqlalchemy import func, select, update
 
-from lidarfuzz.campaign.codec import json_safe
+from lidarfuzz.store.contracts import RunTimings, TaskSummary
 from lidarfuzz.store.errors import NotFoundError, StoreError
 from lidarfuzz.store.models import FrameResult, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
@@ -67,9 +67,9 @@ class RunStats:
     store: float = 0.0  # committing results
     evaluate: float = 0.0  # AP and summaries at the end of subtasks
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"units": self.units, "cached": self.cached, "failures": self.failures, "wall": self.wall,
-                "sut": self.sut, "stages": dict(self.stages), "store": self.store, "evaluate": self.evaluate}
+    def timings(self) -> RunTimings:
+        return RunTimings(units=self.units, cached=self.cached, failures=self.failures, wall=self.wall,
+                          sut=self.sut, stages=dict(self.stages), store=self.store, evaluate=self.evaluate)
 
 
 @dataclass(frozen=True)
@@ -224,11 +224,11 @@ def set_status(store: Store, task_id: int, status: Status, error: str) -> None:
                 sub.status = Status.PENDING if status != Status.FAILED else sub.status
 
 
-def finish(store: Store, task_id: int, summary: dict[str, Any]) -> None:
+def finish(store: Store, task_id: int, summary: TaskSummary) -> None:
     """A run that finished: the task done, with its summary."""
     with store.session() as s:
         row = task_row(s, task_id)
-        row.summary, row.status, row.finished_at = json_safe(summary), Status.DONE, now()
+        row.summary, row.status, row.finished_at = summary, Status.DONE, now()
 
 
 # -- what a task kind implements --------------------------------------------------------
@@ -258,7 +258,7 @@ class KindRun(Protocol):
         """Run every unit that has no result, committing each; raise :class:`CancelledError` when
         the :class:`Watch` says so."""
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> TaskSummary:
         """After :meth:`execute`: evaluate what is left and return the task's summary."""
 
     def close(self) -> None:
@@ -303,7 +303,7 @@ def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOpti
         run.execute()
         summary = run.summary()
         run.stats.wall = time.perf_counter() - started
-        summary["run"] = run.stats.to_dict()
+        summary.run = run.stats.timings()
         finish(store, task_id, summary)
     except CancelledError:
         status = Status.CANCELLED

@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy import bindparam, insert, select, update
 from sqlalchemy.exc import IntegrityError
 
-from lidarfuzz.campaign.codec import json_safe
 from lidarfuzz.campaign.executor import Executor, ProcessExecutor
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for, subtask_label
 from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
+from lidarfuzz.store.contracts import TaskSummary, ViolationRecord
 from lidarfuzz.store.errors import StoreError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
 from lidarfuzz.store.store import Store
@@ -52,9 +52,8 @@ class _Run:
         self.subtasks = {sub.id: sub for sub in task.subtasks}
         self.done = {sub.id: sub.done for sub in task.subtasks}
         self.task_done = task.done
-        options = task.options
-        self.frame_ids: list[str] = list(options.get("frame_ids", []))
-        self.trials = int(options.get("trials", 1))
+        self.frame_ids: list[str] = list(task.options.frame_ids)
+        self.trials = task.options.trials
         self._calibs: dict[str, Any] = {}
         self._connection = store.engine.connect()  # one for every commit: no pool check-out per result
         # statements built once (building one costs more than running it)
@@ -91,7 +90,7 @@ class _Run:
         for sub in subtasks:
             is_original = sub.name == ORIGINAL
             trials = 1 if is_original else self.trials
-            relations = tuple(sub.results.get("relation_specs", [])) if not is_original else ()
+            relations = tuple(sub.plan.relation_specs) if not is_original else ()
             label = subtask_label(sub.name, sub.severity)
             for frame_id in block:
                 for trial in range(trials):
@@ -115,25 +114,25 @@ class _Run:
     def _findings(self, result: UnitResult, frame_result_id: int) -> list[dict[str, Any]]:
         """Rows of the findings table: a failure, and per violated relation one per class."""
         findings = []
-        if result.failure is not None:
+        failure = result.failure
+        if failure is not None:
             findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id, cls="", magnitude=None,
-                                 kind=result.failure["kind"], message=result.failure["message"],
-                                 detail={"detail": result.failure.get("detail", "")},
+                                 kind=failure.kind, message=failure.message, detail={"detail": failure.detail},
                                  replay=self._replay(result)))
         specs = {spec["name"]: spec for spec in result.unit.relations}
         for outcome in result.relations:
-            if outcome["holds"] or not outcome["violations"]:
+            if outcome.holds or not outcome.violations:
                 continue
-            by_class: dict[str, list[dict[str, Any]]] = defaultdict(list)
-            for violation in outcome["violations"]:
-                by_class[violation["cls"]].append(violation)
+            by_class: dict[str, list[ViolationRecord]] = defaultdict(list)
+            for violation in outcome.violations:
+                by_class[violation.cls].append(violation)
             for cls, violations in sorted(by_class.items()):
-                first = violations[0]["message"]
+                first = violations[0].message
                 more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
                 findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id,
-                                     kind=outcome["relation"], cls=cls, magnitude=float(len(violations)),
-                                     message=first + more, detail={"violations": violations},
-                                     replay=self._replay(result, specs.get(outcome["relation"]))))
+                                     kind=outcome.relation, cls=cls, magnitude=float(len(violations)),
+                                     message=first + more, detail={"violations": [v.dump() for v in violations]},
+                                     replay=self._replay(result, specs.get(outcome.relation))))
         return findings
 
     def commit(self, result: UnitResult) -> bool:
@@ -200,11 +199,9 @@ class _Run:
                                          FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
                                          FrameResult.relations, FrameResult.seconds, FrameResult.cached,
                                          FrameResult.params).where(FrameResult.subtask_id == sub.id)))
-            results = dict(row.results)
             operator = from_spec(row.operator) if row.operator else None
-            results.update(evaluate_subtask(rows, self.calibration, operator=operator,
-                                            unlabelled=self.task.options.get("unlabelled_frames", ())))
-            row.results = json_safe(results)
+            row.results = evaluate_subtask(rows, self.calibration, operator=operator,
+                                           unlabelled=self.task.options.unlabelled_frames)
             row.status = Status.DONE
         self.stats.evaluate += time.perf_counter() - start
 
@@ -243,7 +240,7 @@ class _Run:
             if self.done[sub.id] >= sub.total:
                 self.finish(sub)
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> TaskSummary:
         from lidarfuzz.campaign.results import summarise
 
         start = time.perf_counter()
@@ -285,8 +282,8 @@ def start(store: Store, task: Task, options: RunOptions) -> _Run:
     in_memory = store.url.startswith("sqlite://") and store.url in ("sqlite://", "sqlite:///:memory:")
     stored = task.options
     context = WorkContext(task.dataset.path, task.model.spec, dict(task.model.options), task.model.fingerprint,
-                          store_url=None if in_memory else store.url, isolate=bool(stored.get("isolate")),
-                          timeout=float(stored.get("timeout", 60.0)), save_mutants=stored.get("save_mutants"),
+                          store_url=None if in_memory else store.url, isolate=stored.isolate,
+                          timeout=stored.timeout, save_mutants=stored.save_mutants,
                           dataset_options=dict(task.dataset.options or {}))
     executor = options.executor or ProcessExecutor(options.workers)
     try:

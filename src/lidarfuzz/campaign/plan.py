@@ -68,7 +68,8 @@ class SubtaskPlan:
 
 @dataclass(frozen=True)
 class KindPlan:
-    """What a task kind adds to a new task: its subtasks after the originals, and options of its own."""
+    """What a task kind adds to a new task: its subtasks after the originals, and options of its own
+    (stored as :attr:`lidarfuzz.store.contracts.TaskOptions.kind_options`; the kind validates them)."""
 
     subtasks: list[SubtaskPlan]
     options: dict[str, Any] = field(default_factory=dict)

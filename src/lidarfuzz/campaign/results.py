@@ -13,7 +13,6 @@ detections (every object missed).
 
 from __future__ import annotations
 
-import math
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
@@ -22,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import func, select
 
-from lidarfuzz.campaign.codec import decode_boxes, json_safe
+from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.lifecycle import get_task
 from lidarfuzz.campaign.plan import ORIGINAL, subtask_label
 from lidarfuzz.operators.base import Relation
@@ -30,6 +29,23 @@ from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult,
 from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
 from lidarfuzz.oracles.robustness import RelationRecord, count_form_rates, robustness_summary, violation_rates
 from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.store.contracts import (
+    APExcluded,
+    APRecord,
+    DatasetRef,
+    DeltaRow,
+    FindingsSummary,
+    ModelRef,
+    OutcomeRecord,
+    RateRow,
+    RobustnessRecord,
+    SubtaskResults,
+    SubtaskSummary,
+    TaskInfo,
+    TaskSummary,
+    TopFinding,
+    ViolationTables,
+)
 from lidarfuzz.store.models import Finding, FrameResult, Subtask
 from lidarfuzz.store.store import Store
 
@@ -37,15 +53,11 @@ AP_METRICS: tuple[str, ...] = ("bbox", "bev", "3d")
 TOP_FINDINGS = 24
 
 
-def outcome_from_dict(data: Mapping[str, Any]) -> RelationOutcome:
-    def violation(item: Mapping[str, Any]) -> Violation:
-        fields: dict[str, Any] = {k: (math.nan if v is None and k in ("magnitude", "range_m") else v)
-                                  for k, v in item.items()}
-        return Violation(**fields)
-
-    violations = tuple(violation(item) for item in data.get("violations", []))
-    return RelationOutcome(data["relation"], bool(data["holds"]), violations, dict(data.get("checked", {})),
-                           dict(data.get("stats", {})), bool(data.get("applicable", True)))
+def outcome_from_record(record: OutcomeRecord) -> RelationOutcome:
+    """A stored relation outcome as the oracles' :class:`RelationOutcome`."""
+    violations = tuple(Violation(**v.model_dump()) for v in record.violations)
+    return RelationOutcome(record.relation, record.holds, violations, dict(record.checked), dict(record.stats),
+                           record.applicable)
 
 
 def in_view(detections: Boxes3D, calib: Any) -> Boxes3D:
@@ -69,7 +81,7 @@ def labelled_region(detections: Boxes3D, calib: Any, transform: NDArray[np.float
 
 
 def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
-                     operator: Any = None, unlabelled: Iterable[str] = ()) -> dict[str, Any]:
+                     operator: Any = None, unlabelled: Iterable[str] = ()) -> SubtaskResults:
     """Figures of one complete subtask from its frame results (rows of frame id, boxes, labels,
     gt boxes, gt labels, failure, relations, seconds, cached and, when ``operator`` is given, the
     params of its mutant).
@@ -99,8 +111,8 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
         cached += int(bool(was_cached))
         seconds += float(secs or 0.0)
         for item in relations or []:
-            records.append(RelationRecord(item["relation"], "", 0, frame_id, outcome_from_dict(item)))
-        if failure is not None and failure.get("kind") == "operator_error":
+            records.append(RelationRecord(item.relation, "", 0, frame_id, outcome_from_record(item)))
+        if failure is not None and failure.kind == "operator_error":
             continue  # no mutant: nothing to evaluate
         if frame_id in skipped:
             excluded.append(frame_id)
@@ -121,38 +133,41 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
         frame = KittiFrame(gt, labelled_region(in_view(detections, calib), calib, transform), calib) \
             if calib is not None else KittiFrame(gt, detections)
         frames.append(frame)
-    out: dict[str, Any] = {"frames": len(rows), "failures": failures, "cached": cached, "sut_seconds": seconds}
-    out["ap"] = evaluate_kitti(frames).to_dict() if labelled and frames else None
-    if out["ap"] is None and moved and frames:
-        out["ap_note"] = "no AP: the operator moved every labelled object out of the camera's view"
+    def rates(rows: Iterable[Any]) -> list[RateRow]:
+        return [RateRow.model_validate(r.to_dict()) for r in rows]
+
+    out = SubtaskResults(frames=len(rows), failures=failures, cached=cached, sut_seconds=seconds)
+    out.ap = APRecord.of(evaluate_kitti(frames)) if labelled and frames else None
+    if out.ap is None and moved and frames:
+        out.ap_note = "no AP: the operator moved every labelled object out of the camera's view"
     if excluded:
         unique = sorted(set(excluded))
-        out["ap_excluded"] = {"frames": len(unique), "examples": unique[:5],
-                              "reason": "no label file (unlabelled; run with --allow-unlabelled)"}
-    out["violations"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"))]
-    out["violations_per_object"] = [r.to_dict() for r in violation_rates(records, by=("relation", "class"),
-                                                                          per="object")]
-    out["violations_total"] = [r.to_dict() for r in violation_rates(records, by=("relation",))]
-    out["count_form"] = [r.to_dict() for r in count_form_rates(records, by=("severity",))]
+        out.ap_excluded = APExcluded(frames=len(unique), examples=unique[:5],
+                                     reason="no label file (unlabelled; run with --allow-unlabelled)")
+    out.violations = rates(violation_rates(records, by=("relation", "class")))
+    out.violations_per_object = rates(violation_rates(records, by=("relation", "class"), per="object"))
+    out.violations_total = rates(violation_rates(records, by=("relation",)))
+    out.count_form = rates(count_form_rates(records, by=("severity",)))
     if regions:
-        out["regions"] = {name: len(ids) for name, ids in sorted(regions.items())}
+        out.regions = {name: len(ids) for name, ids in sorted(regions.items())}
     return out
 
 
-def ap_result(data: Mapping[str, Any] | None) -> KittiEvalResult | None:
-    if not data:
+def ap_result(record: APRecord | None) -> KittiEvalResult | None:
+    """A stored AP record as a :class:`KittiEvalResult` (None: no AP)."""
+    if record is None:
         return None
-    return KittiEvalResult.from_dict(dict(data))
+    return KittiEvalResult.from_dict(record.model_dump())
 
 
-def ap_warnings(subtasks: Sequence[Mapping[str, Any]]) -> list[str]:
+def ap_warnings(subtasks: Sequence[SubtaskSummary]) -> list[str]:
     """Why a task's AP may not mean what it seems (single frame, few objects): the original's
     warnings, then those a mutant adds for a class the original had enough of (an operator that
     removes objects or moves them out of view), prefixed by its label."""
     notes: list[str] = []
     warned: set[str] = set()  # the original's classes (and "AP from a single frame")
     for index, entry in enumerate(subtasks):
-        result = ap_result(entry.get("ap"))
+        result = ap_result(entry.ap)
         if result is None:
             continue
         for note in result.sample_warnings():
@@ -161,33 +176,34 @@ def ap_warnings(subtasks: Sequence[Mapping[str, Any]]) -> list[str]:
                 warned.add(subject)
                 notes.append(note)
             elif subject not in warned:
-                notes.append(f"{entry.get('label', '')}: {note}")
+                notes.append(f"{entry.label}: {note}")
     return notes
 
 
-def _sum_rates(rows: Iterable[tuple[dict[str, Any], dict[str, Any]]], keys: Sequence[str]) -> list[dict[str, Any]]:
+def _sum_rates(rows: Iterable[tuple[dict[str, Any], RateRow]], keys: Sequence[str]) -> list[RateRow]:
+    """Rates summed over the groups ``keys`` (fields of the rows, or of their context)."""
     checked: dict[tuple[Any, ...], int] = defaultdict(int)
     violated: dict[tuple[Any, ...], int] = defaultdict(int)
     for context, rate in rows:
-        merged = {**rate, **context}
+        merged = {**rate.model_dump(by_alias=True), **context}
         key = tuple(merged.get(k) for k in keys)
-        checked[key] += int(rate["checked"])
-        violated[key] += int(rate["violated"])
+        checked[key] += rate.checked
+        violated[key] += rate.violated
     out = []
     for key in sorted(checked, key=lambda k: tuple(str(v) for v in k)):
         n = checked[key]
-        out.append({**dict(zip(keys, key, strict=True)), "checked": n, "violated": violated[key],
-                    "rate": violated[key] / n if n else None})
+        out.append(RateRow.model_validate({**dict(zip(keys, key, strict=True)), "checked": n,
+                                           "violated": violated[key], "rate": violated[key] / n if n else None}))
     return out
 
 
-def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dict[str, Any]:
-    """The task's report data (JSON-able); ``baseline``: a task of another system on the same
-    campaign, for Robo3D's corruption error."""
+def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> TaskSummary:
+    """The task's report data; ``baseline``: a task of another system on the same campaign, for
+    Robo3D's corruption error."""
     from lidarfuzz.operators.registry import get as get_operator
 
     task = get_task(store, task_id)
-    subtasks = []
+    subtasks: list[SubtaskSummary] = []
     clean: KittiEvalResult | None = None
     corrupted: dict[tuple[str, int], KittiEvalResult] = {}
     for sub in task.subtasks:
@@ -198,14 +214,12 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
                 family, relation_kind = cls.family, cls.relation.value
             except Exception:  # an operator plugin no longer installed: the stored figures still stand
                 pass
-        results = sub.results or {}
-        entry = {"id": sub.id, "label": subtask_label(sub.name, sub.severity), "operator": sub.name,
-                 "family": family, "relation_kind": relation_kind, "severity": sub.severity,
-                 "config": sub.operator.get("config", {}), "status": sub.status.value, "done": sub.done,
-                 "total": sub.total, **{k: v for k, v in results.items() if k != "relation_specs"},
-                 "relations": [spec["name"] for spec in results.get("relation_specs", [])]}
+        entry = SubtaskSummary(id=sub.id, label=subtask_label(sub.name, sub.severity), operator=sub.name,
+                               family=family, relation_kind=relation_kind, severity=sub.severity,
+                               config=sub.operator.get("config", {}), status=sub.status.value, done=sub.done,
+                               total=sub.total, relations=sub.plan.relation_names, **dict(sub.results))
         subtasks.append(entry)
-        result = ap_result(results.get("ap"))
+        result = ap_result(entry.ap)
         if sub.name == ORIGINAL:
             clean = result
         elif result is not None and sub.severity > 0:
@@ -214,7 +228,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
     delta_rows = []
     if clean is not None:
         for entry in subtasks[1:]:
-            result = ap_result(entry.get("ap"))
+            result = ap_result(entry.ap)
             if result is None:
                 continue
             for metric in AP_METRICS:
@@ -224,75 +238,68 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> dic
                             c, m = clean.mean_ap(metric, difficulty), result.mean_ap(metric, difficulty)
                         else:
                             c, m = clean.get(metric, class_name, difficulty), result.get(metric, class_name, difficulty)
-                        delta_rows.append({"label": entry["label"], "operator": entry["operator"],
-                                           "severity": entry["severity"], "metric": metric, "class": class_name,
-                                           "difficulty": difficulty, "clean": c, "corrupted": m, "delta": m - c})
+                        delta_rows.append(DeltaRow(label=entry.label, operator=entry.operator,
+                                                   severity=entry.severity, metric=metric, cls=class_name,
+                                                   difficulty=difficulty, clean=c, corrupted=m, delta=m - c))
 
-    robustness: dict[str, Any] = {}
+    robustness: dict[str, RobustnessRecord] = {}
     if clean is not None and corrupted:
         base_clean: KittiEvalResult | None = None
         base_corrupted: dict[tuple[str, int], KittiEvalResult] | None = None
         if baseline is not None:
             other = summarise(store, baseline)
-            base_clean = ap_result(other["subtasks"][0].get("ap"))
+            base_clean = ap_result(other.subtasks[0].ap)
             base_corrupted = {}
-            for e in other["subtasks"][1:]:
-                found = ap_result(e.get("ap")) if e["severity"] > 0 else None
+            for e in other.subtasks[1:]:
+                found = ap_result(e.ap) if e.severity > 0 else None
                 if found is not None:
-                    base_corrupted[(e["operator"], e["severity"])] = found
+                    base_corrupted[(e.operator, e.severity)] = found
         for metric in AP_METRICS:
             try:
                 summary = robustness_summary(clean, corrupted, baseline_clean=base_clean,
                                              baseline_corrupted=base_corrupted, metric=metric)
             except ValueError as exc:
-                robustness[metric] = {"error": str(exc)}
+                robustness[metric] = RobustnessRecord(error=str(exc))
                 continue
-            robustness[metric] = summary.to_dict()
+            robustness[metric] = RobustnessRecord.model_validate(summary.to_dict())
 
-    def rate_rows(field: str) -> Iterable[tuple[dict[str, Any], dict[str, Any]]]:
+    def rate_rows(field: str) -> Iterable[tuple[dict[str, Any], RateRow]]:
         for entry in subtasks[1:]:
-            for rate in entry.get(field, []):
-                yield {"operator": entry["operator"], "severity": entry["severity"], "label": entry["label"]}, rate
+            for rate in getattr(entry, field):
+                yield {"operator": entry.operator, "severity": entry.severity, "label": entry.label}, rate
 
-    violation = {
-        "relation": _sum_rates(rate_rows("violations_total"), ("relation",)),
-        "relation_operator": _sum_rates(rate_rows("violations_total"), ("relation", "operator")),
-        "relation_label": _sum_rates(rate_rows("violations_total"), ("relation", "label")),
-        "relation_class": _sum_rates(rate_rows("violations"), ("relation", "class")),
-        "relation_operator_class": _sum_rates(rate_rows("violations"), ("relation", "operator", "class")),
-        "relation_class_objects": _sum_rates(rate_rows("violations_per_object"), ("relation", "class")),
-        "count_form": _sum_rates(rate_rows("count_form"), ("label",)),
-    }
+    violation = ViolationTables(
+        relation=_sum_rates(rate_rows("violations_total"), ("relation",)),
+        relation_operator=_sum_rates(rate_rows("violations_total"), ("relation", "operator")),
+        relation_label=_sum_rates(rate_rows("violations_total"), ("relation", "label")),
+        relation_class=_sum_rates(rate_rows("violations"), ("relation", "class")),
+        relation_operator_class=_sum_rates(rate_rows("violations"), ("relation", "operator", "class")),
+        relation_class_objects=_sum_rates(rate_rows("violations_per_object"), ("relation", "class")),
+        count_form=_sum_rates(rate_rows("count_form"), ("label",)),
+    )
 
     with store.session() as s:
         kinds = dict(s.execute(select(Finding.kind, func.count()).where(Finding.task_id == task_id).group_by(
             Finding.kind)).all())
         top = top_findings(s, task_id)
-    timing = task.summary.get("run") if task.summary else None
-    return json_safe({
-        "task": {"id": task.id, "name": task.name, "status": task.status.value,
-                 "dataset": {"name": task.dataset.name, "path": task.dataset.path, "format": task.dataset.format},
-                 "model": {"name": task.model.name, "spec": task.model.spec, "options": task.model.options,
-                           "fingerprint": task.model.fingerprint},
-                 "seed": task.seed, "trials": task.options.get("trials", 1),
-                 "frames": len(task.options.get("frame_ids", [])), "relations": task.relations,
-                 "unlabelled_frames": len(task.options.get("unlabelled_frames", [])),
-                 "created_at": task.created_at.isoformat() if task.created_at else None,
-                 "started_at": task.started_at.isoformat() if task.started_at else None,
-                 "finished_at": task.finished_at.isoformat() if task.finished_at else None,
-                 "done": task.done, "total": task.total, "baseline": baseline},
-        "classes": list(CLASSES),
-        "subtasks": subtasks,
-        "delta_ap": delta_rows,
-        "ap_warnings": ap_warnings(subtasks),
-        "robustness": robustness,
-        "violations": violation,
-        "findings": {"total": sum(kinds.values()), "by_kind": kinds, "top": top},
-        "run": timing,
-    })
+    options = task.options
+    info = TaskInfo(id=task.id, name=task.name, status=task.status.value,
+                    dataset=DatasetRef(name=task.dataset.name, path=task.dataset.path, format=task.dataset.format),
+                    model=ModelRef(name=task.model.name, spec=task.model.spec, options=task.model.options,
+                                   fingerprint=task.model.fingerprint),
+                    seed=task.seed, trials=options.trials, frames=len(options.frame_ids), relations=task.relations,
+                    unlabelled_frames=len(options.unlabelled_frames),
+                    created_at=task.created_at.isoformat() if task.created_at else None,
+                    started_at=task.started_at.isoformat() if task.started_at else None,
+                    finished_at=task.finished_at.isoformat() if task.finished_at else None,
+                    done=task.done, total=task.total, baseline=baseline)
+    return TaskSummary(task=info, classes=list(CLASSES), subtasks=subtasks, delta_ap=delta_rows,
+                       ap_warnings=ap_warnings(subtasks), robustness=robustness, violations=violation,
+                       findings=FindingsSummary(total=sum(kinds.values()), by_kind=kinds, top=top),
+                       run=task.summary.run if task.summary else None)
 
 
-def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[dict[str, Any]]:
+def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[TopFinding]:
     """The most telling findings: failures first, then violations with the most objects,
     at most three per (kind, operator) so one noisy operator does not fill the list."""
     rows = session.execute(
@@ -300,20 +307,20 @@ def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[
             FrameResult, Finding.frame_result_id == FrameResult.id).join(
             Subtask, FrameResult.subtask_id == Subtask.id).where(Finding.task_id == task_id).order_by(
             Finding.magnitude.desc().nulls_first(), Finding.id).limit(2000)).all()
-    chosen: list[dict[str, Any]] = []
+    chosen: list[TopFinding] = []
     per_group: Counter[tuple[str, str]] = Counter()
     for finding, frame_id, trial, name, severity in rows:
         group = (finding.kind, name)
         if per_group[group] >= 3:
             continue
         per_group[group] += 1
-        chosen.append({"id": finding.id, "kind": finding.kind, "class": finding.cls, "magnitude": finding.magnitude,
-                       "message": finding.message, "operator": name, "severity": severity,
-                       "label": subtask_label(name, severity), "frame_id": frame_id, "trial": trial,
-                       "replay": f"lidarfuzz replay {finding.id}"})
+        chosen.append(TopFinding(id=finding.id, kind=finding.kind, cls=finding.cls, magnitude=finding.magnitude,
+                                 message=finding.message, operator=name, severity=severity,
+                                 label=subtask_label(name, severity), frame_id=frame_id, trial=trial,
+                                 replay=f"lidarfuzz replay {finding.id}"))
         if len(chosen) >= limit:
             break
     return chosen
 
 
-__all__ = ["ap_result", "ap_warnings", "evaluate_subtask", "summarise", "top_findings"]
+__all__ = ["ap_result", "ap_warnings", "evaluate_subtask", "outcome_from_record", "summarise", "top_findings"]

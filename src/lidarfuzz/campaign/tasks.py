@@ -31,6 +31,7 @@ from lidarfuzz.campaign.lifecycle import (
 from lidarfuzz.campaign.plan import ORIGINAL, SubtaskPlan, operator_key, relations_for, subtask_label
 from lidarfuzz.campaign.spec import CampaignSpec
 from lidarfuzz.io.options import DatasetOptions
+from lidarfuzz.store.contracts import SubtaskInputs, TaskOptions
 from lidarfuzz.store.errors import ConflictError, StoreError
 from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
@@ -137,21 +138,19 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         keys = [operator_key(p.operator) for p in plans]
         if len(set(keys)) != len(keys):
             raise ConflictError("the campaign lists the same operator configuration twice")
-        relations_json = spec.relations if spec.relations == "auto" else [
+        relations = ["auto"] if spec.relations == "auto" else [
             r if isinstance(r, str) else r.model_dump() for r in spec.relations]
-        options = {"frame_ids": frame_ids, "trials": spec.trials, "isolate": isolate, "timeout": timeout,
-                   "save_mutants": save_mutants, "relations": relations_json, "kind": spec.kind}
-        if unlabelled:
-            options["unlabelled_frames"] = unlabelled  # run through the SUT, left out of AP
-        options.update(kind.options)
+        # unlabelled frames: run through the SUT, left out of AP
+        options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
+                              timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
+                              kind_options=kind.options)
         task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,
-                    operators=[c.model_dump(mode="json") for c in spec.operators],
-                    relations=relations_json if isinstance(relations_json, list) else ["auto"])
+                    operators=[c.model_dump(mode="json") for c in spec.operators], relations=relations)
         s.add(task)
         for plan, key in zip(plans, keys, strict=True):
             task.subtasks.append(Subtask(operator_key=key, operator=plan.operator or {}, name=plan.name,
                                          op_index=plan.op_index, severity=plan.severity, total=plan.units,
-                                         results={"relation_specs": plan.relations}))
+                                         plan=SubtaskInputs(relation_specs=plan.relations)))
         task.total = sum(plan.units for plan in plans)
         s.flush()
         return task.id

@@ -23,8 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from lidarfuzz.campaign.codec import decode_boxes, encode_boxes, json_safe
+from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
+from lidarfuzz.store.types import json_safe
 
 
 @dataclass(frozen=True)
@@ -69,8 +71,8 @@ class UnitResult:
     labels: list[str] = field(default_factory=list)
     gt_boxes: bytes | None = None
     gt_labels: list[str] = field(default_factory=list)
-    failure: dict[str, str] | None = None
-    relations: list[dict[str, Any]] = field(default_factory=list)
+    failure: FailureRecord | None = None
+    relations: list[OutcomeRecord] = field(default_factory=list)
     seconds: float = 0.0  # the system's own time (0 when cached)
     timings: dict[str, float] = field(default_factory=dict)  # load, mutate, detect, relations, save
     cached: bool = False
@@ -234,7 +236,7 @@ class Worker:
             else:
                 follow, params = operator(source, generator(unit.seed, unit.frame_id, unit.op_index, unit.trial))
         except Exception as exc:  # an operator that fails on this frame is a finding, not a crash
-            result.failure = {"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
+            result.failure = FailureRecord(kind="operator_error", message=f"{type(exc).__name__}: {exc}")
             return None
         result.params = json_safe(params.model_dump(mode="json"))
         result.timings["mutate"] = time.perf_counter() - t0
@@ -260,7 +262,7 @@ class Worker:
         result.timings["detect"] = time.perf_counter() - t0
         result.seconds = outcome.seconds
         if outcome.failure is not None:
-            result.failure = outcome.failure.to_dict()
+            result.failure = FailureRecord.model_validate(outcome.failure.to_dict())
             return None
         output = outcome.output
         assert output is not None  # run_guarded gives an output or a failure
@@ -280,10 +282,10 @@ class Worker:
                     operator_relation=kind, transform=operator.transform(params))
         for spec in unit.relations:
             try:
-                result.relations.append(json_safe(self.relation(spec)(pair).to_dict()))
+                result.relations.append(OutcomeRecord.of(self.relation(spec)(pair)))
             except Exception as exc:  # a broken oracle is reported, and the campaign goes on
-                result.failure = {"kind": "oracle_error", "detail": spec.get("name", ""),
-                                  "message": f"relation {spec.get('name')}: {type(exc).__name__}: {exc}"}
+                result.failure = FailureRecord(kind="oracle_error", detail=str(spec.get("name", "")),
+                                               message=f"relation {spec.get('name')}: {type(exc).__name__}: {exc}")
         result.timings["relations"] = time.perf_counter() - t0
 
     def _save(self, unit: WorkUnit, mutant: Scene) -> None:

@@ -220,7 +220,7 @@ class RateRow(Contract):
 class SearchProgress(Contract):
     """What a coverage-guided search reached: coverage per criterion and its counters."""
 
-    coverage: dict[str, float] = Field(default_factory=dict)
+    coverage: dict[str, Number] = Field(default_factory=dict)
     stats: dict[str, int] = Field(default_factory=dict)
 
 

@@ -27,8 +27,19 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+from lidarfuzz.store.contracts import (
+    FailureRecord,
+    OutcomeRecord,
+    SubtaskInputs,
+    SubtaskResults,
+    TaskOptions,
+    TaskSummary,
+)
+from lidarfuzz.store.types import ContractJSON, SafeJSON
 
 
 def now() -> datetime:
@@ -36,7 +47,7 @@ def now() -> datetime:
 
 
 class Base(DeclarativeBase):
-    type_annotation_map: ClassVar[dict[Any, Any]] = {dict[str, Any]: JSON, list[Any]: JSON}
+    type_annotation_map: ClassVar[dict[Any, Any]] = {dict[str, Any]: SafeJSON, list[Any]: SafeJSON}
 
 
 class Status(enum.StrEnum):
@@ -63,7 +74,7 @@ class Dataset(Base):
     added_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
     # how to read it (lidarfuzz.io.options.DatasetOptions: layout, allow_unlabelled, intensity_scale,
     # roi_map), honoured wherever it is opened again
-    options: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    options: Mapped[dict[str, Any]] = mapped_column(default=dict, server_default="{}")
 
 
 class Model(Base):
@@ -87,8 +98,8 @@ class Task(Base):
     name: Mapped[str] = mapped_column(String(200), default="")
     dataset_id: Mapped[int] = mapped_column(ForeignKey("datasets.id", ondelete="RESTRICT"))
     model_id: Mapped[int] = mapped_column(ForeignKey("models.id", ondelete="RESTRICT"))
-    operators: Mapped[list[Any]] = mapped_column(default=list)  # [{"spec": {...}, "severities": [...]}]
-    relations: Mapped[list[Any]] = mapped_column(default=list)  # relation specs
+    operators: Mapped[list[Any]] = mapped_column(default=list)  # the campaign's: [{"name", "severities", "config"}]
+    relations: Mapped[list[Any]] = mapped_column(default=list)  # the campaign's choice: ["auto"] or names / specs
     seed: Mapped[int] = mapped_column(Integer, default=0)
     status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
     done: Mapped[int] = mapped_column(Integer, default=0)
@@ -96,10 +107,12 @@ class Task(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
-    summary: Mapped[dict[str, Any]] = mapped_column(default=dict)
-    options: Mapped[dict[str, Any]] = mapped_column(default=dict)  # frame ids, trials, isolation, timeout, ...
-    error: Mapped[str] = mapped_column(Text, default="")
-    worker: Mapped[str] = mapped_column(String(200), default="")  # host:pid of the process running it
+    summary: Mapped[TaskSummary | None] = mapped_column(ContractJSON(TaskSummary, derived=True), nullable=False,
+                                                        default=JSON.NULL)  # JSON null until it is done
+    options: Mapped[TaskOptions] = mapped_column(ContractJSON(TaskOptions), default=TaskOptions, server_default="{}")
+    error: Mapped[str] = mapped_column(Text, default="", server_default="")
+    worker: Mapped[str] = mapped_column(String(200), default="",
+                                        server_default="")  # host:pid of the process running it
     heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
 
     dataset: Mapped[Dataset] = relationship()
@@ -118,13 +131,19 @@ class Subtask(Base):
     task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
     operator_key: Mapped[str] = mapped_column(String(64))  # stable hash of the operator spec ("original" for none)
     operator: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the spec
-    name: Mapped[str] = mapped_column(String(100), default="")  # the operator's name ("original" for none)
-    op_index: Mapped[int] = mapped_column(Integer, default=0)  # its place in the task (seeds its generator)
+    name: Mapped[str] = mapped_column(String(100), default="",
+                                      server_default="")  # the operator's name ("original" for none)
+    op_index: Mapped[int] = mapped_column(Integer, default=0,
+                                          server_default="0")  # its place in the task (seeds its generator)
     severity: Mapped[int] = mapped_column(Integer)  # 0: the originals, or an operator given an explicit config
     status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
     done: Mapped[int] = mapped_column(Integer, default=0)
     total: Mapped[int] = mapped_column(Integer, default=0)
-    results: Mapped[dict[str, Any]] = mapped_column(default=dict)  # AP tables, rates
+    plan: Mapped[SubtaskInputs] = mapped_column(ContractJSON(SubtaskInputs), default=SubtaskInputs,
+                                                server_default="{}")  # what it checks
+    state: Mapped[dict[str, Any] | None] = mapped_column(SafeJSON(none_as_null=True), nullable=True,
+                                                          default=None)  # the kind's, to resume (a search's)
+    results: Mapped[SubtaskResults] = mapped_column(ContractJSON(SubtaskResults), default=SubtaskResults)
 
     task: Mapped[Task] = relationship(back_populates="subtasks")
 
@@ -143,10 +162,12 @@ class FrameResult(Base):
     boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the detections (codec)
     labels: Mapped[list[Any]] = mapped_column(default=list)
     gt_boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the mutant's ground truth
-    gt_labels: Mapped[list[Any]] = mapped_column(default=list)
-    cached: Mapped[bool] = mapped_column(Boolean, default=False)  # the output came from sut_outputs
-    failure: Mapped[dict[str, Any] | None] = mapped_column(JSON(none_as_null=True), nullable=True)  # SQL NULL: none
-    relations: Mapped[list[Any]] = mapped_column(default=list)  # RelationOutcome.to_dict() each
+    gt_labels: Mapped[list[Any]] = mapped_column(default=list, server_default="[]")
+    cached: Mapped[bool] = mapped_column(Boolean, default=False,
+                                         server_default=false())  # the output came from sut_outputs
+    failure: Mapped[FailureRecord | None] = mapped_column(ContractJSON(FailureRecord, none_as_null=True),
+                                                          nullable=True)  # SQL NULL: none
+    relations: Mapped[list[OutcomeRecord]] = mapped_column(ContractJSON(list[OutcomeRecord]), default=list)
     seconds: Mapped[float] = mapped_column(Float, default=0.0)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
 
