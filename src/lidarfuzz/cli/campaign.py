@@ -247,7 +247,7 @@ def status(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     from sqlalchemy import func, select
 
     from lidarfuzz.campaign.tasks import get_task, subtask_label
-    from lidarfuzz.store.models import Finding
+    from lidarfuzz.store.models import Finding, Status
 
     store = open_store(workspace)
     row = get_task(store, task)
@@ -260,9 +260,9 @@ def status(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
         console.print(f"[red]{escape(row.error)}[/]")
     table = Table("subtask", "status", "done", "total", "failures")
     table.columns[0].no_wrap, table.columns[0].overflow = True, "fold"
-    for sub in row.subtasks:
+    for sub in row.subtasks:  # a subtask's figures exist once it is done
         table.add_row(subtask_label(sub.name, sub.severity), sub.status.value, str(sub.done), str(sub.total),
-                      str(sub.results.get("failures", "")) if sub.results else "")
+                      str(sub.results.failures) if sub.status == Status.DONE else "")
     print_table(table)
     with store.session() as s:
         kinds = dict(s.execute(select(Finding.kind, func.count()).where(Finding.task_id == task).group_by(

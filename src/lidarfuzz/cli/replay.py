@@ -28,13 +28,13 @@ def replay(finding: int, workspace: WorkspaceOption = WORKSPACE) -> None:
         same = now is not None and len(now) == len(recorded) and (len(now) == 0 or now.allclose(recorded, 1e-3))
         table.add_row(what, describe(recorded), describe(now), "yes" if same else "[yellow]no[/]")
     print_table(table)
-    if result.failure_now:
-        console.print(f"system failure now: {result.failure_now['kind']}: {escape(result.failure_now['message'])}")
+    if result.failure_now is not None:
+        console.print(f"system failure now: {result.failure_now.kind}: {escape(result.failure_now.message)}")
     for outcome in result.outcomes_now:
-        state = "holds" if outcome["holds"] else f"violated ({len(outcome['violations'])})"
-        console.print(f"  {outcome['relation']}: {state}")
-        for v in outcome["violations"][:10]:
-            console.print(f"    - {escape(v['message'])}")
+        state = "holds" if outcome.holds else f"violated ({len(outcome.violations)})"
+        console.print(f"  {outcome.relation}: {state}")
+        for v in outcome.violations[:10]:
+            console.print(f"    - {escape(v.message)}")
     verdict = "[red]reproduced[/]" if result.reproduced else "[green]not reproduced[/]"
     console.print(f"{verdict} in {time.perf_counter() - start:.1f} s")
 

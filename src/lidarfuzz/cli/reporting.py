@@ -2,12 +2,15 @@
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
 
 from lidarfuzz.cli.common import WORKSPACE, WorkspaceOption, console, open_store, print_table
+
+if TYPE_CHECKING:
+    from lidarfuzz.store.contracts import RateRow
 
 
 def fmt(value: float | None, digits: int = 1) -> str:
@@ -46,78 +49,81 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
     from lidarfuzz.campaign.results import summarise
 
     data = summarise(store, task_id)
-    classes = data["classes"]
+    classes = data.classes
     table = Table(title=f"KITTI AP|R40, {difficulty} (task {task_id})", show_lines=False)
     table.add_column("subtask", no_wrap=True, overflow="fold")
     table.add_column("metric")
     for cls in [*classes, "mAP"]:
         table.add_column(cls, justify="right")
     table.add_column("Δ3D mAP", justify="right")
-    clean = data["subtasks"][0].get("ap")
-    for entry in data["subtasks"]:
-        ap = entry.get("ap")
+    first = data.subtasks[0]
+    clean = first.ap
+    for entry in data.subtasks:
+        ap = entry.ap
         if ap is None:
             continue
         for i, metric in enumerate(("bbox", "bev", "3d")):
-            row = [fmt(ap["ap"][metric][c][difficulty]["R40"]) for c in classes]
-            row.append(fmt(ap["map"][metric][difficulty]["R40"]))
+            row = [fmt(ap.ap[metric][c][difficulty]["R40"]) for c in classes]
+            row.append(fmt(ap.map[metric][difficulty]["R40"]))
             delta = ""
-            if metric == "3d" and clean is not None and entry is not data["subtasks"][0]:
-                d = ap["map"]["3d"][difficulty]["R40"] - clean["map"]["3d"][difficulty]["R40"]
+            if metric == "3d" and clean is not None and entry is not first:
+                d = ap.map["3d"][difficulty]["R40"] - clean.map["3d"][difficulty]["R40"]
                 delta = f"[red]{d:+.1f}[/]" if d < -0.05 else f"{d:+.1f}"
-            table.add_row(entry["label"] if i == 0 else "", metric.upper() if metric != "bbox" else "bbox", *row,
+            table.add_row(entry.label if i == 0 else "", metric.upper() if metric != "bbox" else "bbox", *row,
                           delta, end_section=metric == "3d")
     if clean is None:
         console.print("[yellow]the data set has no labels: no AP (relations still apply)[/]")
     else:
         print_table(table)
-    excluded = data["subtasks"][0].get("ap_excluded")
-    if data["task"].get("unlabelled_frames") and excluded:
-        console.print(f"[yellow]AP from the labelled frames only: {excluded['frames']} frame(s) without a label "
-                      f"file left out ({', '.join(excluded['examples'])}"
-                      f"{', …' if excluded['frames'] > len(excluded['examples']) else ''}); every frame ran "
+    excluded = first.ap_excluded
+    if data.task.unlabelled_frames and excluded:
+        console.print(f"[yellow]AP from the labelled frames only: {excluded.frames} frame(s) without a label "
+                      f"file left out ({', '.join(excluded.examples)}"
+                      f"{', …' if excluded.frames > len(excluded.examples) else ''}); every frame ran "
                       "through the system and the relations[/]")
-    for note in data.get("ap_warnings", []):
+    for note in data.ap_warnings:
         console.print(f"[yellow]AP warning:[/] {escape(note)}", highlight=False, soft_wrap=True)
     rates = Table(title="metamorphic relations: frames violated / checked (rate)")
     rates.add_column("operator", no_wrap=True, overflow="fold")
-    relations = [r["relation"] for r in data["violations"]["relation"]]
+    relations = [r.relation or "" for r in data.violations.relation]  # grouped by relation: always set
     for relation in relations:
         rates.add_column(relation, justify="right")
-    by = {(r["relation"], r["operator"]): r for r in data["violations"]["relation_operator"]}
+    by = {(r.relation, r.operator): r for r in data.violations.relation_operator}
 
-    def cell(r: dict[str, Any] | None) -> str:
+    def cell(r: "RateRow | None") -> str:
         if r is None:
             return ""
-        text = f"{r['violated']}/{r['checked']} ({fmt(None if r['rate'] is None else 100 * r['rate'], 0)}%)"
-        return f"[red]{text}[/]" if r["violated"] else text
+        text = f"{r.violated}/{r.checked} ({fmt(None if r.rate is None else 100 * r.rate, 0)}%)"
+        return f"[red]{text}[/]" if r.violated else text
 
-    for op in sorted({r["operator"] for r in data["violations"]["relation_operator"]}):
+    for op in sorted({r.operator for r in data.violations.relation_operator if r.operator is not None}):
         rates.add_row(op, *[cell(by.get((relation, op))) for relation in relations])
-    rates.add_row("all", *[cell(r) for r in data["violations"]["relation"]], style="bold")
+    rates.add_row("all", *[cell(r) for r in data.violations.relation], style="bold")
     print_table(rates)
-    kinds = data["findings"]["by_kind"]
+    kinds = data.findings.by_kind
     failures = {k: v for k, v in kinds.items() if k in ("crash", "timeout", "invalid_output", "operator_error")}
-    console.print(f"findings: {data['findings']['total']} "
+    console.print(f"findings: {data.findings.total} "
                   f"({', '.join(f'{k} {v}' for k, v in sorted(kinds.items())) or 'none'})"
                   + (f"; [red]system failures: {failures}[/]" if failures else ""))
     print_search(store, task_id)
 
 
 def print_search(store: Any, task_id: int) -> None:
-    """A guided / fuzz task's coverage and search statistics."""
+    """A guided / fuzz task's coverage and search statistics (nothing for a task without a search)."""
     from rich.table import Table
 
+    from lidarfuzz.campaign.plan import ORIGINAL
     from lidarfuzz.campaign.tasks import get_task
 
     task = get_task(store, task_id)
-    kind = task.options.get("kind", "mutation")
-    sub = next((s for s in task.subtasks if s.name == kind), None)
-    if sub is None or "search" not in sub.results:
+    # the search's subtask is the one that is not the originals and carries the search's progress;
+    # the originals are its seeds
+    sub = next((s for s in task.subtasks if s.name != ORIGINAL and s.results.search is not None), None)
+    if sub is None or sub.results.search is None:
         return
-    info = sub.results["search"]
-    seeds = next((s for s in task.subtasks if s.name != kind), None)
-    table = Table(title=f"{kind} search: neuron coverage (task {task_id})")
+    info = sub.results.search
+    seeds = next((s for s in task.subtasks if s.name == ORIGINAL), None)
+    table = Table(title=f"{task.options.kind} search: neuron coverage (task {task_id})")
     table.add_column("criterion")
     table.add_column("seeds alone", justify="right")
     table.add_column("after the search", justify="right")
@@ -131,12 +137,12 @@ def print_search(store: Any, task_id: int) -> None:
             last = s.scalars(select(FrameResult.params).where(FrameResult.subtask_id == seeds.id).order_by(
                 FrameResult.id.desc()).limit(1)).first()
         seed_cov = (last or {}).get("coverage", {})
-    for name, value in info["coverage"].items():
+    for name, value in info.coverage.items():
         show = (lambda v: f"{v:.0f} patterns") if name == "tknp" else (lambda v: f"{100 * v:.1f}%")
         before = seed_cov.get(name)
         table.add_row(name.upper(), "" if before is None else show(before), show(value))
     print_table(table)
-    st = info["stats"]
+    st = info.stats
     console.print(f"tests {st['tests']}: accepted (new coverage) {st['accepted']}, invalid {st['invalid']}, "
                   f"violating {st['violating']}; unique findings {st['findings']}"
                   + (f" (minimising took {st['minimise_runs']} extra runs)" if st.get("minimise_runs") else ""))
