@@ -18,6 +18,7 @@ from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.plan import ORIGINAL
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
 from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
 from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
 from lidarfuzz.store.store import Store
@@ -32,8 +33,8 @@ class Replay:
     follow_recorded: Boxes3D
     source_now: Boxes3D | None
     follow_now: Boxes3D | None
-    failure_now: dict[str, str] | None
-    outcomes_now: list[dict[str, Any]]
+    failure_now: FailureRecord | None
+    outcomes_now: list[OutcomeRecord]
     reproduced: bool
 
     @property
@@ -75,7 +76,7 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
         relations = (replay["relation"],) if replay.get("relation") else ()
         follow_now: Boxes3D | None = None
         failure_now = None
-        outcomes: list[dict[str, Any]] = []
+        outcomes: list[OutcomeRecord] = []
         if replay.get("operator") is None:  # a failure on an original
             failure_now = source.failure
         else:
@@ -89,10 +90,9 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
     finally:
         worker.close()
     if replay.get("relation"):
-        reproduced = any(not o["holds"] and any(v["cls"] == info["class"] for v in o["violations"])
-                         for o in outcomes)
+        reproduced = any(not o.holds and any(v.cls == info["class"] for v in o.violations) for o in outcomes)
     else:
-        reproduced = failure_now is not None and failure_now.get("kind") == info["kind"]
+        reproduced = failure_now is not None and failure_now.kind == info["kind"]
     return Replay(info, replay["fingerprint"], fingerprint_now, source_recorded, follow_recorded, source_now,
                   follow_now, failure_now, outcomes, reproduced)
 
