@@ -26,6 +26,7 @@ from lidarfuzz.report.charts import charts
 from lidarfuzz.report.gates import check_gate, evaluate
 from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
 from lidarfuzz.store import Finding, Store
+from lidarfuzz.store.contracts import TaskSummary
 
 OPERATORS = [{"name": "rotate_z", "severities": [3]}, {"name": "uniform_noise_addition", "severities": [2, 4]}]
 IMAGES = 2
@@ -50,7 +51,7 @@ def report(campaign: tuple[Store, int, Path], tmp_path_factory: pytest.TempPathF
 
 
 @pytest.fixture(scope="module")
-def summary(campaign: tuple[Store, int, Path]) -> dict[str, Any]:
+def summary(campaign: tuple[Store, int, Path]) -> TaskSummary:
     store, task_id, _ = campaign
     return summarise(store, task_id)
 
@@ -105,55 +106,59 @@ def ap_rows(html: str, difficulty: str, points: str) -> dict[tuple[str, str], li
     return rows
 
 
-def test_html_shows_the_summary_ap_figures(report: Any, summary: dict[str, Any]) -> None:
+def test_html_shows_the_summary_ap_figures(report: Any, summary: TaskSummary) -> None:
     html = report.html.read_text()
-    mutated = next(s for s in summary["subtasks"][1:] if s.get("ap"))
+    mutated = next(s for s in summary.subtasks[1:] if s.ap is not None)
+    assert mutated.ap is not None
     for difficulty, points in (("moderate", "R40"), ("hard", "R11")):
         rows = ap_rows(html, difficulty, points)
         for metric, name in (("bbox", "bbox"), ("bev", "BEV"), ("3d", "3D")):
-            expected = [f"{mutated['ap']['ap'][metric][cls][difficulty][points]:.1f}" for cls in summary["classes"]]
-            expected.append(f"{mutated['ap']['map'][metric][difficulty][points]:.1f}")
-            assert rows[(mutated["label"], name)] == expected
+            expected = [f"{mutated.ap.ap[metric][cls][difficulty][points]:.1f}" for cls in summary.classes]
+            expected.append(f"{mutated.ap.map[metric][difficulty][points]:.1f}")
+            assert rows[(mutated.label, name)] == expected
     # only the default table (moderate, R40) shows without JavaScript
     assert len(re.findall(r'class="ap-table[^"]*" data-difficulty="\w+" data-points="R\d\d">', html)) == 1
     assert 'data-difficulty="moderate" data-points="R40">' in html
 
 
-def test_html_is_self_contained(report: Any, summary: dict[str, Any]) -> None:
+def test_html_is_self_contained(report: Any, summary: TaskSummary) -> None:
     html = report.html.read_text()
     assert not re.search(r"""(src|href)\s*=\s*["']?\s*(https?:)?//""", html, re.IGNORECASE)
     assert not re.search(r"url\(\s*['\"]?(https?:)?//", html)
     assert "<link" not in html and "@import" not in html
-    pictures = min(IMAGES, len(summary["findings"]["top"]))
+    pictures = min(IMAGES, len(summary.findings.top))
     assert pictures > 0, "the fixture campaign should have findings"
     assert html.count(PNG) == len(charts(summary)) + pictures == 3 + pictures
     for section in ("ap", "charts", "robustness", "violations", "failures", "findings"):
         assert f'id="{section}"' in html
-    for finding in summary["findings"]["top"]:
-        assert f"lidarfuzz replay {finding['id']}" in html
-    assert f"lidarfuzz report {summary['task']['id']}" in html
+    for finding in summary.findings.top:
+        assert f"lidarfuzz replay {finding.id}" in html
+    assert f"lidarfuzz report {summary.task.id}" in html
 
 
-def test_exports_match_the_summary(report: Any, summary: dict[str, Any]) -> None:
-    assert json.loads(report.json.read_text()) == summary
+def test_exports_match_the_summary(report: Any, summary: TaskSummary) -> None:
+    written = json.loads(report.json.read_text())
+    assert written == summary.dump()
+    assert TaskSummary.model_validate(written).dump() == written  # reads back
 
     def rows(path: Path) -> list[dict[str, str]]:
         with path.open(newline="") as handle:
             return list(csv.DictReader(handle))
 
-    evaluated = [s for s in summary["subtasks"] if s.get("ap")]
-    metrics = len(evaluated[0]["ap"]["ap"])
-    assert len(rows(report.ap_csv)) == len(evaluated) * metrics * (len(summary["classes"]) + 1) * 3 * 2
-    assert len(rows(report.delta_ap_csv)) == len(summary["delta_ap"]) > 0
-    expected = sum(len(s.get(k, [])) for s in summary["subtasks"][1:]
-                   for k in ("violations_total", "violations", "violations_per_object"))
+    evaluated = [s.ap for s in summary.subtasks if s.ap is not None]
+    metrics = len(evaluated[0].ap)
+    assert len(rows(report.ap_csv)) == len(evaluated) * metrics * (len(summary.classes) + 1) * 3 * 2
+    assert len(rows(report.delta_ap_csv)) == len(summary.delta_ap) > 0
+    expected = sum(len(s.violations_total) + len(s.violations) + len(s.violations_per_object)
+                   for s in summary.subtasks[1:])
     assert len(rows(report.violations_csv)) == expected
     findings = rows(report.findings_csv)
-    assert len(findings) == summary["findings"]["total"]
-    assert {f["kind"] for f in findings} == set(summary["findings"]["by_kind"])
+    assert len(findings) == summary.findings.total
+    assert {f["kind"] for f in findings} == set(summary.findings.by_kind)
     some = next(r for r in rows(report.ap_csv) if r["class"] == "mAP" and r["metric"] == "3d")
-    entry = next(s for s in summary["subtasks"] if s["label"] == some["label"])
-    assert float(some["ap"]) == pytest.approx(entry["ap"]["map"]["3d"][some["difficulty"]][some["points"]])
+    entry = next(s for s in summary.subtasks if s.label == some["label"])
+    assert entry.ap is not None
+    assert float(some["ap"]) == pytest.approx(entry.ap.map["3d"][some["difficulty"]][some["points"]])
 
 
 @pytest.mark.parametrize(("rule", "fields"), [
@@ -194,19 +199,21 @@ def test_parse_bad_gates_names_the_rule(rule: str, why: str) -> None:
     assert why in str(caught.value)
 
 
-def hand_made(drop: float) -> dict[str, Any]:
+def hand_made(drop: float) -> TaskSummary:
     """A summary with one subtask whose Car 3D AP (moderate) drops by ``drop`` points."""
-    return {
-        "task": {"id": 7, "name": "", "status": "done", "done": 2, "total": 2, "dataset": {"path": "/d"},
-                 "model": {"spec": "classic", "fingerprint": "f"}, "seed": 0},
-        "subtasks": [{"label": "original", "operator": "original", "severity": 0},
-                     {"label": "fog@3", "operator": "fog", "severity": 3,
+    return TaskSummary.model_validate({
+        "task": {"id": 7, "name": "", "status": "done", "done": 2, "total": 2,
+                 "dataset": {"name": "d", "path": "/d", "format": "kitti"},
+                 "model": {"name": "classic", "spec": "classic", "fingerprint": "f"}, "seed": 0},
+        "classes": ["Car", "Pedestrian", "Cyclist"],
+        "subtasks": [{"id": 1, "label": "original", "operator": "original", "severity": 0},
+                     {"id": 2, "label": "fog@3", "operator": "fog", "severity": 3,
                       "violations_total": [{"relation": "preservation", "checked": 10, "violated": 3, "rate": 0.3}]}],
         "delta_ap": [{"label": "fog@3", "operator": "fog", "severity": 3, "metric": "3d", "class": "Car",
                       "difficulty": "moderate", "clean": 50.0, "corrupted": 50.0 - drop, "delta": -drop}],
         "violations": {"relation": [{"relation": "preservation", "checked": 10, "violated": 3, "rate": 0.3}]},
         "findings": {"by_kind": {"preservation": 3, "crash": 1}},
-    }
+    })
 
 
 def test_gate_evaluation() -> None:
@@ -244,7 +251,7 @@ def test_junit_xml_counts() -> None:
     assert root.get("failures") == "1"  # the crash
 
 
-def test_report_gates_on_a_real_task(campaign: tuple[Store, int, Path], summary: dict[str, Any],
+def test_report_gates_on_a_real_task(campaign: tuple[Store, int, Path], summary: TaskSummary,
                                      tmp_path: Path) -> None:
     store, task_id, _ = campaign
     files = write_report(store, task_id, tmp_path, gates=["violations:*>1000000", Gate("failures>0", "failures", 0)],
@@ -254,15 +261,15 @@ def test_report_gates_on_a_real_task(campaign: tuple[Store, int, Path], summary:
     assert root.get("tests") == "3" and root.get("failures") == "0" and root.get("errors") == "0"
     assert files.html.read_text().count(PNG) == len(charts(summary))
     default = [r for r in evaluate(summary) if r.informational]
-    assert len(default) == len(summary["subtasks"]) - 1 + len(summary["violations"]["relation"])
+    assert len(default) == len(summary.subtasks) - 1 + len(summary.violations.relation)
     with pytest.raises(LidarfuzzError, match="ap_drop:3d"):
         write_report(store, task_id, tmp_path / "never", gates=["ap_drop:3d>1"])
     assert not (tmp_path / "never").exists()
 
 
-def test_pictures_mark_what_the_finding_is_about(campaign: tuple[Store, int, Path], summary: dict[str, Any]) -> None:
+def test_pictures_mark_what_the_finding_is_about(campaign: tuple[Store, int, Path], summary: TaskSummary) -> None:
     store, _, _ = campaign
-    finding_id = summary["findings"]["top"][0]["id"]
+    finding_id = summary.findings.top[0].id
     pair = load_pair(store, finding_id)
     with store.session() as s:
         violations = s.get(Finding, finding_id).detail["violations"]
@@ -271,7 +278,7 @@ def test_pictures_mark_what_the_finding_is_about(campaign: tuple[Store, int, Pat
     assert pair.mutant is not None and pair.follow_detections is not None
 
 
-def test_report_when_the_data_set_moved(campaign: tuple[Store, int, Path], summary: dict[str, Any],
+def test_report_when_the_data_set_moved(campaign: tuple[Store, int, Path], summary: TaskSummary,
                                         tmp_path: Path) -> None:
     store, task_id, data = campaign
     moved = data.with_name("moved")
@@ -282,7 +289,7 @@ def test_report_when_the_data_set_moved(campaign: tuple[Store, int, Path], summa
         moved.rename(data)
     html = files.html.read_text()
     assert html.count(PNG) == len(charts(summary))  # charts, no pictures
-    assert html.count("No picture: frame") == min(IMAGES, len(summary["findings"]["top"]))
+    assert html.count("No picture: frame") == min(IMAGES, len(summary.findings.top))
     assert "was the data set moved?" in html
 
 
@@ -297,23 +304,23 @@ def test_report_of_an_unfinished_task(campaign: tuple[Store, int, Path], tmp_pat
 
     run_task(store, task_id, executor=InlineExecutor(), progress=progress, stop=stop)
     files = write_report(store, task_id, tmp_path, images=1)
-    summary = json.loads(files.json.read_text())
-    assert summary["task"]["status"] == "cancelled"
-    assert any("ap" not in s for s in summary["subtasks"])
+    summary = TaskSummary.model_validate(json.loads(files.json.read_text()))
+    assert summary.task.status == "cancelled"
+    assert any(s.ap is None for s in summary.subtasks)
     html = files.html.read_text()
     assert "This task is unfinished" in html and "not evaluated yet" in html
     assert not files.passed
     assert [r.name for r in files.failed] == ["task finished"]
 
 
-def test_render_html_without_labels(summary: dict[str, Any]) -> None:
-    unlabelled = json.loads(json.dumps(summary))
+def test_render_html_without_labels(summary: TaskSummary) -> None:
+    unlabelled = json.loads(json.dumps(summary.dump()))  # as read back from report.json
     for entry in unlabelled["subtasks"]:
         entry["ap"] = None
     unlabelled["delta_ap"], unlabelled["robustness"] = [], {}
-    html = render_html(unlabelled)
+    html = render_html(TaskSummary.model_validate(unlabelled))
     pending = re.findall(r'class="pending"[^>]*>no AP: the data set has no labels<', html)
-    assert len(pending) == 6 * len(summary["subtasks"])  # in each difficulty × interpolation table
+    assert len(pending) == 6 * len(summary.subtasks)  # in each difficulty × interpolation table
     assert "No robustness figures" in html
     assert html.count(PNG) == 1  # only the violation chart has something to draw
 
@@ -324,25 +331,25 @@ def test_report_of_a_system_that_crashes(campaign: tuple[Store, int, Path], tmp_
                                                  "operators": [{"name": "rotate_z", "severities": [3]}]}))
     run_task(store, task_id, executor=InlineExecutor())
     files = write_report(store, task_id, tmp_path, images=12)
-    summary = json.loads(files.json.read_text())
-    crashes = summary["findings"]["by_kind"]["crash"]
+    summary = TaskSummary.model_validate(json.loads(files.json.read_text()))
+    crashes = summary.findings.by_kind["crash"]
     assert crashes == 2  # the original and its mutant
     assert not files.passed and [r.name for r in files.failed] == ["failures>0"]
     html = files.html.read_text()
     assert re.search(rf'<td class="left">crash</td><td class="bad">{crashes}</td>', html)
     # failures come first among the findings, and have pictures too
-    top = summary["findings"]["top"]
-    assert [f["kind"] for f in top[:crashes]] == ["crash"] * crashes
+    top = summary.findings.top
+    assert [f.kind for f in top[:crashes]] == ["crash"] * crashes
     assert html.count(PNG) == len(charts(summary)) + min(12, len(top))
-    pair = load_pair(store, top[0]["id"])
-    assert (pair.mutant is None) == (top[0]["operator"] == "original")
+    pair = load_pair(store, top[0].id)
+    assert (pair.mutant is None) == (top[0].operator == "original")
     assert pair.follow_detections is None
 
 
-def test_html_shows_the_ap_sample_warnings(summary: dict[str, Any]) -> None:
+def test_html_shows_the_ap_sample_warnings(summary: TaskSummary) -> None:
     """The campaign's few objects per class are named above the AP tables, and only then."""
-    assert summary["ap_warnings"], "the fixture's small campaign has fewer than 41 objects of some class"
+    assert summary.ap_warnings, "the fixture's small campaign has fewer than 41 objects of some class"
     html = render_html(summary)
     assert 'id="ap-warnings"' in html and "too few objects to score" in html
-    quiet = {**summary, "ap_warnings": []}
+    quiet = summary.model_copy(update={"ap_warnings": []})
     assert 'id="ap-warnings"' not in render_html(quiet)

@@ -3,7 +3,7 @@
 :func:`write_report` writes them all for one task of the store::
 
     report.html       the report (offline: inline CSS, charts and pictures as data URIs)
-    report.json       the task summary verbatim (lidarfuzz.campaign.results.summarise)
+    report.json       the task summary's JSON form (TaskSummary.dump() of lidarfuzz.campaign.results.summarise)
     ap.csv, delta_ap.csv, violations.csv, findings.csv
     junit.xml         gates as test cases, for CI (grammar: lidarfuzz.report.gates)
 
@@ -74,7 +74,7 @@ def write_report(store: Store, task_id: int, out_dir: str | Path, *, baseline: i
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = evaluate(summary, parsed)
-    top = [f["id"] for f in summary["findings"]["top"]]
+    top = [f.id for f in summary.findings.top]
     pictures = finding_images(store, top, limit=images)
     html = out / "report.html"
     html.write_text(render_html(summary, images=pictures, image_limit=images), encoding="utf-8")

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+
+    from lidarfuzz.store.contracts import APRecord, TaskSummary
 
 METRIC_NAMES: dict[str, str] = {"bbox": "bbox (2D)", "bev": "BEV", "3d": "3D"}
 METRIC_COLOURS: dict[str, str] = {"bbox": "#9ecae1", "bev": "#4292c6", "3d": "#08306b"}
@@ -44,37 +45,37 @@ def _figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), dpi=80, layout="constrained")
 
 
-def ap_value(ap: Mapping[str, Any] | None, metric: str, cls: str, difficulty: str, points: str) -> float | None:
-    """One AP figure of a subtask's ``ap`` entry (``cls`` may be ``mAP``); None when absent."""
-    if not ap:
+def ap_value(ap: APRecord | None, metric: str, cls: str, difficulty: str, points: str) -> float | None:
+    """One AP figure of a subtask's ``ap`` entry (``cls`` may be ``mAP``); None when absent or undefined."""
+    if ap is None:
         return None
     try:
-        table = ap["map"][metric] if cls == "mAP" else ap["ap"][metric][cls]
+        table = ap.map[metric] if cls == "mAP" else ap.ap[metric][cls]
         value = table[difficulty][points]
-    except (KeyError, TypeError):
+    except KeyError:
         return None
-    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
+    return float(value) if math.isfinite(value) else None
 
 
-def ap_chart(summary: Mapping[str, Any], difficulty: str = "moderate", points: str = "R40") -> bytes | None:
+def ap_chart(summary: TaskSummary, difficulty: str = "moderate", points: str = "R40") -> bytes | None:
     """AP per subtask for bbox, BEV and 3D: one panel per class and one for mAP (grouped bars)."""
-    subtasks = [s for s in summary.get("subtasks", []) if s.get("ap")]
+    subtasks = [s for s in summary.subtasks if s.ap is not None]
     if not subtasks:
         return None
-    classes = [*summary.get("classes", ["Car", "Pedestrian", "Cyclist"]), "mAP"]
-    labels = [s["label"] for s in subtasks]
+    classes = [*summary.classes, "mAP"]
+    labels = [s.label for s in subtasks]
     fig = _figure(max(8.0, 2.0 + 0.55 * len(labels) * 2), 6.4)
     axes = fig.subplots(2, 2, sharex=True).ravel()
     width = 0.27
     for ax, cls in zip(axes, classes, strict=False):
         top = 0.0
         for k, metric in enumerate(METRIC_NAMES):
-            values = [ap_value(s.get("ap"), metric, cls, difficulty, points) for s in subtasks]
+            values = [ap_value(s.ap, metric, cls, difficulty, points) for s in subtasks]
             xs = [i + (k - 1) * width for i in range(len(labels))]
             ax.bar(xs, [v if v is not None else 0.0 for v in values], width, color=METRIC_COLOURS[metric],
                    label=METRIC_NAMES[metric])
             top = max([top, *(v for v in values if v is not None)])
-            if values[0] is not None and subtasks[0]["label"] == "original":
+            if values[0] is not None and subtasks[0].label == "original":
                 ax.axhline(values[0], color=METRIC_COLOURS[metric], lw=0.8, ls="--")
         ax.set_title(cls if cls != "mAP" else "mean over classes (mAP)", fontsize=10)
         ax.set_xticks(range(len(labels)), labels, rotation=40, ha="right", fontsize=8)
@@ -93,21 +94,20 @@ def severity_name(severity: int) -> str:
     return str(severity) if severity else "config"
 
 
-def delta_heatmap(summary: Mapping[str, Any], metric: str = "3d", cls: str = "mAP", difficulty: str = "moderate",
+def delta_heatmap(summary: TaskSummary, metric: str = "3d", cls: str = "mAP", difficulty: str = "moderate",
                   ) -> bytes | None:
     """ΔAP (mutant − original, R40) per operator × severity, diverging colours centred at 0."""
-    rows = [r for r in summary.get("delta_ap", [])
-            if r["metric"] == metric and r["class"] == cls and r["difficulty"] == difficulty]
+    rows = [r for r in summary.delta_ap if r.metric == metric and r.cls == cls and r.difficulty == difficulty]
     if not rows:
         return None
-    operators = list(dict.fromkeys(r["operator"] for r in rows))
-    severities = sorted({int(r["severity"]) for r in rows}, key=lambda s: (s == 0, s))
+    operators = list(dict.fromkeys(r.operator for r in rows))
+    severities = sorted({r.severity for r in rows}, key=lambda s: (s == 0, s))
     import numpy as np
 
     grid = np.full((len(operators), len(severities)), np.nan)
     for r in rows:
-        if r["delta"] is not None:
-            grid[operators.index(r["operator"]), severities.index(int(r["severity"]))] = r["delta"]
+        if math.isfinite(r.delta):
+            grid[operators.index(r.operator), severities.index(r.severity)] = r.delta
     finite = grid[np.isfinite(grid)]
     limit = max(1.0, float(np.abs(finite).max())) if finite.size else 1.0
     fig = _figure(max(4.5, 1.6 + 0.9 * len(severities)), max(2.2, 0.9 + 0.42 * len(operators)))
@@ -127,16 +127,15 @@ def delta_heatmap(summary: Mapping[str, Any], metric: str = "3d", cls: str = "mA
     return figure_png(fig)
 
 
-def violation_chart(summary: Mapping[str, Any]) -> bytes | None:
+def violation_chart(summary: TaskSummary) -> bytes | None:
     """Violation rate per operator (groups) and relation (bars), as Zhou & Sun's Figure 3."""
-    rows = [r for r in summary.get("violations", {}).get("relation_operator", []) if r.get("rate") is not None]
-    if not rows:
+    rate = {(r.operator or "", r.relation or ""): r.rate for r in summary.violations.relation_operator
+            if r.rate is not None}
+    if not rate:
         return None
-    order = [s["operator"] for s in summary.get("subtasks", [])]
-    operators = sorted(dict.fromkeys(r["operator"] for r in rows),
-                       key=lambda o: order.index(o) if o in order else len(order))
-    relations = sorted({r["relation"] for r in rows})
-    rate = {(r["operator"], r["relation"]): r["rate"] for r in rows}
+    order = [s.operator for s in summary.subtasks]
+    operators = sorted(dict.fromkeys(o for o, _ in rate), key=lambda o: order.index(o) if o in order else len(order))
+    relations = sorted({r for _, r in rate})
     widest = max(sum((o, r) in rate for r in relations) for o in operators)
     width = 0.8 / widest
     fig = _figure(max(6.0, 1.5 + 0.3 * len(operators) * widest + 0.3 * len(operators)), 3.6)
@@ -161,7 +160,7 @@ def violation_chart(summary: Mapping[str, Any]) -> bytes | None:
     return figure_png(fig)
 
 
-def charts(summary: Mapping[str, Any]) -> dict[str, bytes]:
+def charts(summary: TaskSummary) -> dict[str, bytes]:
     """Every chart the summary can fill, by name (``ap``, ``delta``, ``violations``)."""
     drawn = {"ap": ap_chart(summary), "delta": delta_heatmap(summary), "violations": violation_chart(summary)}
     return {name: png for name, png in drawn.items() if png is not None}

@@ -29,10 +29,11 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
 
@@ -41,6 +42,9 @@ from lidarfuzz.report.gates import Gate, GateResult, evaluate
 from lidarfuzz.store.models import Finding, FrameResult, Subtask
 from lidarfuzz.store.store import Store
 
+if TYPE_CHECKING:
+    from lidarfuzz.store.contracts import TaskSummary
+
 AP_COLUMNS = ("subtask_id", "label", "operator", "severity", "metric", "class", "difficulty", "points", "ap")
 DELTA_COLUMNS = ("label", "operator", "severity", "metric", "class", "difficulty", "clean", "corrupted", "delta")
 VIOLATION_COLUMNS = ("label", "operator", "severity", "relation", "class", "per", "checked", "violated", "rate")
@@ -48,10 +52,11 @@ FINDING_COLUMNS = ("id", "kind", "class", "operator", "severity", "label", "fram
                    "message", "replay")
 
 
-def write_json(summary: Mapping[str, Any], path: str | Path) -> Path:
-    """The summary verbatim (``report.json``)."""
+def write_json(summary: TaskSummary, path: str | Path) -> Path:
+    """The summary's JSON form (``report.json``: :meth:`TaskSummary.dump`, ``null`` for an undefined
+    figure); ``TaskSummary.model_validate`` reads it back."""
     path = Path(path)
-    path.write_text(json.dumps(summary, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    path.write_text(json.dumps(summary.dump(), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     return path
 
 
@@ -65,35 +70,36 @@ def write_csv(rows: Iterable[Mapping[str, Any]], columns: Sequence[str], path: s
     return path
 
 
-def ap_rows(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """Every AP figure of every evaluated subtask (see ``ap.csv`` above)."""
+def ap_rows(summary: TaskSummary) -> list[dict[str, Any]]:
+    """Every AP figure of every evaluated subtask (see ``ap.csv`` above; None: undefined)."""
     rows = []
-    for entry in summary.get("subtasks", []):
-        ap = entry.get("ap")
-        if not ap:
+    for entry in summary.subtasks:
+        ap = entry.ap
+        if ap is None:
             continue
-        base = {"subtask_id": entry["id"], "label": entry["label"], "operator": entry["operator"],
-                "severity": entry["severity"]}
-        for metric, classes in ap["ap"].items():
-            tables = {**classes, "mAP": ap.get("map", {}).get(metric, {})}
+        base = {"subtask_id": entry.id, "label": entry.label, "operator": entry.operator,
+                "severity": entry.severity}
+        for metric, classes in ap.ap.items():
+            tables = {**classes, "mAP": ap.map.get(metric, {})}
             for cls, table in tables.items():
                 for difficulty, values in table.items():
                     for points, value in values.items():
                         rows.append({**base, "metric": metric, "class": cls, "difficulty": difficulty,
-                                     "points": points, "ap": value})
+                                     "points": points, "ap": value if math.isfinite(value) else None})
     return rows
 
 
-def violation_rows(summary: Mapping[str, Any]) -> list[dict[str, Any]]:
+def violation_rows(summary: TaskSummary) -> list[dict[str, Any]]:
     """Violation counts per subtask × relation × class (see ``violations.csv`` above)."""
     rows = []
-    for entry in summary.get("subtasks", [])[1:]:
-        base = {"label": entry["label"], "operator": entry["operator"], "severity": entry["severity"]}
-        for field, per in (("violations_total", "frame"), ("violations", "frame"), ("violations_per_object", "object")):
-            for rate in entry.get(field, []):
-                cls = "*" if field == "violations_total" else rate.get("class", "")
-                rows.append({**base, "relation": rate["relation"], "class": cls, "per": per,
-                             "checked": rate["checked"], "violated": rate["violated"], "rate": rate["rate"]})
+    for entry in summary.subtasks[1:]:
+        base = {"label": entry.label, "operator": entry.operator, "severity": entry.severity}
+        for rates, per, total in ((entry.violations_total, "frame", True), (entry.violations, "frame", False),
+                                  (entry.violations_per_object, "object", False)):
+            for rate in rates:
+                cls = "*" if total else rate.cls or ""
+                rows.append({**base, "relation": rate.relation, "class": cls, "per": per,
+                             "checked": rate.checked, "violated": rate.violated, "rate": rate.rate})
     return rows
 
 
@@ -110,34 +116,31 @@ def finding_rows(store: Store, task_id: int) -> list[dict[str, Any]]:
                 for f, frame_id, trial, name, severity in rows]
 
 
-def write_csvs(summary: Mapping[str, Any], out_dir: str | Path, findings: Iterable[Mapping[str, Any]],
+def write_csvs(summary: TaskSummary, out_dir: str | Path, findings: Iterable[Mapping[str, Any]],
                ) -> dict[str, Path]:
     """``ap.csv``, ``delta_ap.csv``, ``violations.csv`` and ``findings.csv`` in ``out_dir``."""
     out = Path(out_dir)
     return {
         "ap": write_csv(ap_rows(summary), AP_COLUMNS, out / "ap.csv"),
-        "delta_ap": write_csv(summary.get("delta_ap", []), DELTA_COLUMNS, out / "delta_ap.csv"),
+        "delta_ap": write_csv((row.dump() for row in summary.delta_ap), DELTA_COLUMNS, out / "delta_ap.csv"),
         "violations": write_csv(violation_rows(summary), VIOLATION_COLUMNS, out / "violations.csv"),
         "findings": write_csv(findings, FINDING_COLUMNS, out / "findings.csv"),
     }
 
 
-def junit_from_results(summary: Mapping[str, Any], results: Sequence[GateResult]) -> str:
+def junit_from_results(summary: TaskSummary, results: Sequence[GateResult]) -> str:
     """JUnit XML of already checked gates."""
-    task = summary.get("task", {})
-    name = f"lidarfuzz task {task.get('id')}" + (f" ({task['name']})" if task.get("name") else "")
+    task = summary.task
+    name = f"lidarfuzz task {task.id}" + (f" ({task.name})" if task.name else "")
     failures = sum(r.status == "failed" for r in results)
     errors = sum(r.status == "error" for r in results)
     counts = {"tests": str(len(results)), "failures": str(failures), "errors": str(errors)}
     root = ET.Element("testsuites", {"name": "lidarfuzz", **counts})
     suite = ET.SubElement(root, "testsuite", {"name": name, **counts, "skipped": "0",
-                                              "timestamp": str(task.get("finished_at") or task.get("started_at")
-                                                               or "")})
+                                              "timestamp": task.finished_at or task.started_at or ""})
     properties = ET.SubElement(suite, "properties")
-    model = task.get("model", {})
-    for key, value in (("task", task.get("id")), ("status", task.get("status")),
-                       ("dataset", task.get("dataset", {}).get("path")), ("sut", model.get("spec")),
-                       ("fingerprint", model.get("fingerprint")), ("seed", task.get("seed"))):
+    for key, value in (("task", task.id), ("status", task.status), ("dataset", task.dataset.path),
+                       ("sut", task.model.spec), ("fingerprint", task.model.fingerprint), ("seed", task.seed)):
         ET.SubElement(properties, "property", {"name": key, "value": "" if value is None else str(value)})
     for result in results:
         case = ET.SubElement(suite, "testcase", {"classname": f"lidarfuzz.{result.group}", "name": result.name,
@@ -155,7 +158,7 @@ def junit_from_results(summary: Mapping[str, Any], results: Sequence[GateResult]
     return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
 
 
-def junit_xml(summary: Mapping[str, Any], gates: Iterable[Gate | str] = ()) -> str:
+def junit_xml(summary: TaskSummary, gates: Iterable[Gate | str] = ()) -> str:
     """JUnit XML of ``gates`` (rules or :class:`Gate`) checked against ``summary``; see the module docstring.
 
     Raises:

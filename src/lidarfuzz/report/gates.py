@@ -38,13 +38,17 @@ Example:
 
 from __future__ import annotations
 
+import math
 import re
 from collections import defaultdict
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar
 
 from lidarfuzz.errors import LidarfuzzError
+
+if TYPE_CHECKING:
+    from lidarfuzz.store.contracts import TaskSummary
 
 GateKind = Literal["ap_drop", "violations", "violation_rate", "failures"]
 KINDS: tuple[GateKind, ...] = ("ap_drop", "violations", "violation_rate", "failures")
@@ -171,17 +175,17 @@ def _matches(selector: str, label: str, operator: str) -> bool:
     return selector in ("*", label, operator)
 
 
-def _labels(summary: Mapping[str, Any]) -> str:
-    labels = [s["label"] for s in summary.get("subtasks", [])[1:]]
+def _labels(summary: TaskSummary) -> str:
+    labels = [s.label for s in summary.subtasks[1:]]
     return ", ".join(labels) if labels else "none"
 
 
-def _ap_drop(summary: Mapping[str, Any], gate: Gate) -> GateResult:
-    rows = [r for r in summary.get("delta_ap", [])
-            if r["metric"] == gate.metric and r["difficulty"] == gate.difficulty
-            and (gate.cls == "*" or r["class"] == gate.cls) and _matches(gate.subtask, r["label"], r["operator"])]
+def _ap_drop(summary: TaskSummary, gate: Gate) -> GateResult:
+    rows = [r for r in summary.delta_ap
+            if r.metric == gate.metric and r.difficulty == gate.difficulty
+            and (gate.cls == "*" or r.cls == gate.cls) and _matches(gate.subtask, r.label, r.operator)]
     if not rows:
-        known = {s["label"] for s in summary.get("subtasks", [])} | {s["operator"] for s in summary.get("subtasks", [])}
+        known = {s.label for s in summary.subtasks} | {s.operator for s in summary.subtasks}
         if gate.subtask != "*" and gate.subtask not in known:
             why = f"no subtask {gate.subtask!r} in this task (subtasks: {_labels(summary)})"
         else:
@@ -189,12 +193,12 @@ def _ap_drop(summary: Mapping[str, Any], gate: Gate) -> GateResult:
         return GateResult(gate.text, "error", why)
     measured, offending = [], []
     for r in rows:
-        if r["delta"] is None:
+        if not math.isfinite(r.delta):  # undefined: no objects of the class to score
             continue
-        drop = -float(r["delta"])
-        metric = METRIC_NAMES.get(r["metric"], r["metric"])
-        line = (f"{r['class']} {metric} AP ({r['difficulty']}, R40) under {r['label']}: "
-                f"{r['clean']:.1f} → {r['corrupted']:.1f} (drop {drop:.1f})")
+        drop = -r.delta
+        metric = METRIC_NAMES.get(r.metric, r.metric)
+        line = (f"{r.cls} {metric} AP ({r.difficulty}, R40) under {r.label}: "
+                f"{r.clean:.1f} → {r.corrupted:.1f} (drop {drop:.1f})")
         measured.append(line)
         if drop > gate.threshold:
             offending.append(line)
@@ -205,23 +209,24 @@ def _ap_drop(summary: Mapping[str, Any], gate: Gate) -> GateResult:
                       details=tuple(measured))
 
 
-def _violations(summary: Mapping[str, Any], gate: Gate) -> GateResult:
+def _violations(summary: TaskSummary, gate: Gate) -> GateResult:
     checked: dict[str, int] = defaultdict(int)
     violated: dict[str, int] = defaultdict(int)
     any_subtask = False
-    for entry in summary.get("subtasks", [])[1:]:
-        if not _matches(gate.subtask, entry["label"], entry["operator"]):
+    for entry in summary.subtasks[1:]:
+        if not _matches(gate.subtask, entry.label, entry.operator):
             continue
         any_subtask = True
-        for rate in entry.get("violations_total", []):
-            if gate.relation in ("*", rate["relation"]):
-                checked[rate["relation"]] += int(rate["checked"])
-                violated[rate["relation"]] += int(rate["violated"])
+        for row in entry.violations_total:
+            # a subtask's totals are grouped by relation, so each row names one
+            if row.relation is not None and gate.relation in ("*", row.relation):
+                checked[row.relation] += row.checked
+                violated[row.relation] += row.violated
     if not any_subtask:
         return GateResult(gate.text, "error", f"no subtask {gate.subtask!r} in this task "
                                               f"(subtasks: {_labels(summary)})")
     if not checked:
-        known = sorted({r["relation"] for r in summary.get("violations", {}).get("relation", [])})
+        known = sorted({r.relation or "" for r in summary.violations.relation})
         return GateResult(gate.text, "error", f"relation {gate.relation!r} was not checked on "
                                               f"{gate.subtask!r} (checked: {', '.join(known) or 'none'})")
     where = "" if gate.subtask == "*" else f" under {gate.subtask}"
@@ -240,8 +245,8 @@ def _violations(summary: Mapping[str, Any], gate: Gate) -> GateResult:
     return GateResult(gate.text, "passed", f"violations at most {limit}", details=tuple(measured))
 
 
-def _failures(summary: Mapping[str, Any], gate: Gate) -> GateResult:
-    by_kind = summary.get("findings", {}).get("by_kind", {})
+def _failures(summary: TaskSummary, gate: Gate) -> GateResult:
+    by_kind = summary.findings.by_kind
     kinds = SUT_FAILURES if gate.failure_kind == "*" else (gate.failure_kind,)
     counts = {k: int(by_kind.get(k, 0)) for k in kinds}
     total = sum(counts.values())
@@ -251,7 +256,7 @@ def _failures(summary: Mapping[str, Any], gate: Gate) -> GateResult:
     return GateResult(gate.text, "passed", f"{total} failure(s)", details=(line,))
 
 
-def check_gate(summary: Mapping[str, Any], gate: Gate | str) -> GateResult:
+def check_gate(summary: TaskSummary, gate: Gate | str) -> GateResult:
     """Check one gate against a task summary."""
     gate = gate if isinstance(gate, Gate) else parse_gate(gate)
     if gate.kind == "ap_drop":
@@ -261,36 +266,36 @@ def check_gate(summary: Mapping[str, Any], gate: Gate | str) -> GateResult:
     return _failures(summary, gate)
 
 
-def _finished(summary: Mapping[str, Any]) -> GateResult:
-    task = summary.get("task", {})
-    status, done, total = task.get("status"), task.get("done"), task.get("total")
+def _finished(summary: TaskSummary) -> GateResult:
+    task = summary.task
+    status, done, total = task.status, task.done, task.total
     if status == "done":
         return GateResult("task finished", "passed", f"{done} of {total} units", group="task")
     return GateResult("task finished", "failed", f"the task is {status} ({done} of {total} units): the figures "
                       f"are partial", (f"status {status}, {done} of {total} units",), group="task")
 
 
-def default_results(summary: Mapping[str, Any]) -> list[GateResult]:
+def default_results(summary: TaskSummary) -> list[GateResult]:
     """What is checked when no gate is given: no SUT failure (``failures>0``), and, for
     information only (always passing), each subtask's AP drop and each relation's violations."""
     results = [check_gate(summary, Gate("failures>0", "failures", 0.0))]
-    for entry in summary.get("subtasks", [])[1:]:
-        rows = [r for r in summary.get("delta_ap", []) if r["label"] == entry["label"] and r["metric"] in AP_METRICS
-                and r["class"] == "mAP" and r["difficulty"] == "moderate"]
-        lines = tuple(f"{METRIC_NAMES[r['metric']]} mAP (moderate, R40): {r['clean']:.1f} → {r['corrupted']:.1f} "
-                      f"({r['delta']:+.1f})" for r in rows if r["delta"] is not None)
+    for entry in summary.subtasks[1:]:
+        rows = [r for r in summary.delta_ap if r.label == entry.label and r.metric in AP_METRICS
+                and r.cls == "mAP" and r.difficulty == "moderate"]
+        lines = tuple(f"{METRIC_NAMES[r.metric]} mAP (moderate, R40): {r.clean:.1f} → {r.corrupted:.1f} "
+                      f"({r.delta:+.1f})" for r in rows if math.isfinite(r.delta))
         message = "; ".join(lines) if lines else "no AP (no labels, or not evaluated yet)"
-        results.append(GateResult(f"ap {entry['label']}", "passed", message, group="ap", informational=True,
+        results.append(GateResult(f"ap {entry.label}", "passed", message, group="ap", informational=True,
                                   details=lines))
-    for rate in summary.get("violations", {}).get("relation", []):
-        share = "–" if rate["rate"] is None else f"{100 * rate['rate']:.1f}%"
-        message = f"{rate['violated']} of {rate['checked']} frames violated ({share})"
-        results.append(GateResult(f"relation {rate['relation']}", "passed", message, group="relations",
+    for rate in summary.violations.relation:
+        share = "–" if rate.rate is None else f"{100 * rate.rate:.1f}%"
+        message = f"{rate.violated} of {rate.checked} frames violated ({share})"
+        results.append(GateResult(f"relation {rate.relation}", "passed", message, group="relations",
                                   informational=True, details=(message,)))
     return results
 
 
-def evaluate(summary: Mapping[str, Any], gates: Iterable[Gate | str] = ()) -> list[GateResult]:
+def evaluate(summary: TaskSummary, gates: Iterable[Gate | str] = ()) -> list[GateResult]:
     """The task-finished check, then each gate's result (or the default set when none is given)."""
     parsed = parse_gates(gates)
     results = [_finished(summary)]
