@@ -8,30 +8,27 @@ export const METRICS = [
   { key: "3d", name: "3D", colour: "#08306b" },
 ];
 
-// One AP figure of a subtask: the full KITTI result ({ap: {metric: {class: {difficulty: {R40}}}}, map}),
-// or a flat {bbox, bev, 3d} when the server sends one number per metric.
+// One AP figure of a subtask: its KITTI result (the contract's APRecord: {ap: {metric: {class:
+// {difficulty: {R11, R40}}}}, map: {metric: {difficulty: {R11, R40}}}}; null until it completes).
+// Undefined figures are null.
 export function apValue(subtask, metric, cls, difficulty, points) {
-  const ap = subtask?.ap ?? subtask?.results?.ap;
-  if (ap === undefined || ap === null) return null;
-  let value;
-  if (typeof ap[metric] === "number") value = ap[metric];
-  else if (cls === "mAP") value = ap.map?.[metric]?.[difficulty]?.[points];
-  else value = ap.ap?.[metric]?.[cls]?.[difficulty]?.[points] ?? ap[metric]?.[cls]?.[difficulty]?.[points];
-  return typeof value === "number" && Number.isFinite(value) ? value : null;
+  const ap = subtask.ap;
+  if (ap === null) return null;
+  const value = cls === "mAP" ? ap.map[metric]?.[difficulty]?.[points] : ap.ap[metric]?.[cls]?.[difficulty]?.[points];
+  return typeof value === "number" ? value : null;
 }
 
 export function classesOf(subtasks) {
-  for (const s of subtasks) {
-    const ap = s?.ap ?? s?.results?.ap;
-    const bbox = ap?.ap?.bbox;
+  for (const subtask of subtasks) {
+    const bbox = subtask.ap?.ap.bbox;
     if (bbox && typeof bbox === "object") return Object.keys(bbox);
   }
   return [];
 }
 
 export function apChart(subtasks, { cls = "Car", difficulty = "moderate", points = "R40", width: available = 0 } = {}) {
-  const labels = subtasks.map((s) => s.label ?? (s.severity ? `${s.name ?? s.operator}@${s.severity}` : (s.name ?? s.operator)));
-  const series = METRICS.map((m) => ({ ...m, values: subtasks.map((s) => apValue(s, m.key, cls, difficulty, points)) }));
+  const labels = subtasks.map((subtask) => subtask.label);
+  const series = METRICS.map((m) => ({ ...m, values: subtasks.map((subtask) => apValue(subtask, m.key, cls, difficulty, points)) }));
   const width = Math.max(560, 70 + labels.length * 56, available);
   const longest = Math.max(0, ...labels.map((l) => l.length));
   const margin = { left: 48, right: 24, top: 16, bottom: Math.min(170, 24 + longest * 5) };

@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, status
 from fastapi.responses import StreamingResponse
+from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import count_tasks, create_task, delete_task, get_task, list_tasks, subtask_label
+from lidarfuzz.store.contracts import APRecord, RateRow, TaskSummary, summary_schema
 from lidarfuzz.store.inventory import list_datasets, list_models
-from lidarfuzz.store.models import Status, Task
+from lidarfuzz.store.models import Status, Subtask, Task
 from lidarfuzz.web.context import WebContext, web
-from lidarfuzz.web.events import iso, progress_events, progress_snapshot
+from lidarfuzz.web.events import FINAL, iso, progress_events, progress_snapshot
 from lidarfuzz.web.security import check_model_spec
 
 router = APIRouter(tags=["tasks"])
@@ -24,26 +27,120 @@ CAMPAIGN_EXAMPLE = {"name": "fog-vs-classic", "dataset": "sim", "sut": "classic"
                     "frames": 10}
 
 
+# -- what the API sends: the front end reads these models' JSON Schema (GET /api/schemas/task) ------
+class Reply(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class TaskRow(Reply):
+    """A task as the list shows it."""
+
+    id: int
+    name: str
+    status: Status
+    kind: str
+    dataset: str
+    model: str
+    operator_count: int
+    done: int
+    total: int
+    seed: int
+    created_at: str | None
+    started_at: str | None
+    finished_at: str | None
+    error: str
+
+
+class SubtaskRow(Reply):
+    """A subtask in the task's detail: its progress and, once complete, its figures."""
+
+    id: int
+    name: str
+    label: str
+    severity: int
+    status: Status
+    done: int
+    total: int
+    operator: dict[str, Any]
+    relations: list[str]
+    ap_moderate: dict[str, dict[str, float | None]] | None = Field(
+        description="AP|R40 at moderate difficulty: metric → class (and mAP) → AP in percent")
+    ap: APRecord | None
+    violations: list[RateRow]
+    failures: int
+    frames: int
+
+
+class RunningSubtask(Reply):
+    """The subtask running now (:func:`lidarfuzz.web.events.progress_snapshot`)."""
+
+    id: int
+    label: str
+    done: int
+    total: int
+
+
+class TaskDetail(TaskRow):
+    """A task, its subtasks, the subtask running now and, once it is done, its summary."""
+
+    model_config = ConfigDict(json_schema_extra={"x-final-statuses": [s.value for s in FINAL]})
+
+    dataset_path: str
+    model_spec: str
+    fingerprint: str
+    relations: list[Any]
+    operators: list[Any]
+    trials: int
+    frames: int
+    search: dict[str, Any] | None = Field(description="a search task's configuration (None: not a search)")
+    worker: str
+    heartbeat_at: str | None
+    running: RunningSubtask | None
+    subtasks: list[SubtaskRow]
+    summary: TaskSummary | None
+    queued: bool
+
+
+def task_schema() -> dict[str, Any]:
+    """The JSON Schema of the task-detail reply (its ``summary``: :func:`summary_schema`);
+    ``x-final-statuses`` lists the statuses a task ends in."""
+    return TaskDetail.model_json_schema(mode="serialization", by_alias=True)
+
+
+def _row_fields(task: Task) -> dict[str, Any]:
+    return {"id": task.id, "name": task.name, "status": task.status, "kind": task.options.kind,
+            "dataset": task.dataset.name, "model": task.model.name, "operator_count": len(task.operators or []),
+            "done": task.done, "total": task.total, "seed": task.seed, "created_at": iso(task.created_at),
+            "started_at": iso(task.started_at), "finished_at": iso(task.finished_at), "error": task.error}
+
+
 def task_row(task: Task) -> dict[str, Any]:
     """A task as the list shows it."""
-    options = task.options or {}
-    return {"id": task.id, "name": task.name, "status": Status(task.status).value,
-            "kind": options.get("kind", "mutation"), "dataset": task.dataset.name, "model": task.model.name,
-            "operator_count": len(task.operators or []), "done": task.done, "total": task.total, "seed": task.seed,
-            "created_at": iso(task.created_at), "started_at": iso(task.started_at),
-            "finished_at": iso(task.finished_at), "error": task.error}
+    return TaskRow.model_validate(_row_fields(task)).model_dump(mode="json")
 
 
-def _moderate(ap: dict[str, Any] | None) -> dict[str, Any] | None:
+def _finite(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else value
+
+
+def _moderate(ap: APRecord | None) -> dict[str, dict[str, float | None]] | None:
     """AP|R40 at moderate difficulty per metric: each class and the mAP (the figure 5-14 lines)."""
-    if not ap:
+    if ap is None:
         return None
-    out: dict[str, Any] = {}
-    for metric, classes in ap.get("ap", {}).items():
-        row = {cls: table.get("moderate", {}).get("R40") for cls, table in classes.items()}
-        row["mAP"] = ap.get("map", {}).get(metric, {}).get("moderate", {}).get("R40")
+    out: dict[str, dict[str, float | None]] = {}
+    for metric, classes in ap.ap.items():
+        row = {cls: _finite(table.get("moderate", {}).get("R40")) for cls, table in classes.items()}
+        row["mAP"] = _finite(ap.map.get(metric, {}).get("moderate", {}).get("R40"))
         out[metric] = row
     return out
+
+
+def _subtask_row(sub: Subtask) -> SubtaskRow:
+    results = sub.results
+    return SubtaskRow(id=sub.id, name=sub.name, label=subtask_label(sub.name, sub.severity), severity=sub.severity,
+                      status=sub.status, done=sub.done, total=sub.total, operator=sub.operator,
+                      relations=sub.plan.relation_names, ap_moderate=_moderate(results.ap), ap=results.ap,
+                      violations=results.violations_total, failures=results.failures, frames=results.frames)
 
 
 @router.get("/tasks")
@@ -77,28 +174,35 @@ async def tasks_create(ctx: Web, body: Annotated[dict[str, Any], Body(examples=[
     return {"id": task_id, "status": Status.PENDING.value}
 
 
-@router.get("/tasks/{task_id}")
+@router.get("/tasks/{task_id}", responses={200: {"model": TaskDetail}})
 def tasks_detail(ctx: Web, task_id: int) -> dict[str, Any]:
-    """A task, its subtasks (with AP), the subtask running now, its summary and error."""
+    """A task, its subtasks (with AP), the subtask running now, its summary and error (the reply's
+    JSON Schema: ``GET /api/schemas/task``)."""
     task = get_task(ctx.store, task_id)
     progress = progress_snapshot(ctx.store, task_id) or {}
-    subtasks = []
-    for sub in task.subtasks:
-        results = {k: v for k, v in (sub.results or {}).items() if k != "relation_specs"}
-        subtasks.append({"id": sub.id, "name": sub.name, "label": subtask_label(sub.name, sub.severity),
-                         "severity": sub.severity, "status": Status(sub.status).value, "done": sub.done,
-                         "total": sub.total, "operator": sub.operator,
-                         "relations": [r.get("name") for r in (sub.results or {}).get("relation_specs", [])],
-                         "ap_moderate": _moderate(results.get("ap")), "ap": results.get("ap"),
-                         "violations": results.get("violations_total", []), "failures": results.get("failures"),
-                         "frames": results.get("frames")})
-    options = task.options or {}
-    return {**task_row(task), "dataset_path": task.dataset.path, "model_spec": task.model.spec,
-            "fingerprint": task.model.fingerprint, "relations": task.relations, "operators": task.operators,
-            "trials": options.get("trials", 1), "frames": len(options.get("frame_ids", [])),
-            "search": options.get("search"), "worker": task.worker, "heartbeat_at": iso(task.heartbeat_at),
-            "running": progress.get("running"), "subtasks": subtasks, "summary": task.summary or None,
-            "queued": ctx.workers.is_active(task_id)}
+    options = task.options
+    detail = TaskDetail.model_validate({
+        **_row_fields(task), "dataset_path": task.dataset.path, "model_spec": task.model.spec,
+        "fingerprint": task.model.fingerprint, "relations": task.relations, "operators": task.operators,
+        "trials": options.trials, "frames": len(options.frame_ids), "search": options.kind_options or None,
+        "worker": task.worker, "heartbeat_at": iso(task.heartbeat_at), "running": progress.get("running"),
+        "subtasks": [_subtask_row(sub) for sub in task.subtasks], "summary": task.summary,
+        "queued": ctx.workers.is_active(task_id)})
+    return detail.model_dump(mode="json", by_alias=True)
+
+
+@router.get("/schemas/summary", tags=["schemas"])
+def schemas_summary() -> dict[str, Any]:
+    """The JSON Schema of a task's summary (:class:`lidarfuzz.store.contracts.TaskSummary`): what
+    ``summary`` in ``GET /api/tasks/{id}`` and ``report.json`` hold."""
+    return summary_schema()
+
+
+@router.get("/schemas/task", tags=["schemas"])
+def schemas_task() -> dict[str, Any]:
+    """The JSON Schema of ``GET /api/tasks/{id}`` (its ``summary``: ``GET /api/schemas/summary``);
+    ``x-final-statuses`` lists the statuses a task ends in. The front end reads it."""
+    return task_schema()
 
 
 @router.get("/tasks/{task_id}/events", response_class=StreamingResponse,

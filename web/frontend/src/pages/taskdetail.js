@@ -1,30 +1,15 @@
 // Task detail: status, live progress (server-sent events) overall and per subtask with the operator
 // running now, the AP-per-operator chart, the subtask table, stop / delete, report and findings.
-import { api, nameOf, subscribe } from "../api.js";
+// The reply's fields and statuses are the ones its JSON Schema declares (../contract.js).
+import { api, subscribe } from "../api.js";
 import { apChart, apValue, classesOf } from "../chart.js";
+import { statusesOf, taskSchema } from "../contract.js";
 import { clear, formatNumber, formatTime, go, h, notice, progressBar, statusBadge } from "../dom.js";
-import { operatorCount } from "./tasks.js";
-
-const FINISHED = new Set(["done", "failed", "cancelled", "completed", "succeeded", "error"]);
-
-export function subtaskLabel(s) {
-  if (!s) return "";
-  if (typeof s === "string") return s;
-  if (s.label) return s.label;
-  const name = s.name ?? s.operator ?? "";
-  return s.severity ? `${name}@${s.severity}` : name;
-}
-
-function normalise(reply) {
-  const task = { ...(reply?.task ?? reply) };
-  task.subtasks = reply?.subtasks ?? task.subtasks ?? [];
-  task.running = reply?.running ?? reply?.running_subtask ?? task.running ?? task.running_subtask ?? null;
-  task.error = reply?.error ?? task.error ?? "";
-  return task;
-}
 
 export async function taskDetailPage(root, id) {
-  let task = normalise(await api(`/api/tasks/${id}`));
+  const [schema, reply] = await Promise.all([taskSchema(), api(`/api/tasks/${id}`)]);
+  const { isFinished } = statusesOf(schema);
+  let task = reply;
   const view = { cls: "Car", difficulty: "moderate", points: "R40" };
 
   const head = h("div", { class: "page-head" });
@@ -48,36 +33,35 @@ export async function taskDetailPage(root, id) {
 
   function renderHead() {
     clear(head).append(
-      h("h1", {}, `Task #${task.id ?? id}`, task.name ? h("span", { class: "muted" }, ` ${task.name}`) : null),
+      h("h1", {}, `Task #${task.id}`, task.name ? h("span", { class: "muted" }, ` ${task.name}`) : null),
       statusBadge(task.status),
       h("span", { class: "spacer" }),
       live,
       h("a", { class: "button", href: `#/tasks/${id}/findings`, testid: "findings-link" }, "Findings"),
       h("a", { class: "button", href: `#/tasks/${id}/report`, testid: "report-link" }, "Report"),
-      h("button", { testid: "stop-task", disabled: FINISHED.has(String(task.status)), onclick: stop }, "Stop"),
+      h("button", { testid: "stop-task", disabled: isFinished(task.status), onclick: stop }, "Stop"),
       h("button", { class: "danger", testid: "delete-task", onclick: remove }, "Delete"),
     );
     clear(facts).append(
       ...[
-        ["Data set", nameOf(task.dataset)],
-        ["SUT", nameOf(task.model ?? task.sut)],
-        ["Kind", task.kind ?? "mutation"],
-        ["Operators", operatorCount(task)],
-        ["Seed", task.seed ?? "—"],
+        ["Data set", task.dataset],
+        ["SUT", task.model],
+        ["Kind", task.kind],
+        ["Operators", task.operator_count],
+        ["Seed", task.seed],
         ["Created", formatTime(task.created_at)],
         ["Started", formatTime(task.started_at)],
         ["Finished", formatTime(task.finished_at)],
       ].flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]),
     );
-    clear(overall).append(h("span", { class: "label" }, "Overall"), progressBar(task.done ?? 0, task.total ?? 0, "overall-progress"));
+    clear(overall).append(h("span", { class: "label" }, "Overall"), progressBar(task.done, task.total, "overall-progress"));
     const now = task.running;
-    const nowSubtask = now ?? task.subtasks.find((s) => String(s.status) === "running");
     clear(running);
-    if (nowSubtask && !FINISHED.has(String(task.status))) {
+    if (now && !isFinished(task.status)) {
       running.append(
         h("span", { class: "label" }, "Running now"),
-        h("strong", { testid: "running-operator" }, subtaskLabel(nowSubtask)),
-        typeof nowSubtask === "object" && nowSubtask.total ? progressBar(nowSubtask.done ?? 0, nowSubtask.total, "running-progress") : null,
+        h("strong", { testid: "running-operator" }, now.label),
+        now.total ? progressBar(now.done, now.total, "running-progress") : null,
       );
     }
     clear(message);
@@ -99,10 +83,10 @@ export async function taskDetailPage(root, id) {
       tableBody.append(
         h(
           "tr",
-          { testid: "subtask-row", dataset: { label: subtaskLabel(s), status: s.status } },
-          h("td", {}, subtaskLabel(s)),
+          { testid: "subtask-row", dataset: { label: s.label, status: s.status } },
+          h("td", {}, s.label),
           h("td", {}, statusBadge(s.status)),
-          h("td", { class: "progress-cell" }, progressBar(s.done ?? 0, s.total ?? 0, "subtask-progress")),
+          h("td", { class: "progress-cell" }, progressBar(s.done, s.total, "subtask-progress")),
           ...["bbox", "bev", "3d"].map((m) => h("td", { class: "num" }, formatNumber(apValue(s, m, view.cls, view.difficulty, view.points)))),
         ),
       );
@@ -111,7 +95,7 @@ export async function taskDetailPage(root, id) {
 
   async function refresh() {
     try {
-      task = normalise(await api(`/api/tasks/${id}`));
+      task = await api(`/api/tasks/${id}`);
     } catch (exc) {
       clear(message).append(notice("error", exc.message));
       return;
@@ -139,33 +123,31 @@ export async function taskDetailPage(root, id) {
     }
   }
 
-  // Merge one progress event (task counters, status, subtask counters, the running subtask).
+  // Merge one progress event (lidarfuzz.web.events.progress_snapshot: the task's counters and
+  // status, its subtasks' counters and statuses, the subtask running now).
   let refreshing = null;
   function onProgress(event) {
     if (!event || typeof event !== "object") return;
-    const previous = String(task.status);
-    const update = event.task ?? event;
-    for (const key of ["status", "done", "total", "started_at", "finished_at", "error"]) {
-      if (update[key] !== undefined) task[key] = update[key];
-    }
-    if (event.running !== undefined || event.running_subtask !== undefined) task.running = event.running ?? event.running_subtask;
+    const previous = task.status;
+    const { subtasks, ...counters } = event;
+    Object.assign(task, counters);
     let newSubtask = false;
-    for (const sub of event.subtasks ?? []) {
-      const mine = task.subtasks.find((s) => (sub.id !== undefined && s.id === sub.id) || subtaskLabel(s) === subtaskLabel(sub));
+    for (const sub of subtasks ?? []) {
+      const mine = task.subtasks.find((s) => s.id === sub.id);
       if (mine) {
-        const finishedNow = String(sub.status) !== String(mine.status) && FINISHED.has(String(sub.status));
+        const finishedNow = sub.status !== mine.status && isFinished(sub.status);
         Object.assign(mine, sub);
         newSubtask ||= finishedNow;
       } else newSubtask = true;
     }
     live.textContent = `live · ${new Date().toLocaleTimeString()}`;
     renderHead();
-    const ended = FINISHED.has(String(task.status)) && !FINISHED.has(previous);
+    const ended = isFinished(task.status) && !isFinished(previous);
     if (newSubtask || ended) {
       // AP of a finished subtask, or the final figures: the full record has them
       refreshing ??= refresh().finally(() => (refreshing = null));
     } else renderResults();
-    if (FINISHED.has(String(task.status))) closeStream();
+    if (isFinished(task.status)) closeStream();
   }
 
   let source = null;
@@ -173,9 +155,9 @@ export async function taskDetailPage(root, id) {
   function closeStream() {
     source?.close();
     source = null;
-    live.textContent = FINISHED.has(String(task.status)) ? "" : live.textContent;
+    live.textContent = isFinished(task.status) ? "" : live.textContent;
   }
-  if (!FINISHED.has(String(task.status))) {
+  if (!isFinished(task.status)) {
     source = subscribe(`/api/tasks/${id}/events`, {
       progress: onProgress,
       message: onProgress,
@@ -189,7 +171,7 @@ export async function taskDetailPage(root, id) {
         if (!poll) {
           poll = setInterval(async () => {
             await refresh();
-            if (FINISHED.has(String(task.status))) {
+            if (isFinished(task.status)) {
               clearInterval(poll);
               poll = null;
             }

@@ -1,16 +1,13 @@
 // Tasks: id, status, data set, SUT, operators, start/finish, progress; refreshed while any runs.
-import { api, listOf, nameOf, query } from "../api.js";
+// The statuses (the filter's choices, which ones still move) come from the task schema (../contract.js).
+import { api, query } from "../api.js";
+import { statusesOf, taskSchema } from "../contract.js";
 import { clear, emptyRow, every, formatTime, h, notice, progressBar, statusBadge } from "../dom.js";
 
-const ACTIVE = new Set(["pending", "queued", "running", "cancelling"]);
 const PAGE = 50;
 
-export function operatorCount(task) {
-  const value = task.operator_count ?? task.operators_count ?? task.n_operators ?? task.operators;
-  return Array.isArray(value) ? value.length : (value ?? "—");
-}
-
 export async function tasksPage(root) {
+  const { statuses, isFinished } = statusesOf(await taskSchema());
   let status = "";
   let offset = 0;
   const body = h("tbody", { testid: "tasks-body" });
@@ -26,7 +23,7 @@ export async function tasksPage(root) {
         load();
       },
     },
-    ["", "pending", "running", "done", "failed", "cancelled"].map((s) => h("option", { value: s }, s || "any status")),
+    ["", ...statuses].map((s) => h("option", { value: s }, s || "any status")),
   );
   root.append(
     h(
@@ -67,9 +64,8 @@ export async function tasksPage(root) {
       return;
     }
     clear(message);
-    const tasks = listOf(reply, "tasks");
-    const total = reply?.total;
-    active = tasks.some((t) => ACTIVE.has(String(t.status).toLowerCase()));
+    const { items: tasks, total } = reply;
+    active = tasks.some((task) => !isFinished(task.status));
     clear(body);
     if (!tasks.length) body.append(emptyRow(10, "No tasks yet: create one with New task."));
     for (const task of tasks) {
@@ -80,19 +76,19 @@ export async function tasksPage(root) {
           h("td", {}, h("a", { href: `#/tasks/${task.id}` }, `#${task.id}`)),
           h("td", {}, task.name || h("span", { class: "muted" }, task.kind && task.kind !== "mutation" ? task.kind : "—")),
           h("td", {}, statusBadge(task.status)),
-          h("td", {}, nameOf(task.dataset)),
-          h("td", {}, nameOf(task.model ?? task.sut)),
-          h("td", { class: "num" }, operatorCount(task)),
+          h("td", {}, task.dataset),
+          h("td", {}, task.model),
+          h("td", { class: "num" }, task.operator_count),
           h("td", {}, formatTime(task.started_at)),
           h("td", {}, formatTime(task.finished_at)),
-          h("td", { class: "progress-cell" }, progressBar(task.done ?? 0, task.total ?? 0, "task-progress")),
+          h("td", { class: "progress-cell" }, progressBar(task.done, task.total, "task-progress")),
           h("td", {}, h("a", { href: `#/tasks/${task.id}`, testid: "task-detail-link" }, "Details")),
         ),
       );
     }
     clear(pager);
     if (offset > 0) pager.append(h("button", { onclick: () => ((offset -= PAGE), load()) }, "← Newer"));
-    if (tasks.length === PAGE && (total === undefined || offset + PAGE < total)) {
+    if (tasks.length === PAGE && offset + PAGE < total) {
       pager.append(h("button", { onclick: () => ((offset += PAGE), load()) }, "Older →"));
     }
   }
