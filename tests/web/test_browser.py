@@ -232,9 +232,22 @@ def api_world(server: Server, world_zip: Path) -> str:
 
 
 # -- helpers -------------------------------------------------------------------------------------
-def wait_for_render(page: Any) -> dict[str, Any]:
-    page.wait_for_function("window.__viewer && window.__viewer.firstRenderMs !== null && !window.__viewer.disposed")
-    page.wait_for_timeout(300)  # the render the settings' change asked for
+def shown_viewer(page: Any) -> Any:
+    """A handle on the viewer now shown (its ``window.__viewer``; ``null`` when none), to pass to
+    :func:`wait_for_render` after moving to another frame."""
+    return page.evaluate_handle("() => window.__viewer ?? null")
+
+
+def wait_for_render(page: Any, replacing: Any = None) -> dict[str, Any]:
+    """The viewer's counters once it has drawn its frame (its first render with the frame sets
+    ``firstRenderMs`` and, in the same call, what was drawn).
+
+    ``replacing``: the :func:`shown_viewer` of the page before a move to another frame. The old
+    viewer's counters stay in ``window.__viewer`` until the new page replaces them, after its API
+    calls: waiting for a different object is what keeps them from being read as the new frame's.
+    """
+    page.wait_for_function("previous => window.__viewer && window.__viewer !== previous"
+                           " && window.__viewer.firstRenderMs !== null && !window.__viewer.disposed", arg=replacing)
     return page.evaluate("() => ({...window.__viewer})")
 
 
@@ -430,9 +443,11 @@ def test_frame_browser_draws_every_point_and_every_colour_mode(page: Any, server
     page.get_by_test_id("viewer-point-size").evaluate(
         "el => { el.value = '5'; el.dispatchEvent(new Event('input', {bubbles: true})); }")
     page.wait_for_function(f"window.__viewer.renders > {renders}")
+    first = shown_viewer(page)
     page.get_by_test_id("frame-next").click()
     page.wait_for_url("**/000001")
-    assert wait_for_render(page)["pointsDrawn"] == (world / "velodyne" / "000001.bin").stat().st_size // 16
+    second = wait_for_render(page, replacing=first)
+    assert second["pointsDrawn"] == (world / "velodyne" / "000001.bin").stat().st_size // 16
 
 
 def test_token_from_the_url_is_kept_and_sent(browser: Any, tmp_path: Path, world_zip: Path) -> None:
