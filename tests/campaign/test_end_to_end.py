@@ -55,11 +55,11 @@ def test_the_campaign_shows_the_seeded_bug(campaigns: tuple[Store, dict[str, int
     buggy, correct = vanished(store, ids["classic-bug-intensity-norm"]), vanished(store, ids["classic"])
     assert buggy and not correct
     summary = {name: summarise(store, task) for name, task in ids.items()}
-    rate = {name: s["violations"]["relation"][0] for name, s in summary.items()}
-    assert rate["classic-bug-intensity-norm"]["relation"] == "preservation"
-    assert rate["classic-bug-intensity-norm"]["violated"] >= 1
+    rate = {name: s.violations.relation[0] for name, s in summary.items()}
+    assert rate["classic-bug-intensity-norm"].relation == "preservation"
+    assert rate["classic-bug-intensity-norm"].violated >= 1
     # the same frames and mutants (same seed, same params) were checked for both systems
-    assert rate["classic"]["checked"] == rate["classic-bug-intensity-norm"]["checked"] == 3
+    assert rate["classic"].checked == rate["classic-bug-intensity-norm"].checked == 3
 
 
 def test_the_report_shows_the_bug(campaigns: tuple[Store, dict[str, int]], tmp_path: Path) -> None:

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 from sqlalchemy import func, select
 
-from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
 from lidarfuzz.campaign.executor import InlineExecutor, ProcessExecutor
 from lidarfuzz.campaign.replay import replay_finding
 from lidarfuzz.campaign.results import summarise
@@ -17,6 +16,7 @@ from lidarfuzz.campaign.runner import ProgressEvent, run_task
 from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import cancel_task, create_task, get_task
 from lidarfuzz.store import Finding, FrameResult, Status, Store, Subtask, Task
+from lidarfuzz.store.boxes import StoredBoxes, decode_boxes, encode_boxes
 
 OPERATORS = [{"name": "gaussian_noise_addition", "severities": [2, 5]}, {"name": "rotate_z", "severities": [3]}]
 
@@ -62,6 +62,9 @@ def test_codec_round_trip(sample_scenes) -> None:
     back = decode_boxes(*encode_boxes(boxes))
     assert back.allclose(boxes, atol=1e-4) and list(back.labels) == list(boxes.labels)
     assert len(decode_boxes(None, [])) == 0
+    stored = StoredBoxes.of(boxes)  # the one value the store's composites and the work units carry
+    assert stored.labels == tuple(boxes.labels) and stored.boxes().allclose(boxes, atol=1e-4)
+    assert StoredBoxes.of(None).missing and len(StoredBoxes.of(None).boxes()) == 0
 
 
 def test_a_task_is_planned_and_run_to_the_end(store: Store, world: Path) -> None:
@@ -77,16 +80,16 @@ def test_a_task_is_planned_and_run_to_the_end(store: Store, world: Path) -> None
     assert [e.task_done for e in events] == list(range(1, 13))
     task = get_task(store, task_id)
     assert task.status == Status.DONE and task.done == task.total and task.finished_at is not None
-    assert all(s.status == Status.DONE and s.done == s.total and s.results["ap"] for s in task.subtasks)
+    assert all(s.status == Status.DONE and s.done == s.total and s.results.ap for s in task.subtasks)
     with store.session() as s:
         assert s.scalar(select(func.count()).select_from(FrameResult)) == 12
         # rotate_z is equivariant: its subtask checked equivariance on every frame
         rotated = next(r for r in s.scalars(select(FrameResult).join(Subtask).where(Subtask.name == "rotate_z")))
-        assert {o["relation"] for o in rotated.relations} >= {"equivariance"}
-        assert rotated.params and rotated.gt_boxes  # concrete params and the moved ground truth
+        assert {o.relation for o in rotated.relations} >= {"equivariance"}
+        assert rotated.params and rotated.ground_truth.data  # concrete params and the moved ground truth
     summary = summarise(store, task_id)
-    assert summary["subtasks"][0]["label"] == "original" and summary["delta_ap"]
-    assert {r["relation"] for r in summary["violations"]["relation"]} >= {"equivariance", "preservation"}
+    assert summary.subtasks[0].label == "original" and summary.delta_ap
+    assert {r.relation for r in summary.violations.relation} >= {"equivariance", "preservation"}
     assert digest(world) == before  # the original data set is never modified
 
 
@@ -204,10 +207,10 @@ def test_a_moved_scene_is_scored_only_where_the_source_had_labels(tmp_path: Path
     with store.session() as s:
         results = {sub.operator.get("config", {}).get("angle_range", [None])[0]: sub.results
                    for sub in s.scalars(select(Subtask).where(Subtask.task_id == task_id))}
-    assert results[None]["ap"] is not None  # the originals
-    assert results[180.0]["ap"] is None
-    assert "out of the camera's view" in results[180.0]["ap_note"]
-    assert results[10.0]["ap"] is not None
+    assert results[None].ap is not None  # the originals
+    assert results[180.0].ap is None
+    assert "out of the camera's view" in (results[180.0].ap_note or "")
+    assert results[10.0].ap is not None
     html = write_report(store, task_id, tmp_path / "report").html.read_text()
     assert "moved every labelled object out of the camera" in html
 

@@ -15,6 +15,7 @@ import pytest
 from lidarfuzz.campaign import coverage_search, kinds, mutation
 from lidarfuzz.campaign.lifecycle import CancelledError, KindImplementation, RunOptions, RunStats, Watch
 from lidarfuzz.campaign.plan import KindPlan, SubtaskPlan, relations_for, relations_for_kind
+from lidarfuzz.campaign.results import summarise
 from lidarfuzz.campaign.runner import describe_plan, run_task
 from lidarfuzz.campaign.spec import CampaignSpec, parse_campaign
 from lidarfuzz.campaign.tasks import cancel_task, create_task, delete_task, get_task
@@ -22,6 +23,7 @@ from lidarfuzz.errors import DataFormatError
 from lidarfuzz.operators.base import Relation
 from lidarfuzz.operators.registry import get as get_operator
 from lidarfuzz.store import Status, Store, Task
+from lidarfuzz.store.contracts import TaskSummary
 from lidarfuzz.store.errors import ConflictError, NotFoundError
 from lidarfuzz.store.models import Model
 
@@ -45,6 +47,7 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
 class _ProbeRun:
     def __init__(self, store: Store, task: Task, options: RunOptions) -> None:
         self.stats = RunStats()
+        self.store, self.task_id = store, task.id
         self.watch = Watch(store, task.id, options.stop)
         self.closed = False
         BEHAVIOUR["run"] = self
@@ -58,8 +61,8 @@ class _ProbeRun:
         self.watch.check()
         self.stats.units = 2
 
-    def summary(self) -> dict[str, Any]:
-        return {"probe": "summarised"}
+    def summary(self) -> TaskSummary:
+        return summarise(self.store, self.task_id).model_copy(update={"kind_summary": {"probe": "summarised"}})
 
     def close(self) -> None:
         self.closed = True
@@ -70,7 +73,7 @@ def start(store: Store, task: Task, options: RunOptions) -> _ProbeRun:
 
 
 def describe(task: Task) -> str:
-    return f"a probe of {task.options['probe']['frames']} frame(s)"
+    return f"a probe of {task.options.kind_options['probe']['frames']} frame(s)"
 
 
 
@@ -108,7 +111,8 @@ def test_a_new_kind_is_a_module_and_a_row(with_probe: None, world: Path, tmp_pat
         task_id = create_task(store, spec)
         task = get_task(store, task_id)
         assert [(s.name, s.total) for s in task.subtasks] == [("original", 3), ("probe", 2)]
-        assert task.total == 5 and task.options["kind"] == "probe" and task.options["probe"] == {"frames": 3}
+        assert task.total == 5 and task.options.kind == "probe"
+        assert task.options.kind_options == {"probe": {"frames": 3}}
         assert describe_plan(task) == "a probe of 3 frame(s)"
 
         BEHAVIOUR["execute"] = "fail"
@@ -126,7 +130,8 @@ def test_a_new_kind_is_a_module_and_a_row(with_probe: None, world: Path, tmp_pat
         outcome = run_task(store, task_id)
         task = get_task(store, task_id)
         assert outcome.status == task.status == Status.DONE and outcome.stats.units == 2
-        assert task.summary["probe"] == "summarised" and task.summary["run"]["units"] == 2
+        assert task.summary is not None and task.summary.kind_summary == {"probe": "summarised"}
+        assert task.summary.run is not None and task.summary.run.units == 2
         assert task.finished_at is not None and task.worker and task.error == ""
 
         BEHAVIOUR.clear()  # a done task is left alone: the kind is not started again

@@ -92,8 +92,9 @@ def test_search_resumes_exactly_after_a_stop(world: Path, tmp_path: Path) -> Non
     assert 0 < get_task(store, task_id).done < get_task(store, task_id).total
     assert run_task(store, task_id).status == Status.DONE
     assert _tests(store, task_id) == _tests(whole, whole_id)
-    assert get_task(store, task_id).summary["search"]["coverage"] == get_task(whole, whole_id).summary["search"][
-        "coverage"]
+    resumed, uninterrupted = get_task(store, task_id).summary, get_task(whole, whole_id).summary
+    assert resumed is not None and uninterrupted is not None and resumed.search and uninterrupted.search
+    assert resumed.search.coverage == uninterrupted.search.coverage
 
 
 def test_fuzz_findings_are_deduplicated_minimised_and_replay(world: Path, tmp_path: Path) -> None:
@@ -121,8 +122,9 @@ def test_fuzz_findings_are_deduplicated_minimised_and_replay(world: Path, tmp_pa
             assert row is not None and row.trial >= MINIMISED
     replay = replay_finding(store, finding_id)
     assert replay.reproduced
-    search = get_task(store, task_id).summary["search"]
-    assert search["stats"]["findings"] == len(findings)
+    summary = get_task(store, task_id).summary
+    assert summary is not None and summary.search is not None
+    assert summary.search.stats["findings"] == len(findings)
 
 
 def test_validity_counts_points_kept_per_object(world: Path) -> None:

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from lidarfuzz.cli.app import app
 from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.store.contracts import TaskSummary
 
 runner = CliRunner()
 # an invariant operator (uniform noise), so both relations apply: preservation needs no labels,
@@ -34,7 +35,7 @@ def mixed(world: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _copy_without(world, tmp_path_factory.mktemp("mixed") / "sim", "000001", everything=False)
 
 
-def _summary(workspace: Path, task: int = 1) -> dict:
+def _summary(workspace: Path, task: int = 1) -> TaskSummary:
     from lidarfuzz.campaign.results import summarise
     from lidarfuzz.store import Store
 
@@ -56,11 +57,12 @@ def test_run_with_the_flag_scores_ap_on_the_labelled_frames_only(mixed: Path, wo
     assert result.exit_code == 0, result.output
     assert "AP from the labelled frames only: 1 frame(s) without a label file left out (000001)" in result.output
     summary = _summary(workspace)
-    assert summary["task"]["unlabelled_frames"] == 1
-    original, noise = summary["subtasks"]
-    assert original["frames"] == noise["frames"] == 3  # the unlabelled frame ran through the system too
-    assert original["ap_excluded"]["frames"] == 1 and original["ap_excluded"]["examples"] == ["000001"]
-    assert original["ap"]["num_frames"] == 2
+    assert summary.task.unlabelled_frames == 1
+    original, noise = summary.subtasks
+    assert original.frames == noise.frames == 3  # the unlabelled frame ran through the system too
+    assert original.ap_excluded is not None and original.ap is not None
+    assert original.ap_excluded.frames == 1 and original.ap_excluded.examples == ["000001"]
+    assert original.ap.num_frames == 2
 
     # the reference: the same campaign on a data set holding only the two labelled frames
     labelled_only = _copy_without(world, tmp_path / "labelled" / "sim", "000001", everything=True)
@@ -68,8 +70,8 @@ def test_run_with_the_flag_scores_ap_on_the_labelled_frames_only(mixed: Path, wo
     result = runner.invoke(app, ["run", "--dataset", str(labelled_only), *CAMPAIGN, "--workspace", str(reference_ws)])
     assert result.exit_code == 0, result.output
     reference = _summary(reference_ws)
-    for got, expected in zip(summary["subtasks"], reference["subtasks"], strict=True):
-        assert got["ap"]["ap"] == expected["ap"]["ap"]
+    for got, expected in zip(summary.subtasks, reference.subtasks, strict=True):
+        assert got.ap is not None and expected.ap is not None and got.ap.ap == expected.ap.ap
 
     # relations: preservation needs no labels and was checked on all 3 frames; gt_recall only where
     # the source has ground truth
@@ -81,7 +83,7 @@ def test_run_with_the_flag_scores_ap_on_the_labelled_frames_only(mixed: Path, wo
     with Store(str(workspace)).session() as s:
         rows = s.execute(select(FrameResult.frame_id, FrameResult.relations).join(Subtask).where(
             Subtask.name != "original")).all()
-    outcomes = {(frame, item["relation"]): item["applicable"] for frame, relations in rows for item in relations}
+    outcomes = {(frame, item.relation): item.applicable for frame, relations in rows for item in relations}
     assert outcomes[("000001", "preservation")] is True
     assert outcomes[("000001", "gt_recall")] is False and outcomes[("000000", "gt_recall")] is True
 

@@ -306,9 +306,10 @@ def test_the_report_says_which_region_each_subtask_used(sample_scenes, tmp_path)
     task = create_task(store, parse_campaign({"dataset": str(data), "sut": "classic", "relations": ["preservation"],
                                               "operators": [{"name": "outside_roi_scatter", "severities": [1]}]}))
     run_task(store, task, executor=InlineExecutor())
-    by_operator = {entry["operator"]: entry for entry in json.loads(json.dumps(summarise(store, task)))["subtasks"]}
+    by_operator = {entry["operator"]: entry for entry in json.loads(json.dumps(summarise(store, task).dump()))[
+        "subtasks"]}
     assert by_operator["outside_roi_scatter"]["regions"] == {"estimated": 2, "frame_map": 1}
-    assert "regions" not in by_operator["original"]
+    assert by_operator["original"]["regions"] is None
     # report.json is the summary verbatim; the HTML page shows one line per such subtask
     html = render_html(summarise(store, task), chart_pngs={})
     assert 'id="regions"' in html

@@ -25,11 +25,11 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import func, insert, select, update
 
-from lidarfuzz.campaign.codec import encode_boxes
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for_kind
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.search.algorithms import SearchConfig, TestRecord, make_search
+from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import SearchProgress, SearchSummary, TaskSummary
 from lidarfuzz.store.errors import ConflictError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, Task
@@ -131,20 +131,20 @@ class _SearchRun:
                 trial = 0 if record.role == "seed" else record.index
                 if record.role == "minimised":
                     trial = MINIMISED * (1 + record.variant) + record.index
-                boxes, labels = encode_boxes(e.output) if e.output is not None else (None, [])
-                gt_boxes, gt_labels = encode_boxes(e.scene.boxes) if e.scene is not None else (None, [])
+                detections = StoredBoxes.of(e.output)
+                ground_truth = StoredBoxes.of(e.scene.boxes if e.scene is not None else None)
                 row_id = self.connection.execute(insert(FrameResult).returning(FrameResult.id), {
                     "subtask_id": sub.id, "frame_id": e.frame_id, "trial": trial,
                     "params": record.params() if record.role != "seed" else {
                         "role": "seed", "gains": record.gains, "coverage": record.coverage},
-                    "boxes": boxes, "labels": labels, "gt_boxes": gt_boxes, "gt_labels": gt_labels,
+                    **detections.columns(), **ground_truth.columns("gt_boxes", "gt_labels"),
                     "failure": e.failure, "relations": e.relations, "seconds": e.seconds,
                     "cached": False, "created_at": now()}).scalar_one()
                 counts[sub.id] += 0 if record.role == "minimised" else 1
                 rows = []
                 if e.failure is not None:
-                    rows.append(dict(kind=e.failure["kind"], cls="", magnitude=None, message=e.failure["message"],
-                                     detail={"detail": e.failure.get("detail", ""), "test": record.index},
+                    rows.append(dict(kind=e.failure.kind, cls="", magnitude=None, message=e.failure.message,
+                                     detail={"detail": e.failure.detail, "test": record.index},
                                      replay=self._replay(record, None)))
                 for finding in record.findings:
                     rows.append(dict(**finding, replay=self._replay(record, specs.get(finding["kind"]))))
@@ -207,9 +207,9 @@ def finish_subtasks(store: Store, task_id: int) -> None:
 
     with store.session() as s:
         for sub in s.scalars(select(Subtask).where(Subtask.task_id == task_id)):
-            rows = list(s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
-                                         FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
-                                         FrameResult.relations, FrameResult.seconds, FrameResult.cached).where(
+            rows = list(s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.ground_truth,
+                                         FrameResult.failure, FrameResult.relations, FrameResult.seconds,
+                                         FrameResult.cached).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)))
             figures = evaluate_subtask(rows, calibration, unlabelled=task.options.unlabelled_frames)
             sub.results = figures.model_copy(update={"search": sub.results.search})

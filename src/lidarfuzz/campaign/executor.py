@@ -23,6 +23,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
+from lidarfuzz.store.contracts import FailureRecord
 
 
 class Executor(ABC):
@@ -86,7 +87,7 @@ def _run(unit: WorkUnit) -> UnitResult:
 
 def _crash(unit: WorkUnit) -> UnitResult:
     message = "the system under test killed its worker process (e.g. a segmentation fault)"
-    return UnitResult(unit, failure={"kind": "crash", "message": message, "detail": ""})
+    return UnitResult(unit, failure=FailureRecord(kind="crash", message=message))
 
 
 class ProcessExecutor(Executor):

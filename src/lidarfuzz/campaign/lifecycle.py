@@ -228,7 +228,11 @@ def finish(store: Store, task_id: int, summary: TaskSummary) -> None:
     """A run that finished: the task done, with its summary."""
     with store.session() as s:
         row = task_row(s, task_id)
-        row.summary, row.status, row.finished_at = summary, Status.DONE, now()
+        row.status, row.finished_at = Status.DONE, now()
+        # the summary was drawn up while the task ran: it describes the task as it ends
+        info = summary.task.model_copy(update={"status": Status.DONE.value, "finished_at": row.finished_at.isoformat(),
+                                               "done": row.done})
+        row.summary = summary.model_copy(update={"task": info})
 
 
 # -- what a task kind implements --------------------------------------------------------

@@ -29,6 +29,7 @@ from lidarfuzz.campaign.executor import Executor, ProcessExecutor
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for, subtask_label
 from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
+from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import TaskSummary, ViolationRecord
 from lidarfuzz.store.errors import StoreError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
@@ -77,14 +78,15 @@ class _Run:
                 Subtask).where(Subtask.task_id == self.task.id))
             return {(a, b, c) for a, b, c in rows}
 
-    def _sources(self, original: Subtask) -> dict[str, tuple[bytes | None, tuple[str, ...], bool]]:
+    def _sources(self, original: Subtask) -> dict[str, tuple[StoredBoxes, bool]]:
+        """The originals' outputs by frame, and whether the system failed on each."""
         with self.store.session() as s:
-            rows = s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
-                                    FrameResult.failure).where(FrameResult.subtask_id == original.id))
-            return {f: (b, tuple(labels), failure is not None) for f, b, labels, failure in rows}
+            rows = s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.failure).where(
+                FrameResult.subtask_id == original.id))
+            return {f: (detections, failure is not None) for f, detections, failure in rows}
 
     def _units(self, subtasks: Iterable[Subtask], done: set[tuple[int, str, int]],
-               sources: dict[str, tuple[bytes | None, tuple[str, ...], bool]],
+               sources: dict[str, tuple[StoredBoxes, bool]],
                block: list[str]) -> Iterator[WorkUnit]:
         """Pending units of ``subtasks`` on a block of frames, subtask by subtask."""
         for sub in subtasks:
@@ -99,9 +101,9 @@ class _Run:
                     if is_original:
                         yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
                         continue
-                    blob, labels, failed = sources.get(frame_id, (None, (), True))
+                    output, failed = sources.get(frame_id, (None, True))
                     yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
-                                   relations, blob, labels, failed)
+                                   relations, output, failed)
 
     # -- results ----------------------------------------------------------------------
     def _replay(self, result: UnitResult, relation: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -146,17 +148,17 @@ class _Run:
             with connection.begin():
                 row_id = connection.execute(self._insert_result, {
                     "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
-                    "params": result.params, "boxes": result.boxes, "labels": result.labels,
-                    "gt_boxes": result.gt_boxes, "gt_labels": result.gt_labels, "failure": result.failure,
+                    "params": result.params, **result.box_columns(), "failure": result.failure,
                     "relations": result.relations, "seconds": result.seconds, "cached": result.cached,
                     "created_at": now()}).scalar_one()
                 findings = self._findings(result, row_id)
                 if findings:
                     connection.execute(self._insert_finding, findings)
-                if result.boxes is not None and not result.cached and result.input_key:
+                detections = result.detections
+                if detections is not None and not detections.missing and not result.cached and result.input_key:
                     connection.execute(self._cache_insert, {
-                        "fingerprint": fingerprint, "digest": result.input_key, "boxes": result.boxes,
-                        "labels": result.labels, "seconds": result.seconds})
+                        "fingerprint": fingerprint, "digest": result.input_key, **detections.columns(),
+                        "seconds": result.seconds})
                 connection.execute(self._bump_subtask, {"subtask": unit.subtask_id})
                 connection.execute(self._bump_task, {"task": self.task.id, "now": now()})
         except IntegrityError:
@@ -195,10 +197,10 @@ class _Run:
             assert row is not None
             if row.status == Status.DONE:
                 return
-            rows = list(s.execute(select(FrameResult.frame_id, FrameResult.boxes, FrameResult.labels,
-                                         FrameResult.gt_boxes, FrameResult.gt_labels, FrameResult.failure,
-                                         FrameResult.relations, FrameResult.seconds, FrameResult.cached,
-                                         FrameResult.params).where(FrameResult.subtask_id == sub.id)))
+            rows = list(s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.ground_truth,
+                                         FrameResult.failure, FrameResult.relations, FrameResult.seconds,
+                                         FrameResult.cached, FrameResult.params).where(
+                FrameResult.subtask_id == sub.id)))
             operator = from_spec(row.operator) if row.operator else None
             row.results = evaluate_subtask(rows, self.calibration, operator=operator,
                                            unlabelled=self.task.options.unlabelled_frames)

@@ -14,7 +14,6 @@ from typing import Any
 
 from sqlalchemy import select
 
-from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.plan import ORIGINAL
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
 from lidarfuzz.scene.boxes import Boxes3D
@@ -64,15 +63,15 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
         replay = dict(finding.replay)
         task = s.get(Task, finding.task_id)
         dataset_options = dict(task.dataset.options or {}) if task is not None else {}
-        follow_recorded = decode_boxes(row.boxes, row.labels)
-        source_recorded = decode_boxes(original.boxes, original.labels) if original is not None else Boxes3D.empty()
+        follow_recorded = row.detections.boxes()
+        source_recorded = original.detections.boxes() if original is not None else Boxes3D.empty()
     context = WorkContext(replay["dataset"], replay["sut"], dict(replay.get("options") or {}), replay["fingerprint"],
                           dataset_options=dataset_options)
     worker = Worker(context)
     try:
         fingerprint_now = worker.sut.fingerprint()
         source: UnitResult = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"]))
-        source_now = decode_boxes(source.boxes, source.labels) if source.failure is None else None
+        source_now = source.detections.boxes() if source.detections is not None and source.failure is None else None
         relations = (replay["relation"],) if replay.get("relation") else ()
         follow_now: Boxes3D | None = None
         failure_now = None
@@ -82,10 +81,10 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
         else:
             follow = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"], replay["operator"],
                                          replay["op_index"], replay["seed"], sub.name, relations,
-                                         source.boxes, tuple(source.labels), source.failure is not None,
+                                         source.detections, source.failure is not None,
                                          params=replay["params"], operator_relation=replay.get("operator_relation")))
             failure_now = follow.failure
-            follow_now = decode_boxes(follow.boxes, follow.labels) if follow.failure is None else None
+            follow_now = follow.detections.boxes() if follow.detections is not None and follow.failure is None else None
             outcomes = follow.relations
     finally:
         worker.close()

@@ -21,7 +21,6 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import func, select
 
-from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.lifecycle import get_task
 from lidarfuzz.campaign.plan import ORIGINAL, subtask_label
 from lidarfuzz.operators.base import Relation
@@ -82,9 +81,9 @@ def labelled_region(detections: Boxes3D, calib: Any, transform: NDArray[np.float
 
 def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
                      operator: Any = None, unlabelled: Iterable[str] = ()) -> SubtaskResults:
-    """Figures of one complete subtask from its frame results (rows of frame id, boxes, labels,
-    gt boxes, gt labels, failure, relations, seconds, cached and, when ``operator`` is given, the
-    params of its mutant).
+    """Figures of one complete subtask from its frame results (rows of frame id, detections and
+    ground truth (:class:`~lidarfuzz.store.boxes.StoredBoxes`), failure, relations, seconds, cached
+    and, when ``operator`` is given, the params of its mutant).
 
     With an operator that moves the scene (an equivariant one with a transform), detections in the
     part of the view the source had no labels for are not scored (:func:`labelled_region`), and
@@ -104,7 +103,7 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     failures = cached = 0
     seconds = 0.0
     regions: dict[str, set[str]] = defaultdict(set)
-    for frame_id, boxes, labels, gt_boxes, gt_labels, failure, relations, secs, was_cached, *more in rows:
+    for frame_id, detected, truth, failure, relations, secs, was_cached, *more in rows:
         if more and isinstance(more[0], Mapping) and more[0].get("region"):
             regions[str(more[0]["region"])].add(frame_id)
         failures += int(failure is not None)
@@ -117,7 +116,7 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
         if frame_id in skipped:
             excluded.append(frame_id)
             continue
-        gt = decode_boxes(gt_boxes, gt_labels)
+        gt = truth.boxes()
         calib = calibration(frame_id)
         transform = None
         # only equivariant operators move the scene; a frame the SUT crashed on may have no params
@@ -129,7 +128,7 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
             labelled = labelled or (len(real) > 0 and bool(calib.in_view(real).any()))
         else:
             labelled = labelled or len(gt) > 0
-        detections = decode_boxes(boxes, labels) if boxes is not None else Boxes3D.empty()  # None: the SUT failed
+        detections = detected.boxes()  # none when the SUT failed
         frame = KittiFrame(gt, labelled_region(in_view(detections, calib), calib, transform), calib) \
             if calib is not None else KittiFrame(gt, detections)
         frames.append(frame)

@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from lidarfuzz.campaign.codec import decode_boxes, encode_boxes
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
 from lidarfuzz.store.types import json_safe
 
@@ -56,8 +56,7 @@ class WorkUnit:
     seed: int = 0
     subtask_name: str = "original"
     relations: tuple[dict[str, Any], ...] = ()
-    source_boxes: bytes | None = None  # the system's output on the original, for the relations
-    source_labels: tuple[str, ...] = ()
+    source: StoredBoxes | None = None  # the system's output on the original, for the relations
     source_failed: bool = False
     params: dict[str, Any] | None = None  # exact params (a replay) instead of drawing them
     operator_relation: str | None = None  # overrides the operator's own (a search's valid tests: invariant)
@@ -67,16 +66,19 @@ class WorkUnit:
 class UnitResult:
     unit: WorkUnit
     params: dict[str, Any] = field(default_factory=dict)
-    boxes: bytes | None = None
-    labels: list[str] = field(default_factory=list)
-    gt_boxes: bytes | None = None
-    gt_labels: list[str] = field(default_factory=list)
+    detections: StoredBoxes | None = None  # None: no output (the operator or the system failed)
+    ground_truth: StoredBoxes | None = None  # the mutant's (None: the operator failed)
     failure: FailureRecord | None = None
     relations: list[OutcomeRecord] = field(default_factory=list)
     seconds: float = 0.0  # the system's own time (0 when cached)
     timings: dict[str, float] = field(default_factory=dict)  # load, mutate, detect, relations, save
     cached: bool = False
     input_key: str = ""
+
+    def box_columns(self) -> dict[str, Any]:
+        """The detections and ground truth as the frame-results table's four columns."""
+        return {**(self.detections or StoredBoxes(None)).columns(),
+                **(self.ground_truth or StoredBoxes(None)).columns("gt_boxes", "gt_labels")}
 
     @property
     def key(self) -> tuple[int, str, int]:
@@ -182,7 +184,7 @@ class Worker:
                 self._digests.popitem(last=False)
         return found
 
-    def _cached(self, key: str) -> tuple[bytes, list[str]] | None:
+    def _cached(self, key: str) -> StoredBoxes | None:
         if self._cache is None:
             return None
         from sqlalchemy import bindparam, select
@@ -195,7 +197,7 @@ class Worker:
             self._connection = self._cache.engine.connect()
         row = self._connection.execute(self._lookup, {"key": key}).first()
         self._connection.rollback()  # end the read transaction: never hold a snapshot open
-        return None if row is None else (row[0], list(row[1]))
+        return None if row is None else StoredBoxes(row[0], row[1])  # a Core row: the composite's two columns
 
     # -- one unit ---------------------------------------------------------------------
     def run(self, unit: WorkUnit) -> UnitResult:
@@ -210,7 +212,7 @@ class Worker:
         if mutated is None:
             return result  # the operator failed on this frame: recorded as its failure
         follow, operator, params = mutated
-        result.gt_boxes, result.gt_labels = encode_boxes(follow.boxes)
+        result.ground_truth = StoredBoxes.of(follow.boxes)
         output = self._detect(unit, source, follow, result)
         if operator is not None and output is not None and unit.relations and not unit.source_failed:
             self._check_relations(unit, source, follow, output, operator, params, result)
@@ -254,9 +256,9 @@ class Worker:
         hit = self._cached(key)
         result.timings["cache"] = time.perf_counter() - t0
         if hit is not None:
-            result.boxes, result.labels = hit
+            result.detections = hit
             result.cached = True
-            return decode_boxes(*hit)
+            return hit.boxes()
         t0 = time.perf_counter()
         outcome = run_guarded(self.sut, follow)
         result.timings["detect"] = time.perf_counter() - t0
@@ -266,7 +268,7 @@ class Worker:
             return None
         output = outcome.output
         assert output is not None  # run_guarded gives an output or a failure
-        result.boxes, result.labels = encode_boxes(output)
+        result.detections = StoredBoxes.of(output)
         return output
 
     def _check_relations(self, unit: WorkUnit, source: Scene, follow: Scene, output: Any, operator: Any,
@@ -278,7 +280,7 @@ class Worker:
 
         t0 = time.perf_counter()
         kind = Relation(unit.operator_relation) if unit.operator_relation else operator.relation
-        pair = Pair(source, follow, decode_boxes(unit.source_boxes, unit.source_labels), output,
+        pair = Pair(source, follow, (unit.source or StoredBoxes(None)).boxes(), output,
                     operator_relation=kind, transform=operator.transform(params))
         for spec in unit.relations:
             try:

@@ -27,7 +27,6 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import select
 
-from lidarfuzz.campaign.codec import decode_boxes
 from lidarfuzz.campaign.tasks import ORIGINAL, subtask_label
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.report.charts import figure_png
@@ -128,11 +127,11 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         violations = list(finding.detail.get("violations", []))
         on_original = sub.name == ORIGINAL
         follow_failed = row.failure is not None
-        follow_detections = None if follow_failed else decode_boxes(row.boxes, row.labels)
+        follow_detections = None if follow_failed else row.detections.boxes()
         source_detections = Boxes3D.empty()
         source_failed = original is None or original.failure is not None
         if original is not None and original.failure is None:
-            source_detections = decode_boxes(original.boxes, original.labels)
+            source_detections = original.detections.boxes()
 
     path = str(replay.get("dataset", ""))
     datasets = {} if datasets is None else datasets

@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from lidarfuzz.operators.registry import available, get
 from lidarfuzz.search.evaluate import ChainStep, Evaluation, SearchEvaluator
+from lidarfuzz.store.contracts import ViolationRecord
 
 #: Operators of the default pool, one or more per family; none moves the frame. Degrading ones
 #: are kept honest by the validity constraint (every object keeps ``keep_share`` of its points),
@@ -164,14 +165,13 @@ def families(chain: Sequence[ChainStep]) -> tuple[str, ...]:
     return tuple(sorted({get(step.name).family for step in chain}))
 
 
-def signatures(evaluation: Evaluation) -> dict[tuple[str, ...], list[dict[str, Any]]]:
+def signatures(evaluation: Evaluation) -> dict[tuple[str, ...], list[ViolationRecord]]:
     """The violations of a test grouped by signature (relation, operator families, class, range bin)."""
-    out: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+    out: dict[tuple[str, ...], list[ViolationRecord]] = {}
     fams = "+".join(families(evaluation.chain))
     for outcome in evaluation.violated:
-        for violation in outcome["violations"]:
-            distance = float(violation.get("range_m", np.nan))
-            key = (outcome["relation"], fams, violation.get("cls", ""), range_bin(distance))
+        for violation in outcome.violations:
+            key = (outcome.relation, fams, violation.cls, range_bin(violation.range_m))
             out.setdefault(key, []).append(violation)
     return out
 
@@ -262,8 +262,8 @@ class Search:
             more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
             target.findings.append({
                 "kind": key[0], "cls": key[2], "magnitude": float(len(violations)),
-                "message": f"{first.get('message', key[0])}{more} [{' · '.join(key[1:])}]",
-                "detail": {"signature": list(key), "violations": violations, "test": record.index,
+                "message": f"{first.message or key[0]}{more} [{' · '.join(key[1:])}]",
+                "detail": {"signature": list(key), "violations": [v.dump() for v in violations], "test": record.index,
                            "minimised_from": record.index if target is not record else None,
                            "chain_length": len(target.evaluation.chain),
                            "original_chain_length": len(evaluation.chain)},

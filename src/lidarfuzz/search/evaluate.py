@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from lidarfuzz.operators.base import Operator, Relation
 from lidarfuzz.operators.compose import Compose, CompositeParams, Step
 from lidarfuzz.operators.registry import from_spec
+from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
 
 
 @dataclass(frozen=True)
@@ -49,8 +50,8 @@ class Evaluation:
     scene: Any = None
     output: Any = None
     values: dict[str, NDArray[np.float32]] = field(default_factory=dict)  # one row per layer
-    failure: dict[str, str] | None = None
-    relations: list[dict[str, Any]] = field(default_factory=list)
+    failure: FailureRecord | None = None
+    relations: list[OutcomeRecord] = field(default_factory=list)
     valid: bool = True
     validity: str = ""
     seconds: float = 0.0
@@ -65,8 +66,8 @@ class Evaluation:
         return CompositeParams(steps=steps).model_dump(mode="json")
 
     @property
-    def violated(self) -> list[dict[str, Any]]:
-        return [r for r in self.relations if r.get("applicable", True) and not r["holds"]]
+    def violated(self) -> list[OutcomeRecord]:
+        return [r for r in self.relations if r.applicable and not r.holds]
 
 
 def points_kept(source: Any, follow: Any, min_points: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -121,7 +122,7 @@ class SearchEvaluator:
             with self.recorder:
                 outputs = self.sut.detect_batch(scenes)
         except Exception as exc:  # the SUT's crash is a result
-            failure = {"kind": "crash", "message": f"{type(exc).__name__}: {exc}", "detail": ""}
+            failure = FailureRecord(kind="crash", message=f"{type(exc).__name__}: {exc}")
             return [None] * len(scenes), [{} for _ in scenes], time.perf_counter() - start, failure
         values = self.recorder.values()
         rows = [{name: array[i] for name, array in values.items()} for i in range(len(scenes))]
@@ -184,8 +185,8 @@ class SearchEvaluator:
                 evaluation = Evaluation(frame_id, done, scene)
             except Exception as exc:  # an operator failing on this frame is a finding, not a crash
                 evaluation = Evaluation(frame_id, list(chain), None, valid=False, validity="operator error",
-                                        failure={"kind": "operator_error", "message": f"{type(exc).__name__}: {exc}",
-                                                 "detail": ""})
+                                        failure=FailureRecord(kind="operator_error",
+                                                              message=f"{type(exc).__name__}: {exc}"))
             evaluations.append(evaluation)
         runnable = [e for e in evaluations if e.scene is not None]
         if runnable:
@@ -209,5 +210,5 @@ class SearchEvaluator:
                         operator_relation=Relation.INVARIANT, transform=None)
             for relation in self.relations:
                 if pair.operator_relation in relation.applies_to:
-                    evaluation.relations.append(relation(pair).to_dict())
+                    evaluation.relations.append(OutcomeRecord.of(relation(pair)))
         return evaluations

@@ -37,6 +37,7 @@ from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AliasChoices,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -55,6 +56,9 @@ def _none_if_nan(value: float) -> float | None:
     return None if math.isnan(value) or math.isinf(value) else value
 
 
+#: Fields called ``class`` in JSON are ``cls`` in Python; either name is accepted.
+CLASS = AliasChoices("class", "cls")
+
 #: A float that may be undefined: NaN in Python, null in JSON.
 Number = Annotated[float, BeforeValidator(_nan_if_none), PlainSerializer(_none_if_nan, return_type=float | None)]
 
@@ -63,25 +67,11 @@ class Contract(BaseModel):
     """Base of the contracts: unknown keys are errors (a typo in a writer is caught at once);
     ``class`` is spelt ``cls`` in Python and ``class`` in JSON."""
 
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, ser_json_inf_nan="null")
+    model_config = ConfigDict(extra="forbid", validate_by_name=True, validate_by_alias=True, ser_json_inf_nan="null")
 
     def dump(self) -> dict[str, Any]:
         """The JSON form (what the store and the web API hold)."""
         return self.model_dump(mode="json", by_alias=True)
-
-    # TRANSITIONAL (removed once every reader uses attributes): dict-style reads
-    def __getitem__(self, key: str) -> Any:
-        name = "cls" if key == "class" else key
-        if name not in type(self).model_fields:
-            raise KeyError(key)
-        return getattr(self, name)
-
-    def get(self, key: str, default: Any = None) -> Any:
-        try:
-            value = self[key]
-        except KeyError:
-            return default
-        return default if value is None else value
 
 
 # -- a unit's outcome -------------------------------------------------------------------
@@ -206,7 +196,7 @@ class RateRow(Contract):
     operator: str | None = None
     severity: int | None = None
     label: str | None = None
-    cls: str | None = Field(default=None, alias="class")
+    cls: str | None = Field(default=None, validation_alias=CLASS, serialization_alias="class")
     checked: int
     violated: int
     rate: float | None = None
@@ -272,7 +262,7 @@ class DeltaRow(Contract):
     operator: str
     severity: int
     metric: str
-    cls: str = Field(alias="class")
+    cls: str = Field(validation_alias=CLASS, serialization_alias="class")
     difficulty: str
     clean: Number
     corrupted: Number
@@ -327,7 +317,7 @@ class ViolationTables(Contract):
 class TopFinding(Contract):
     id: int
     kind: str
-    cls: str = Field(default="", alias="class")
+    cls: str = Field(default="", validation_alias=CLASS, serialization_alias="class")
     magnitude: float | None = None
     message: str = ""
     operator: str
@@ -411,6 +401,9 @@ class TaskSummary(Contract):
     findings: FindingsSummary = Field(default_factory=FindingsSummary)
     run: RunTimings | None = None
     search: SearchSummary | None = None
+    kind_summary: dict[str, Any] = Field(default_factory=dict)
+    """What a task kind reports beyond the shared tables, as its own module's contract dumps it
+    (a new kind adds its figures here without changing this contract)."""
 
 
 def summary_schema() -> dict[str, Any]:

@@ -4,8 +4,9 @@ test), tasks, subtasks (operator × severity), per-frame results and findings.
 Everything a finding needs to be replayed is stored with it: the task's seed, the operator's
 spec and concrete params, the frame id, and the system's fingerprint. JSON columns hold
 specs, params, summaries and relation outcomes; boxes (detections and the mutants' ground
-truth) are stored compactly as float32 arrays (:mod:`lidarfuzz.campaign.codec`) with their
-labels. ``sut_outputs`` caches what a system (by fingerprint) said about an input (by content
+truth) are stored compactly as float32 arrays with their labels, read and written as one value
+(:class:`lidarfuzz.store.boxes.StoredBoxes`). ``sut_outputs`` caches what a system (by fingerprint)
+said about an input (by content
 digest), so unchanged inputs are never run twice.
 """
 
@@ -29,8 +30,9 @@ from sqlalchemy import (
     UniqueConstraint,
     false,
 )
-from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+from sqlalchemy.orm import DeclarativeBase, Mapped, composite, mapped_column, relationship
 
+from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import (
     FailureRecord,
     OutcomeRecord,
@@ -159,10 +161,12 @@ class FrameResult(Base):
     frame_id: Mapped[str] = mapped_column(String(200))
     trial: Mapped[int] = mapped_column(Integer, default=0)
     params: Mapped[dict[str, Any]] = mapped_column(default=dict)  # the operator's concrete params
-    boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the detections (codec)
+    boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the detections (None: the SUT failed)
     labels: Mapped[list[Any]] = mapped_column(default=list)
     gt_boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the mutant's ground truth
     gt_labels: Mapped[list[Any]] = mapped_column(default=list, server_default="[]")
+    detections: Mapped[StoredBoxes] = composite(StoredBoxes, "boxes", "labels")  # both columns, one value
+    ground_truth: Mapped[StoredBoxes] = composite(StoredBoxes, "gt_boxes", "gt_labels")
     cached: Mapped[bool] = mapped_column(Boolean, default=False,
                                          server_default=false())  # the output came from sut_outputs
     failure: Mapped[FailureRecord | None] = mapped_column(ContractJSON(FailureRecord, none_as_null=True),
@@ -199,4 +203,5 @@ class SutOutput(Base):
     digest: Mapped[str] = mapped_column(String(64))
     boxes: Mapped[bytes] = mapped_column(LargeBinary)
     labels: Mapped[list[Any]] = mapped_column(default=list)
+    output: Mapped[StoredBoxes] = composite(StoredBoxes, "boxes", "labels")
     seconds: Mapped[float] = mapped_column(Float, default=0.0)

@@ -49,7 +49,7 @@ def _safe(value: Any) -> Any:
 SQL_NULL = {"failure", "state"}  # None is SQL NULL there; elsewhere JSON null (a task's summary before it is done)
 
 
-def _table(name: str, *columns: str) -> sa.Table:
+def _table(name: str, *columns: str) -> sa.TableClause:
     return sa.table(name, sa.column("id", sa.Integer),
                     *(sa.column(c, sa.JSON(none_as_null=c in SQL_NULL)) for c in columns))
 
