@@ -136,3 +136,22 @@ def test_the_summary_schema_names_every_field_the_summary_has() -> None:
     assert set(schema["properties"]) == {"task", "classes", "subtasks", "delta_ap", "ap_warnings", "robustness",
                                          "violations", "findings", "run", "search", "kind_summary"}
     assert "class" in schema["$defs"]["DeltaRow"]["properties"]
+
+
+def test_migration_0004_goes_back_down(tmp_path: Path) -> None:
+    from alembic import command
+
+    store = Store(tmp_path / "ws")
+    _task(store)
+    with store.engine.begin() as connection:
+        command.downgrade(store._alembic(connection), "0003")
+    with store.engine.connect() as c:
+        results = c.execute(sa.text("SELECT results FROM subtasks WHERE name = 'fog'")).scalar_one()
+        options = c.execute(sa.text("SELECT options FROM tasks")).scalar_one()
+        columns = {row[1] for row in c.execute(sa.text("PRAGMA table_info(subtasks)"))}
+    assert json.loads(results)["relation_specs"] == [{"name": "preservation", "config": {}}]
+    assert json.loads(options)["relations"] == [] and "kind_options" not in json.loads(options)
+    assert not {"plan", "state"} & columns
+    store.migrate()
+    assert store.revision() == "0004"
+    store.close()

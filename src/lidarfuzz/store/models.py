@@ -166,6 +166,9 @@ class FrameResult(Base):
     gt_boxes: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)  # the mutant's ground truth
     gt_labels: Mapped[list[Any]] = mapped_column(default=list, server_default="[]")
     detections: Mapped[StoredBoxes] = composite(StoredBoxes, "boxes", "labels")  # both columns, one value
+    # what a system that does not answer in boxes returned (a steering angle, a controller's
+    # commands), as its task kind's own contract dumps it; None for a detector
+    output: Mapped[dict[str, Any] | None] = mapped_column(SafeJSON(none_as_null=True), nullable=True, default=None)
     ground_truth: Mapped[StoredBoxes] = composite(StoredBoxes, "gt_boxes", "gt_labels")
     cached: Mapped[bool] = mapped_column(Boolean, default=False,
                                          server_default=false())  # the output came from sut_outputs

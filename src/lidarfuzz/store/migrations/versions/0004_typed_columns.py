@@ -5,8 +5,10 @@ Subtasks held their inputs (the relation specs to check, a search's state) insid
 they move to ``plan`` and ``state``. A task's options held the relation choice already stored in
 ``tasks.relations`` (dropped) and a search's config as ``search`` (now ``kind_options``). A pending
 task's summary is JSON ``null``, not ``{}``. No table is rebuilt: on SQLite that would drop it, and
-dropping ``tasks`` cascades to every subtask. NaN and ±Inf written by earlier versions (SQLite kept them as
-bare ``NaN`` tokens no JSON reader accepts) become ``null``.
+dropping ``tasks`` cascades to every subtask. A frame result gets ``output``: what a system that does
+not answer in boxes returned (a steering angle, a controller's commands), in its kind's own
+contract. NaN and ±Inf written by earlier versions (SQLite kept them as bare ``NaN`` tokens no JSON
+reader accepts) become ``null``.
 
 Revision ID: 0004
 Revises: 0003
@@ -58,6 +60,8 @@ def upgrade() -> None:
     with op.batch_alter_table("subtasks", schema=None) as batch_op:
         batch_op.add_column(sa.Column("plan", sa.JSON(), nullable=False, server_default="{}"))
         batch_op.add_column(sa.Column("state", sa.JSON(), nullable=True))
+    with op.batch_alter_table("frame_results", schema=None) as batch_op:
+        batch_op.add_column(sa.Column("output", sa.JSON(), nullable=True))
 
     connection = op.get_bind()
     for name, columns in JSON_COLUMNS.items():
@@ -102,6 +106,8 @@ def downgrade() -> None:
         if row["state"] is not None:
             results["state"] = row["state"]
         connection.execute(sa.update(subtasks).where(subtasks.c.id == row["id"]).values(results=results))
+    with op.batch_alter_table("frame_results", schema=None) as batch_op:
+        batch_op.drop_column("output")
     with op.batch_alter_table("subtasks", schema=None) as batch_op:
         batch_op.drop_column("state")
         batch_op.drop_column("plan")
