@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lidarfuzz.campaign import CampaignSpec, load_campaign, parse_campaign
+from lidarfuzz.campaign.spec import CampaignSpec, load_campaign, parse_campaign
 from lidarfuzz.errors import DataFormatError
 
 GOOD = """\

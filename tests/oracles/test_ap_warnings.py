@@ -103,9 +103,13 @@ def test_a_campaign_names_the_original_classes_once_and_new_ones_per_mutant() ->
                   "Cyclist": {d: cyclist for d in ("easy", "moderate", "hard")}}
         return KittiEvalResult(ap={}, overlaps={}, num_frames=10, num_objects=counts).to_dict()
 
-    notes = ap_warnings([{"label": "original", "ap": stored(60, 5)},
-                         {"label": "fog@1", "ap": stored(58, 4)},  # Cyclist already named: not again
-                         {"label": "object_removal@5", "ap": stored(30, 2)},  # Car falls under 41
-                         {"label": "rotate_z@5", "ap": None}])  # no AP: nothing to say
+    from lidarfuzz.store.contracts import SubtaskSummary
+
+    entries = [{"label": "original", "ap": stored(60, 5)},
+               {"label": "fog@1", "ap": stored(58, 4)},  # Cyclist already named: not again
+               {"label": "object_removal@5", "ap": stored(30, 2)},  # Car falls under 41
+               {"label": "rotate_z@5", "ap": None}]  # no AP: nothing to say
+    notes = ap_warnings([SubtaskSummary.model_validate({"id": i, "operator": e["label"].split("@")[0], **e})
+                         for i, e in enumerate(entries)])
     assert [n.split(" (")[0] for n in notes] == ["Cyclist: too few objects to score",
                                                  "object_removal@5: Car: too few objects to score"]

@@ -1,5 +1,6 @@
-"""Campaigns: what a user asks lidarfuzz to run (the engine that runs them is being built)."""
+"""The campaign engine: campaign files (:mod:`~lidarfuzz.campaign.spec`), the table of task kinds
+(:mod:`~lidarfuzz.campaign.kinds`), their shared lifecycle, and the kinds themselves.
 
-from lidarfuzz.campaign.spec import CampaignSpec, OperatorChoice, load_campaign, parse_campaign
-
-__all__ = ["CampaignSpec", "OperatorChoice", "load_campaign", "parse_campaign"]
+Nothing is imported here, so that reading the table of kinds (``lidarfuzz run --help``) costs
+no more than that module.
+"""

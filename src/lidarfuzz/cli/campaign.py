@@ -12,6 +12,7 @@ from typing import Annotated, Any
 import typer
 from rich.markup import escape
 
+from lidarfuzz.campaign.kinds import DEFAULT_KIND, TASK_KINDS
 from lidarfuzz.cli.common import (
     WORKSPACE,
     Column,
@@ -25,6 +26,10 @@ from lidarfuzz.cli.common import (
 )
 from lidarfuzz.cli.reporting import print_summary, reports_dir, write_report
 from lidarfuzz.errors import LidarfuzzError
+
+#: ``--kind``'s help, from the table of task kinds (a new row shows here without a change).
+KIND_HELP = "; ".join(f"{kind.name}: {kind.help}" for kind in TASK_KINDS) + (
+    ". With a search, --op names the operator pool (default pool if none).")
 
 WorkersOption = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
 InlineOption = Annotated[bool, typer.Option(help="Run every unit in this process (no pool; for debugging).")]
@@ -122,10 +127,7 @@ def run(
     workers: WorkersOption = None,
     inline: InlineOption = False,
     detach: Annotated[bool, typer.Option(help="Only create the task; run it with lidarfuzz resume.")] = False,
-    kind: Annotated[str, typer.Option(help="mutation (operators × severities), or a coverage-guided search: "
-                                            "guided (DeepTest's greedy search) or fuzz (DeepHunter-style loop); "
-                                            "with a search, --op names the operator pool (default pool if none).")
-                    ] = "mutation",
+    kind: Annotated[str, typer.Option(help=KIND_HELP)] = DEFAULT_KIND,
     budget: Annotated[int | None, typer.Option(min=1, help="guided/fuzz: tests to generate (default 200).")] = None,
     criteria: Annotated[str | None, typer.Option(
         help="guided/fuzz: coverage criteria, e.g. nc:0.2,kmnc:10,nbc,snac,tknc:2,tknp:2 (the default).")] = None,
