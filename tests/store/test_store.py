@@ -57,7 +57,8 @@ def seed(store: Store) -> int:
         s.add(result)
         s.flush()
         s.add(Finding(task_id=task.id, frame_result_id=result.id, kind="preservation", cls="Car", magnitude=0.2,
-                      message="Car #0 lost", replay={"seed": 7, "frame_id": "000001", "params": {"mor": 120.5}}))
+                      message="Car #0 lost", replay={"seed": 7, "frame_id": "000001", "params": {"mor": 120.5},
+                                              "dataset": "/data/sim", "sut": "classic", "fingerprint": "abc123"}))
         return task.id
 
 
@@ -72,7 +73,7 @@ def test_round_trip_of_every_entity(store: Store) -> None:
         boxes = np.frombuffer(result.boxes, dtype=np.float32).reshape(-1, 8)
         assert boxes[0, 0] == 10 and result.params == {"mor": 120.5} and result.labels == ["Car"]
         finding = s.scalars(select(Finding)).one()
-        assert finding.replay["frame_id"] == "000001" and finding.magnitude == pytest.approx(0.2)
+        assert finding.replay.frame_id == "000001" and finding.magnitude == pytest.approx(0.2)
         task.status = Status.DONE
     with store.session() as s:
         assert s.get(Task, task_id).status is Status.DONE

@@ -60,39 +60,39 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
         info = {"id": finding.id, "task_id": finding.task_id, "kind": finding.kind, "class": finding.cls,
                 "message": finding.message, "frame_id": row.frame_id, "trial": row.trial, "subtask": sub.name,
                 "severity": sub.severity, "detail": finding.detail}
-        replay = dict(finding.replay)
+        replay = finding.replay
         task = s.get(Task, finding.task_id)
         dataset_options = dict(task.dataset.options or {}) if task is not None else {}
         follow_recorded = row.detections.boxes()
         source_recorded = original.detections.boxes() if original is not None else Boxes3D.empty()
-    context = WorkContext(replay["dataset"], replay["sut"], dict(replay.get("options") or {}), replay["fingerprint"],
+    context = WorkContext(replay.dataset, replay.sut, dict(replay.options), replay.fingerprint,
                           dataset_options=dataset_options)
     worker = Worker(context)
     try:
         fingerprint_now = worker.sut.fingerprint()
-        source: UnitResult = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"]))
+        source: UnitResult = worker.run(WorkUnit(0, replay.frame_id, replay.trial))
         source_now = source.detections.boxes() if source.detections is not None and source.failure is None else None
-        relations = (replay["relation"],) if replay.get("relation") else ()
+        relations = (replay.relation,) if replay.relation else ()
         follow_now: Boxes3D | None = None
         failure_now = None
         outcomes: list[OutcomeRecord] = []
-        if replay.get("operator") is None:  # a failure on an original
+        if replay.operator is None:  # a failure on an original
             failure_now = source.failure
         else:
-            follow = worker.run(WorkUnit(0, replay["frame_id"], replay["trial"], replay["operator"],
-                                         replay["op_index"], replay["seed"], sub.name, relations,
+            follow = worker.run(WorkUnit(0, replay.frame_id, replay.trial, replay.operator,
+                                         replay.op_index, replay.seed, sub.name, relations,
                                          source.detections, source.failure is not None,
-                                         params=replay["params"], operator_relation=replay.get("operator_relation")))
+                                         params=replay.params, operator_relation=replay.operator_relation))
             failure_now = follow.failure
             follow_now = follow.detections.boxes() if follow.detections is not None and follow.failure is None else None
             outcomes = follow.relations
     finally:
         worker.close()
-    if replay.get("relation"):
+    if replay.relation:
         reproduced = any(not o.holds and any(v.cls == info["class"] for v in o.violations) for o in outcomes)
     else:
         reproduced = failure_now is not None and failure_now.kind == info["kind"]
-    return Replay(info, replay["fingerprint"], fingerprint_now, source_recorded, follow_recorded, source_now,
+    return Replay(info, replay.fingerprint, fingerprint_now, source_recorded, follow_recorded, source_now,
                   follow_now, failure_now, outcomes, reproduced)
 
 

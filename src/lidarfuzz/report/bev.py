@@ -119,7 +119,7 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         original = s.scalar(select(FrameResult).join(Subtask).where(
             Subtask.task_id == finding.task_id, Subtask.name == ORIGINAL, FrameResult.frame_id == row.frame_id,
             FrameResult.trial == 0))
-        replay = dict(finding.replay)
+        replay = finding.replay
         task = s.get(Task, finding.task_id)
         options = DatasetOptions.from_stored(task.dataset.options if task is not None else None)
         info = {"id": finding.id, "kind": finding.kind, "class": finding.cls, "message": finding.message,
@@ -133,7 +133,7 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         if original is not None and original.failure is None:
             source_detections = original.detections.boxes()
 
-    path = str(replay.get("dataset", ""))
+    path = replay.dataset
     datasets = {} if datasets is None else datasets
     key = f"{path}|{options.model_dump_json()}"  # one data set registered twice reads differently
     try:
@@ -144,10 +144,10 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
         raise LidarfuzzError(f"frame {row.frame_id} of {path or 'an unknown data set'} cannot be loaded "
                              f"({type(exc).__name__}: {exc}); was the data set moved?") from exc
     mutant, transform = None, None
-    if not on_original and replay.get("operator") is not None:
+    if not on_original and replay.operator is not None:
         try:
-            op = from_spec(replay["operator"])
-            params = op.parse_params(replay.get("params") or {})
+            op = from_spec(replay.operator)
+            params = op.parse_params(replay.params)
             mutant = op.apply(source, params)
             transform = op.transform(params)
         except Exception as exc:

@@ -14,6 +14,7 @@ column                 contract                                written by
 ``Subtask.results``    :class:`SubtaskResults`                 the kind, when the subtask completes
 ``FrameResult.failure``  :class:`FailureRecord`                a unit the SUT (or operator) failed
 ``FrameResult.relations``  :class:`OutcomeRecord` each         a unit whose relations were checked
+``Finding.replay``     :class:`FindingReplay`                  a finding, with what replays it
 ``Task.summary``       :class:`TaskSummary`                    the task's end (every report reads it)
 =====================  ======================================  ====================================
 
@@ -121,6 +122,35 @@ class OutcomeRecord(Contract):
         return cls(relation=outcome.relation, holds=outcome.holds, applicable=outcome.applicable,
                    violations=[ViolationRecord.of(v) for v in outcome.violations], checked=dict(outcome.checked),
                    stats=dict(outcome.stats))
+
+
+class FindingReplay(Contract):
+    """What it takes to replay a finding exactly (``lidarfuzz replay``): the frame and trial, the
+    seed and operator (spec and concrete params: no random number is drawn again), the system and
+    its fingerprint then, and the relation that was violated.
+
+    Attributes:
+        dataset: The data set's path.
+        options: The system's options.
+        op_index: The operator's place in the campaign (part of the mutant's seed).
+        operator: The operator spec (None: the finding is on an original).
+        relation: The violated relation's spec (None: a failure).
+        operator_relation: Overrides the operator's own relation kind (a search's valid tests are
+            checked as invariant).
+    """
+
+    dataset: str
+    frame_id: str
+    trial: int = 0
+    seed: int = 0
+    op_index: int = 0
+    operator: dict[str, Any] | None = None
+    params: dict[str, Any] = Field(default_factory=dict)
+    sut: str
+    options: dict[str, Any] = Field(default_factory=dict)
+    fingerprint: str
+    relation: dict[str, Any] | None = None
+    operator_relation: str | None = None
 
 
 # -- what a task is told --------------------------------------------------------------------
@@ -422,7 +452,7 @@ def dumped(value: Any) -> Any:
     return value
 
 
-__all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeltaRow", "FailureRecord",
+__all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeltaRow", "FailureRecord", "FindingReplay",
            "FindingsSummary", "ModelRef", "Number", "OperatorRobustnessRow", "OutcomeRecord", "RateRow",
            "RobustnessRecord", "RunTimings", "SearchProgress", "SearchSummary", "StatusName", "SubtaskInputs",
            "SubtaskResults", "SubtaskSummary", "TaskInfo", "TaskOptions", "TaskSummary", "TopFinding",

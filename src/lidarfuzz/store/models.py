@@ -35,6 +35,7 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, composite, mapped_column, re
 from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import (
     FailureRecord,
+    FindingReplay,
     OutcomeRecord,
     SubtaskInputs,
     SubtaskResults,
@@ -192,7 +193,7 @@ class Finding(Base):
     magnitude: Mapped[float | None] = mapped_column(Float, nullable=True)
     message: Mapped[str] = mapped_column(Text, default="")
     detail: Mapped[dict[str, Any]] = mapped_column(default=dict)
-    replay: Mapped[dict[str, Any]] = mapped_column(default=dict)  # seed, operator spec, params, frame, fingerprint
+    replay: Mapped[FindingReplay] = mapped_column(ContractJSON(FindingReplay))  # seed, operator, params, frame, ...
 
 
 class SutOutput(Base):

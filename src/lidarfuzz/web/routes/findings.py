@@ -66,6 +66,6 @@ def findings_detail(ctx: Web, finding_id: int) -> dict[str, Any]:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no finding {finding_id}")
         out = _row(*row)
         finding = row[0]
-        out.update(detail=finding.detail, replay=finding.replay, replay_command=f"lidarfuzz replay {finding.id}",
+        out.update(detail=finding.detail, replay=finding.replay.dump(), replay_command=f"lidarfuzz replay {finding.id}",
                    frames=f"/api/findings/{finding.id}/frames")
     return out
