@@ -3,7 +3,7 @@
 Usage (the committed weights' recipe; one GPU, 16 cores, under 10 minutes in all)::
 
     PYTHONPATH=src python scripts/train_pillars.py --out-dir OUT --data-dir /tmp/pillars-data \\
-        --workers 16 --deadline-minutes 8.5 [--real /path/to/kitti/training]
+        --workers 16 --deadline-minutes 8.4 [--real /path/to/kitti/training]
 
     # the real-frame figures of weights trained elsewhere (no training; a few minutes on a CPU)
     .venv/bin/python scripts/train_pillars.py --out-dir OUT --eval-only OUT/pillars-sim.pt \\
@@ -184,7 +184,8 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
     parser.add_argument("--lr", type=float, default=TrainConfig.lr)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--augment", default="default", choices=("default", "geometric", "none"))
+    parser.add_argument("--augment", default="walls", choices=("default", "walls", "geometric", "none"),
+                        help="the per-frame augmentation (walls: the committed weights' recipe)")
     parser.add_argument("--device", default="auto")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--eval-frames", type=int, default=200,

@@ -26,7 +26,7 @@ from lidarfuzz.scene.scene import Scene
 
 torch = pytest.importorskip("torch")
 
-from lidarfuzz.suts.learned.augment import Augmentation, augment, box_index_of_points  # noqa: E402
+from lidarfuzz.suts.learned.augment import Augmentation, add_walls, augment, box_index_of_points  # noqa: E402
 from lidarfuzz.suts.learned.network import PillarConfig, PillarNet, detection_loss  # noqa: E402
 from lidarfuzz.suts.learned.sut import DEFAULT_WEIGHTS, PillarsDetector, load_weights  # noqa: E402
 from lidarfuzz.suts.learned.training import (  # noqa: E402
@@ -212,21 +212,24 @@ def _frame(seed: int, n_boxes: int) -> tuple[torch.Tensor, torch.Tensor]:
             torch.tensor(np.array(boxes).reshape(-1, 7), dtype=torch.float32))
 
 
+@pytest.mark.parametrize("preset", ["default", "walls"])
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n_boxes=st.integers(0, 6), ring=st.booleans())
-def test_augmentation_keeps_every_point_in_its_box(seed: int, n_boxes: int, ring: bool) -> None:
+def test_augmentation_keeps_every_point_in_its_box(preset: str, seed: int, n_boxes: int, ring: bool) -> None:
     points, boxes = _frame(seed, n_boxes)
     if not ring:  # a KITTI .bin has no ring channel: beams come from elevation bins
         points[:, 4] = -1
     original = points.clone()
     before = box_index_of_points(torch, points[:, :3], boxes)
     generator = torch.Generator().manual_seed(seed)
-    out, out_boxes, source = augment(torch, points, boxes, generator, Augmentation())
+    out, out_boxes, source = augment(torch, points, boxes, generator, Augmentation.preset(preset))
     assert out_boxes.shape == boxes.shape and out.shape[1] == 5
     after = box_index_of_points(torch, out[:, :3], out_boxes)
-    inside_before = before[source]
-    moved_out = (inside_before >= 0) & (after != inside_before)
+    real = source >= 0  # a wall's returns have no source point
+    inside_before = before[source[real]]
+    moved_out = (inside_before >= 0) & (after[real] != inside_before)
     assert not bool(moved_out.any())
+    assert not bool((after[~real] >= 0).any())  # no wall return lies inside a labelled object
     assert bool((out[:, 3] >= 0).all()) and bool((out[:, 3] <= 1).all())
     assert torch.equal(points, original)  # the input is untouched
 
@@ -275,3 +278,37 @@ def test_dark_returns_read_zero_in_the_share_asked_farthest_first() -> None:
     distance = torch.hypot(out[:, 0], out[:, 1])
     assert float(distance[zero].mean()) > float(distance[~zero].mean()) + 5.0
     assert torch.equal(out[~zero, 3], points[~zero, 3])
+
+
+def test_a_wall_stands_beside_the_object_on_its_far_side_and_hides_what_is_behind_it() -> None:
+    # a car at (15, 3) heading along x, 4 × 1.7 × 1.5 m, bottom at z = -1.65; the wall: 20 m long,
+    # 2 m high, 1 m from the car's far side, so in the plane y = 3 + 0.85 + 1 = 4.85, z in
+    # [-1.65, 0.35], covering x = 15 whatever its shift (at most ±8 m for a 20 m wall and a 4 m car)
+    car = torch.tensor([[15.0, 3.0, -0.9, 4.0, 1.7, 1.5, 0.0]])
+    inside = torch.tensor([[15.0, 3.0, -0.9, 0.2, -1.0], [16.5, 3.5, -1.5, 0.2, -1.0]])
+    behind = torch.tensor([[30.0, 9.7, -3.0, 0.5, -1.0]])  # its ray meets y = 4.85 at (15, 4.85, -1.5)
+    beside = torch.tensor([[30.0, -9.7, -3.0, 0.5, -1.0]])  # the near side: no wall there
+    points = torch.cat([inside, behind, beside])
+    cfg = Augmentation(wall_probability=1.0, wall_per_object=1.0, wall_gap_range=(1.0, 1.0),
+                       wall_length_range=(20.0, 20.0), wall_height_range=(2.0, 2.0))
+    out, source = add_walls(torch, points, car, torch.Generator().manual_seed(0), cfg)
+    assert sorted(source[source >= 0].tolist()) == [0, 1, 3]  # the car keeps its points; the hidden one goes
+    wall = out[source < 0]
+    assert len(wall) > 100
+    assert float(wall[:, 1].min()) >= 4.85 - 0.03 and float(wall[:, 1].max()) <= 4.85 + 0.03
+    assert float(wall[:, 2].min()) >= -1.65 - 1e-4 and float(wall[:, 2].max()) <= 0.35 + 1e-4
+    assert float(wall[:, 0].max()) - float(wall[:, 0].min()) > 15.0
+
+
+def test_no_wall_where_it_would_hide_another_object() -> None:
+    # a second car right behind the first one's far side: a wall there would stand in front of it
+    cars = torch.tensor([[15.0, 3.0, -0.9, 4.0, 1.7, 1.5, 0.0], [15.0, 8.0, -0.9, 4.0, 1.7, 1.5, 0.0]])
+    points = torch.tensor([[15.0, 3.0, -0.9, 0.2, -1.0], [15.0, 8.0, -0.9, 0.2, -1.0]])
+    cfg = Augmentation(wall_probability=1.0, wall_per_object=1.0, wall_gap_range=(1.0, 1.0),
+                       wall_length_range=(20.0, 20.0), wall_height_range=(2.0, 2.0))
+    out, source = add_walls(torch, points, cars[:1], torch.Generator().manual_seed(0), cfg)
+    assert (source < 0).any()  # alone, the first car gets its wall
+    out, source = add_walls(torch, points, cars, torch.Generator().manual_seed(0), cfg)
+    walls = out[source < 0]
+    # the second car's own wall (beyond it, y = 8 + 0.85 + 1) may stand; none between the two cars
+    assert not bool(((walls[:, 1] > 3.85) & (walls[:, 1] < 7.15)).any())

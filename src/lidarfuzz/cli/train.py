@@ -26,7 +26,8 @@ def train_command(
     device: Annotated[str, typer.Option(help="auto (a GPU when PyTorch sees one), cpu or cuda.")] = "auto",
     seed: Annotated[int, typer.Option(help="Seeds the initial weights, frame order and augmentations.")] = 0,
     augment: Annotated[str, typer.Option(help="default (domain randomisation: ground, intensity, drop-outs, "
-                                         "flip/rotate/scale), geometric (flip/rotate/scale) or none.")]
+                                         "flip/rotate/scale), walls (that, and walls beside objects: the "
+                                         "built-in weights' recipe), geometric (flip/rotate/scale) or none.")]
     = "default",
     allow_unlabelled: Annotated[bool, typer.Option(help="Leave frames without a label file out instead of "
                                                    "refusing the data set.")] = False,
