@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 ORIGINAL = "original"
 
@@ -25,6 +28,29 @@ def subtask_label(name: str, severity: int) -> str:
     if name == ORIGINAL:
         return ORIGINAL
     return f"{name}@{severity}" if severity else f"{name} (config)"
+
+
+def select_frames(frame_ids: Sequence[str], count: int | None, order: str = "first", seed: int = 0) -> list[str]:
+    """The frames a task tests: all of them, or ``count`` — the first ones, or (``order="random"``)
+    drawn without replacement by a generator of ``seed``, kept in the data set's order (a worker
+    then loads neighbouring frames together). The same seed draws the same frames.
+
+    Example:
+        >>> select_frames(["a", "b", "c", "d"], 2)
+        ['a', 'b']
+        >>> select_frames(["a", "b"], 5, "random")
+        ['a', 'b']
+    """
+    ids = list(frame_ids)
+    if count is None or count >= len(ids):
+        return ids
+    if order == "first":
+        return ids[:count]
+    if order != "random":
+        raise ValueError(f"frame order {order!r}: choose first or random")
+    chosen = np.random.default_rng(np.random.SeedSequence([int(seed), 0x46524D53])).choice(len(ids), count,
+                                                                                           replace=False)
+    return [ids[i] for i in sorted(int(i) for i in chosen)]
 
 
 def relations_for_kind(relation: Any, choice: Any) -> list[dict[str, Any]]:
@@ -76,4 +102,4 @@ class KindPlan:
 
 
 __all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "operator_key", "relations_for", "relations_for_kind",
-           "subtask_label"]
+           "select_frames", "subtask_label"]

@@ -16,6 +16,7 @@ Example (``campaign.yaml``)::
                                 #   [preservation, {name: invariance, config: {min_iou: 0.3}}]
     seed: 0
     frames: 50                  # the first 50 frames (all when left out)
+    frame_order: first          # or random: 50 frames drawn with the seed (kept in data-set order)
 """
 
 from __future__ import annotations
@@ -105,7 +106,9 @@ class CampaignSpec(_Model):
         default="auto", description="auto, or relation names and {name, config} entries")
     seed: int = 0
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
-    frames: int | None = Field(default=None, ge=1, description="only the first N frames")
+    frames: int | None = Field(default=None, ge=1, description="only N frames (see frame_order)")
+    frame_order: Literal["first", "random"] = Field(
+        default="first", description="with frames: the first N, or N drawn at random with the seed")
 
     @field_validator("kind")
     @classmethod

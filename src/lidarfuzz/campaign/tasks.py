@@ -28,7 +28,7 @@ from lidarfuzz.campaign.lifecycle import (
     looks_alive,
     task_row,
 )
-from lidarfuzz.campaign.plan import ORIGINAL, SubtaskPlan, operator_key, relations_for, subtask_label
+from lidarfuzz.campaign.plan import ORIGINAL, SubtaskPlan, operator_key, relations_for, select_frames, subtask_label
 from lidarfuzz.campaign.spec import CampaignSpec
 from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.store.contracts import SubtaskInputs, TaskOptions
@@ -128,9 +128,7 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         dataset = _dataset_row(s, spec.dataset, dataset_options)
         model = _model_row(s, spec.sut, dict(sut_options or {}))
         opened = open_registered(dataset)
-        frame_ids = list(opened.frame_ids())
-        if spec.frames is not None:
-            frame_ids = frame_ids[: spec.frames]
+        frame_ids = select_frames(opened.frame_ids(), spec.frames, spec.frame_order, spec.seed)
         allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
         unlabelled = unlabelled_frames(opened, frame_ids, allow, dataset.path)
         kind = task_kind(spec.kind).implementation().plan(spec, model, frame_ids)

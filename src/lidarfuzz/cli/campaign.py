@@ -115,7 +115,10 @@ def run(
     relations: Annotated[str, typer.Option(help="auto, or comma-separated relation names.")] = "auto",
     seed: Annotated[int, typer.Option(help="Campaign seed (every mutant derives from it).")] = 0,
     trials: Annotated[int, typer.Option(min=1, help="Mutants per frame and severity.")] = 1,
-    frames: Annotated[int | None, typer.Option(min=1, help="Only the first N frames.")] = None,
+    frames: Annotated[int | None, typer.Option(min=1, help="Only N frames: the first N, or with --random-frames "
+                                                           "N drawn at random with the seed.")] = None,
+    random_frames: Annotated[bool, typer.Option(help="Draw the --frames at random (seeded) instead of taking "
+                                                     "the first N.")] = False,
     name: Annotated[str, typer.Option(help="A name for the task.")] = "",
     option: Annotated[list[str] | None, typer.Option(help="SUT option k=v (repeatable).")] = None,
     isolate: Annotated[bool, typer.Option(help="Run the SUT in its own process with --timeout.")] = False,
@@ -174,7 +177,8 @@ def run(
             search["guide"] = guide
         spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind,
                                "operators": [parse_op(o) for o in op or []], "search": search,
-                               "relations": chosen, "seed": seed, "trials": trials, "frames": frames},
+                               "relations": chosen, "seed": seed, "trials": trials, "frames": frames,
+                               "frame_order": "random" if random_frames else "first"},
                               "command line")
     store = open_store(workspace)
     task_id = create_task(store, spec, sut_options=parse_assignments(option or []), isolate=isolate,
