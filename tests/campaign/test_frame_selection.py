@@ -56,3 +56,15 @@ def test_a_task_stores_the_frames_it_drew(world: Path, tmp_path: Path) -> None:
         assert drawn == select_frames(every, 2, "random", seed=3) and len(drawn) == 2
     finally:
         store.close()
+
+
+def test_random_frames_without_a_count_is_refused_naming_the_missing_flag(world: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+
+    result = CliRunner().invoke(app, ["run", "--dataset", str(world), "--sut", "classic", "--op", "fog@1",
+                                      "--random-frames", "--workspace", str(tmp_path / "ws")])
+    assert result.exit_code != 0  # lidarfuzz's main() prints it as one "error: ..." line
+    assert str(result.exception) == "--random-frames draws --frames N of the data set's frames: give --frames too"
+    assert not (tmp_path / "ws").exists()  # refused before anything was created

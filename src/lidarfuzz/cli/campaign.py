@@ -167,6 +167,8 @@ def run(
         missing = [flag for flag, value in needed if not value]
         if missing:
             raise LidarfuzzError(f"missing {', '.join(missing)} (or give a campaign file); see lidarfuzz run -h")
+        if random_frames and frames is None:
+            raise LidarfuzzError("--random-frames draws --frames N of the data set's frames: give --frames too")
         chosen: Any = "auto" if relations == "auto" else [r.strip() for r in relations.split(",") if r.strip()]
         search: dict[str, Any] = dict(parse_assignments(search_option or []))
         if budget is not None:

@@ -34,7 +34,6 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -441,19 +440,8 @@ def summary_schema() -> dict[str, Any]:
     return TaskSummary.model_json_schema(mode="serialization", by_alias=True)
 
 
-def dumped(value: Any) -> Any:
-    """``value`` in its JSON form: contracts dumped (recursively inside lists and mappings)."""
-    if isinstance(value, Contract):
-        return value.dump()
-    if isinstance(value, Mapping):
-        return {k: dumped(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [dumped(v) for v in value]
-    return value
-
-
 __all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeltaRow", "FailureRecord", "FindingReplay",
            "FindingsSummary", "ModelRef", "Number", "OperatorRobustnessRow", "OutcomeRecord", "RateRow",
            "RobustnessRecord", "RunTimings", "SearchProgress", "SearchSummary", "StatusName", "SubtaskInputs",
            "SubtaskResults", "SubtaskSummary", "TaskInfo", "TaskOptions", "TaskSummary", "TopFinding",
-           "ViolationRecord", "ViolationTables", "dumped", "summary_schema"]
+           "ViolationRecord", "ViolationTables", "summary_schema"]
