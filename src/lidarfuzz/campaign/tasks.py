@@ -89,15 +89,23 @@ def unlabelled_frames(dataset: Any, frame_ids: list[str], allow: bool, path: str
 
 
 def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
+    """The model a campaign runs: a registered one by name, else one registered for ``ref`` and
+    ``options`` now. Either way the system is built and fingerprinted: when its code (or weights)
+    changed since it was registered, another row holds the new fingerprint, so the old rows'
+    fingerprint, and with it the old code's cached outputs, is never reused."""
+    from lidarfuzz.suts.registry import create
+
     row = s.scalar(select(Model).where(Model.name == ref))
     if row is not None:
         if options:
             raise ConflictError(f"model {ref!r} is registered with its options; register another to change them")
-        return row
-    from lidarfuzz.suts.registry import create
-
-    system = create(ref, **options)
-    fingerprint = system.fingerprint()
+        fingerprint = create(row.spec, **dict(row.options or {})).fingerprint()
+        if fingerprint == row.fingerprint:
+            return row
+        ref, options, note = row.spec, dict(row.options or {}), f"{row.name} with changed code or weights"
+    else:
+        fingerprint = create(ref, **options).fingerprint()
+        note = "registered by a campaign"
     for candidate in s.scalars(select(Model).where(Model.spec == ref)):
         if candidate.fingerprint == fingerprint and candidate.options == options:
             return candidate
@@ -107,7 +115,7 @@ def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
         if s.scalar(select(Model).where(Model.name == name)) is not None:
             name = f"{ref}#{fingerprint[:16]}"
             break
-    row = Model(name=name, spec=ref, options=options, fingerprint=fingerprint, notes="registered by a campaign")
+    row = Model(name=name, spec=ref, options=options, fingerprint=fingerprint, notes=note)
     s.add(row)
     s.flush()
     return row
@@ -148,7 +156,8 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         for plan, key in zip(plans, keys, strict=True):
             task.subtasks.append(Subtask(operator_key=key, operator=plan.operator or {}, name=plan.name,
                                          op_index=plan.op_index, severity=plan.severity, total=plan.units,
-                                         plan=SubtaskInputs(relation_specs=plan.relations)))
+                                         plan=SubtaskInputs(relation_specs=plan.relations,
+                                                             unchecked=plan.unchecked)))
         task.total = sum(plan.units for plan in plans)
         s.flush()
         return task.id

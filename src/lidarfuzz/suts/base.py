@@ -8,8 +8,8 @@ assumes LiDAR: a SUT maps a sample to an output. For 3D detection the output is 
 tools are converted at the edge (:mod:`lidarfuzz.suts.conventions`).
 
 Identity: ``name``, ``version`` and a ``fingerprint`` — a hash of the name, version,
-configuration and weight files — so that outputs on unchanged inputs can be cached and a
-result always says exactly which system produced it.
+configuration, weight files and code (:mod:`lidarfuzz.suts.code`) — so that outputs on
+unchanged inputs can be cached and a result always says exactly which system produced it.
 
 Failures are results, not crashes of lidarfuzz: :mod:`lidarfuzz.suts.guard` turns an
 exception, a dead process, a hang or an invalid output into a :class:`Failure`.
@@ -110,13 +110,35 @@ class SystemUnderTest(ABC, Generic[S, O]):
         criteria that need one look there after the cache), e.g. the folder its weights ship in."""
         return ()
 
+    def code_objects(self) -> Sequence[Any]:
+        """The Python classes, functions or modules whose source computes the output (default:
+        the system's class, its base classes with it); their code is part of the fingerprint."""
+        return (type(self),)
+
+    def code(self) -> Mapping[str, str]:
+        """What identifies the code behind the output: ``{module, file or distribution: digest or
+        version}`` by the rule of :mod:`lidarfuzz.suts.code` (programs add their executable and
+        script files)."""
+        from lidarfuzz.suts.code import python_code
+
+        return python_code(self.code_objects())
+
     def fingerprint(self) -> str:
-        """A stable hash of name, version, configuration and weight files (hex, 16 chars)."""
+        """A stable hash of name, version, configuration, weight files and code (hex, 16 chars).
+
+        The code is :meth:`code`: for a Python system, the source files of the modules defining
+        its class and base classes (every ``.py`` file of the package for lidarfuzz's own
+        systems, e.g. all of ``lidarfuzz/suts/`` for the classic pipeline and its bug zoo), the
+        version of a third-party distribution they come from; for a program, its executable
+        and script files. A system whose code changed has another fingerprint even when its
+        name and version did not, so a campaign never serves it the old code's cached outputs.
+        """
         payload = {
             "name": self.name,
             "version": self.version,
             "config": self.config(),
             "weights": hash_files(self.weight_files()),
+            "code": dict(self.code()),
         }
         text = json.dumps(payload, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]

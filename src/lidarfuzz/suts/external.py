@@ -25,6 +25,10 @@ stdout: the same JSON as the one-shot output file, ``{"kitti": ["Car 0 0 â€¦", â
 ``{"error": "message"}``. An empty line (or end of input) asks it to exit. A worker that
 exits is a ``crash``; one that does not answer within ``timeout`` is killed (``timeout``)
 and restarted for the next frame.
+
+Both are fingerprinted by their code too: the program's executable (a command name resolved
+on ``PATH``) and every file an argument names, such as the script of ``python3 detector.py``
+(:func:`lidarfuzz.suts.code.program_code`).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import FailureKind, SystemUnderTest
+from lidarfuzz.suts.code import program_code
 from lidarfuzz.suts.conventions import CONVENTIONS, detections
 from lidarfuzz.suts.errors import SutError
 
@@ -146,6 +151,10 @@ class SubprocessSut(SystemUnderTest[Scene, Boxes3D]):
     def config(self) -> dict[str, Any]:
         return {"command": self.command, "points_format": self.points_format, "output_format": self.output_format}
 
+    def code(self) -> dict[str, str]:
+        """The adapter's Python code, the program's executable and every file its arguments name."""
+        return {**super().code(), **program_code(self.argv, self.cwd)}
+
     def detect(self, sample: Scene) -> Boxes3D:
         with tempfile.TemporaryDirectory(prefix="lidarfuzz-sut-") as tmp:
             folder = Path(tmp)
@@ -214,6 +223,10 @@ class WorkerSut(SystemUnderTest[Scene, Boxes3D]):
 
     def config(self) -> dict[str, Any]:
         return {"command": self.command, "points_format": self.points_format}
+
+    def code(self) -> dict[str, str]:
+        """The adapter's Python code, the program's executable and every file its arguments name."""
+        return {**super().code(), **program_code(self.argv, self.cwd)}
 
     @staticmethod
     def _pump(stream: IO[str], sink: Any, end: bool) -> None:

@@ -26,6 +26,7 @@ from lidarfuzz.errors import DataFormatError, MissingDependencyError
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import SystemUnderTest
+from lidarfuzz.suts.code import distribution_version
 from lidarfuzz.suts.conventions import Convention, detections
 from lidarfuzz.suts.specs import import_target
 
@@ -108,6 +109,14 @@ class OnnxSut(SystemUnderTest[Scene, Boxes3D]):
 
     def weight_files(self) -> Sequence[Path]:
         return [self.path]
+
+    def code_objects(self) -> tuple[Any, ...]:
+        """The adapter and the pre- and post-processing hooks (their modules' source)."""
+        return tuple(obj for obj in (type(self), self.pre, self.post) if obj is not None)
+
+    def code(self) -> dict[str, str]:
+        """The Python code, with the installed ONNX Runtime's version (it computes the output)."""
+        return {**super().code(), "dist:onnxruntime": distribution_version("onnxruntime") or "not installed"}
 
     def load(self) -> None:
         if self._session is not None:

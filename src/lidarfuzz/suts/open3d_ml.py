@@ -25,6 +25,7 @@ from lidarfuzz.errors import DataFormatError, MissingDependencyError
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import SystemUnderTest
+from lidarfuzz.suts.code import distribution_version
 
 
 def _modules() -> tuple[Any, Any, Any]:
@@ -80,6 +81,11 @@ class Open3DPointPillars(SystemUnderTest[Scene, Boxes3D]):
 
     def weight_files(self) -> Sequence[Path]:
         return [self.checkpoint]
+
+    def code(self) -> dict[str, str]:
+        """The Python code, with the versions of the installed Open3D and torch (the network's code)."""
+        versions = {f"dist:{d}": distribution_version(d) for d in ("open3d", "open3d-cpu", "torch")}
+        return {**super().code(), **{k: v for k, v in versions.items() if v is not None}}
 
     def load(self) -> None:
         if self._model is not None:

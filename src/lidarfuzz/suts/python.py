@@ -111,6 +111,10 @@ class PythonSut(SystemUnderTest[Scene, Boxes3D]):
             **self._config,
         }
 
+    def code_objects(self) -> tuple[Any, ...]:
+        """The adapter's class and the target (its module, or its class's for an object)."""
+        return type(self), self.target
+
     def load(self) -> None:
         loader = getattr(self.target, "load", None)
         if callable(loader):

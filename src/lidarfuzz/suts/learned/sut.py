@@ -133,6 +133,12 @@ class PillarsDetector(SystemUnderTest[Scene, Boxes3D]):
     def weight_files(self) -> list[Path]:
         return [self.weights_path] if self.weights_path.exists() else []
 
+    def code(self) -> dict[str, str]:
+        """The Python code (all of ``lidarfuzz/suts/``, the network included) and torch's version."""
+        from lidarfuzz.suts.code import distribution_version
+
+        return {**super().code(), "dist:torch": distribution_version("torch") or "not installed"}
+
     def load(self) -> None:
         if self.net is not None:
             return
