@@ -64,3 +64,19 @@ class RaisesOnFrame(FailsOnFrame):
 
     def fail(self, sample: Scene) -> None:
         raise RuntimeError(f"cannot handle frame {sample.frame_id}")
+
+
+class RandomBoxes(ClassicPipeline):
+    """Non-deterministic: one to four cars at random places, drawn anew on every call (an
+    unseeded generator), so the same frame never gets the same answer twice."""
+
+    name = "random-boxes"
+
+    def detect(self, sample: Scene) -> Boxes3D:
+        import numpy as np
+
+        rng = np.random.default_rng()
+        n = int(rng.integers(1, 5))
+        centers = np.column_stack([rng.uniform(5, 40, n), rng.uniform(-10, 10, n), np.full(n, -0.9)])
+        return Boxes3D.create(centers, np.tile([3.9, 1.6, 1.5], (n, 1)), rng.uniform(-1.5, 1.5, n), ["Car"] * n,
+                              scores=rng.uniform(0.5, 1.0, n))

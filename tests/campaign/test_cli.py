@@ -69,7 +69,9 @@ def test_replay_of_a_finding(workspace: Path) -> None:
         pytest.skip("this small campaign found nothing to replay")
     result = runner.invoke(app, ["replay", str(finding), "--workspace", str(workspace)], env={"COLUMNS": "160"})
     assert result.exit_code == 0, result.output
-    assert "reproduced" in result.output
+    # the classic pipeline is deterministic and unchanged: same system, same outputs, same verdict
+    assert "system: the same" in result.output and "not reproduced" not in result.output
+    assert "reproduced in" in result.output and "non-deterministic" not in result.output
 
 
 def test_detached_task_is_cancelled_resumed_and_deleted(workspace: Path, world: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import sys
 import threading
 from pathlib import Path
 
@@ -114,6 +115,59 @@ def test_unchanged_inputs_come_from_the_cache(tmp_path: Path, world: Path) -> No
     assert run_task(store, third, executor=InlineExecutor()).stats.cached == 3
 
 
+ONE_CAR = """
+from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.suts.base import SystemUnderTest
+
+
+class OneCar(SystemUnderTest):
+    name = "one-car"
+    version = "1"
+
+    def detect(self, sample):
+        return Boxes3D.create([[{x}, 0.0, -0.9]], [[3.9, 1.6, 1.5]], [0.0], ["Car"], scores=[0.9])
+"""
+
+
+def test_a_system_whose_code_changed_is_not_served_the_old_outputs(tmp_path: Path, world: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Same name, version and configuration, other code: its outputs are computed, not read
+    from the cache; so are those of a task created before the change and run after it."""
+    import importlib
+
+    from lidarfuzz.store.models import SutOutput
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    source = tmp_path / "one_car_system.py"
+    source.write_text(ONE_CAR.format(x="10.0"))
+    module = importlib.import_module("one_car_system")
+    try:
+        store = Store(tmp_path / "ws")
+        spec = campaign(world, sut="one_car_system:OneCar", frames=2)  # 2 frames x 4 subtasks = 8 units
+        first = create_task(store, spec)
+        assert run_task(store, first, executor=InlineExecutor()).stats.cached == 0
+        unchanged = create_task(store, spec)
+        assert run_task(store, unchanged, executor=InlineExecutor()).stats.cached == 8  # the cache works
+        created_before = create_task(store, spec)  # recorded with the old code's fingerprint
+        source.write_text(ONE_CAR.format(x="20.0"))
+        importlib.reload(module)
+        changed = create_task(store, spec)
+        old, new = get_task(store, first).model, get_task(store, changed).model
+        assert new.fingerprint != old.fingerprint and new.spec == old.spec
+        for task_id in (changed, created_before):
+            outcome = run_task(store, task_id, executor=InlineExecutor())
+            assert outcome.stats.units == 8 and outcome.stats.cached == 0
+            with store.session() as s:
+                rows = s.scalars(select(FrameResult).join(Subtask).where(Subtask.task_id == task_id)).all()
+                # the new code puts its one car at x = 20 on every frame (the old code at 10)
+                assert len(rows) == 8 and all(r.detections.boxes().centers[:, 0].tolist() == [20.0] for r in rows)
+        with store.session() as s:  # the old fingerprint's 8 cached outputs, none of the new code's among them
+            cached = s.scalars(select(SutOutput).where(SutOutput.fingerprint == old.fingerprint)).all()
+            assert len(cached) == 8 and all(c.output.boxes().centers[0, 0] == 10.0 for c in cached)
+    finally:
+        sys.modules.pop("one_car_system", None)
+
+
 def test_a_stopped_task_resumes_with_nothing_lost_or_counted_twice(store: Store, reference, world: Path) -> None:
     task_id = create_task(store, campaign(world))
     stop = threading.Event()
@@ -164,8 +218,58 @@ def test_a_finding_replays_exactly(reference) -> None:
             Finding.id))
     assert finding is not None, "the reference campaign should find something"
     replay = replay_finding(store, finding.id)
-    assert replay.same_system and replay.reproduced
+    assert replay.same_system and replay.reproduced and replay.verdict == "reproduced"
+    assert replay.outputs_match and replay.violated_now and replay.deterministic
     assert replay.follow_now is not None and replay.follow_now.allclose(replay.follow_recorded, atol=1e-3)
+
+
+def test_a_replay_whose_record_was_altered_says_the_outputs_differ(reference) -> None:
+    """The record's follow-up boxes moved 0.5 m along x: the relation is violated again, but
+    the outputs differ from the record (by 0.5 m, each box from its moved copy), so it is not
+    reproduced."""
+    from lidarfuzz.scene.boxes import Boxes3D
+
+    store, task_id = reference
+    with store.session() as s:
+        finding = next(f for f in s.scalars(select(Finding).where(Finding.task_id == task_id,
+                                                                   Finding.kind != "crash").order_by(Finding.id))
+                       if len(s.get(FrameResult, f.frame_result_id).detections.boxes()) > 0)
+        row = s.get(FrameResult, finding.frame_result_id)
+        recorded = row.detections
+        boxes = recorded.boxes()
+        moved = boxes.centers.copy()
+        moved[:, 0] += 0.5
+        row.detections = StoredBoxes.of(Boxes3D.create(moved, boxes.sizes, boxes.yaw, boxes.labels,
+                                                       scores=boxes.scores))
+        s.commit()
+        finding_id, row_id = finding.id, row.id
+    try:
+        replay = replay_finding(store, finding_id)
+    finally:
+        with store.session() as s:
+            s.get(FrameResult, row_id).detections = recorded
+            s.commit()
+    assert replay.same_system and replay.violated_now and replay.deterministic
+    assert not replay.outputs_match and not replay.reproduced
+    compared = replay.against_record()
+    assert compared["source"].same and not compared["follow-up"].same
+    assert compared["follow-up"].centre_shift == pytest.approx(0.5, abs=1e-3)
+    assert replay.verdict.startswith("not reproduced: outputs differ from the record: follow-up (")
+    assert "centres moved up to 0.5 m" in replay.verdict
+
+
+def test_replay_reports_a_non_deterministic_system(tmp_path: Path, world: Path) -> None:
+    store = Store(tmp_path / "ws")
+    task_id = create_task(store, campaign(world, sut="tests.campaign.systems:RandomBoxes", frames=2))
+    run_task(store, task_id, executor=InlineExecutor())
+    with store.session() as s:
+        finding_id = s.scalar(select(Finding.id).where(Finding.kind != "crash").order_by(Finding.id))
+    assert finding_id is not None, "random boxes break the relations"
+    replay = replay_finding(store, finding_id)
+    # a fresh draw of 1-4 random cars each call: neither the record nor the first answer comes back
+    assert replay.same_system and not replay.deterministic and not replay.outputs_match
+    assert not replay.repeated()["source"].same and not replay.reproduced
+    assert "non-deterministic or stateful" in replay.verdict
 
 
 def test_a_bad_campaign_names_the_key(world: Path) -> None:

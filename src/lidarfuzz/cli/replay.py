@@ -19,15 +19,22 @@ def replay(finding: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     f = result.finding
     console.print(f"finding {f['id']} of task {f['task_id']}: [bold]{f['kind']}[/] {f['class']} on frame "
                   f"{f['frame_id']} under {f['subtask']}@{f['severity']}\n  recorded: {escape(f['message'])}")
-    if not result.same_system:
-        console.print(f"[yellow]the system changed since: fingerprint {result.fingerprint_now[:12]} "
-                      f"(recorded {result.fingerprint_recorded[:12]})[/]")
-    table = Table("output", "recorded", "now", "same")
-    for what, recorded, now in (("source (original)", result.source_recorded, result.source_now),
-                                ("follow-up (mutant)", result.follow_recorded, result.follow_now)):
-        same = now is not None and len(now) == len(recorded) and (len(now) == 0 or now.allclose(recorded, 1e-3))
-        table.add_row(what, describe(recorded), describe(now), "yes" if same else "[yellow]no[/]")
+    if result.same_system:
+        console.print(f"system: the same (fingerprint {result.fingerprint_now[:12]})")
+    else:
+        console.print(f"[yellow]system: changed since (fingerprint {result.fingerprint_now[:12]}, recorded "
+                      f"{result.fingerprint_recorded[:12]})[/]")
+    table = Table("output", "recorded", "now", "against the record", "answered again")
+    repeated = result.repeated()
+    for what, comparison in result.against_record().items():
+        again = repeated[what]
+        table.add_row(what, describe(comparison.before), describe(comparison.after),
+                      "same" if comparison.same else f"[yellow]{escape(comparison.describe())}[/]",
+                      "same" if again.same else f"[yellow]{escape(again.describe('first', 'second'))}[/]")
     print_table(table)
+    if not result.deterministic:
+        console.print("[yellow]the system answered the same frame differently the second time: it is "
+                      "non-deterministic or stateful, so its findings cannot be trusted to reproduce[/]")
     if result.failure_now is not None:
         console.print(f"system failure now: {result.failure_now.kind}: {escape(result.failure_now.message)}")
     for outcome in result.outcomes_now:
@@ -35,8 +42,9 @@ def replay(finding: int, workspace: WorkspaceOption = WORKSPACE) -> None:
         console.print(f"  {outcome.relation}: {state}")
         for v in outcome.violations[:10]:
             console.print(f"    - {escape(v.message)}")
-    verdict = "[red]reproduced[/]" if result.reproduced else "[green]not reproduced[/]"
-    console.print(f"{verdict} in {time.perf_counter() - start:.1f} s")
+    console.print(f"verdict now: {'violated again' if result.violated_now else 'not violated'}")
+    colour = "red" if result.reproduced else "green"
+    console.print(f"[{colour}]{escape(result.verdict)}[/] in {time.perf_counter() - start:.1f} s")
 
 
 def describe(boxes: Any) -> str:
