@@ -55,9 +55,9 @@ def test_terrain_ramp_and_crown_by_hand():
     assert np.allclose(Terrain().apply(scene, crown).points.xyz[:, 2], [0, 0, -0.04, -0.1], atol=1e-6)
 
 
-def test_terrain_is_declared_degrading_and_harmless_only_at_moderate_grades():
+def test_terrain_is_declared_degrading_and_harmless_only_at_a_mild_grade():
     assert Terrain.relation == "degrading" and Terrain().transform(Terrain().sample(rng(), line_scene(5))) is None
-    assert Terrain.harmless_up_to == 2 and Terrain.at_severity(2).config.grade_range == (0.04, 0.04)
+    assert Terrain.harmless_up_to == 1 and Terrain.at_severity(1).config.grade_range == (0.02, 0.02)
 
 
 # --------------------------------------------------------------------------- intensity units

@@ -68,12 +68,14 @@ class Terrain(Operator[Scene, TerrainConfig, TerrainParams]):
     grade · length / 2 relative to its box's centre: 11 cm for a 4.5 m car on a 5 % grade), as a
     vertical cut through a real car on a hill is not, and the scan pattern is the flat frame's (a
     real sensor's beams would meet a rising road nearer). So no transform is exposed and the
-    relation is **degrading**, with ``harmless_up_to`` 2: grades up to 4 % — an ordinary street's
-    slope, camber or ramp — move an object's points by centimetres relative to its box, and a
-    correct detector, which fits the ground rather than assuming it flat and level, still finds
-    every object. Steeper grades are where a detector with a hard-coded ground height or a
-    single-plane ground fit (a ramp, a crown are not planes) loses objects: that is the bug class
-    this operator shows.
+    relation is **degrading**, with ``harmless_up_to`` 1: a 2 % grade — an ordinary street's slope,
+    camber or ramp — moves an object's points by centimetres relative to its box, and a correct
+    detector, which fits the ground rather than assuming it flat and level, still finds every
+    object (the built-in ``classic`` pipeline found 69 of 128 labelled objects at BEV IoU 0.5 on 6
+    simulator frames × 2 draws at severity 1, 68 on the originals). From 4 % on, a single-plane
+    ground fit no longer holds beyond a ramp's kink (``classic``: 61 of 128 at severity 2, slopes
+    and crowns costing nothing, ramps 2-3 objects of 64), and a detector with a hard-coded ground
+    height loses objects on any shape: that is the bug class this operator shows.
     """
 
     name = "terrain"
@@ -81,9 +83,9 @@ class Terrain(Operator[Scene, TerrainConfig, TerrainParams]):
     family = "geometric"
     relation = Relation.DEGRADING
     targets = frozenset({Target.POINTS, Target.BOXES})
-    harmless_up_to: ClassVar[int] = 2
-    harmless_because: ClassVar[str] = ("a grade up to 4 % (an ordinary street's slope, ramp or camber) shifts an "
-                                       "object's points by centimetres relative to its box")
+    harmless_up_to: ClassVar[int] = 1
+    harmless_because: ClassVar[str] = ("a 2 % grade (an ordinary street's slope, ramp or camber) shifts an object's "
+                                       "points by centimetres relative to its box")
     ConfigModel = TerrainConfig
     ParamsModel = TerrainParams
     IDENTITY: ClassVar = {"grade_range": (0.0, 0.0)}
