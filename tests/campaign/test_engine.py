@@ -19,7 +19,8 @@ from lidarfuzz.campaign.tasks import cancel_task, create_task, get_task
 from lidarfuzz.store import Finding, FrameResult, Status, Store, Subtask, Task
 from lidarfuzz.store.boxes import StoredBoxes, decode_boxes, encode_boxes
 
-OPERATORS = [{"name": "gaussian_noise_addition", "severities": [2, 5]}, {"name": "rotate_z", "severities": [3]}]
+# uniform_noise_addition is meant to be harmless up to severity 2: checked by preservation at 2, not at 5
+OPERATORS = [{"name": "uniform_noise_addition", "severities": [2, 5]}, {"name": "rotate_z", "severities": [3]}]
 
 
 def campaign(data: Path, sut: str = "classic", **extra: object):
@@ -58,6 +59,16 @@ def reference(tmp_path_factory: pytest.TempPathFactory, world: Path):
     return store, task_id
 
 
+@pytest.fixture(scope="module")
+def buggy(tmp_path_factory: pytest.TempPathFactory, world: Path):
+    """The same campaign on a bug-zoo variant whose ROI does not turn with the scene: findings to replay (the
+    correct pipeline raises none on these harmless mutants)."""
+    store = Store(tmp_path_factory.mktemp("buggy"))
+    task_id = create_task(store, campaign(world, sut="classic-bug-roi-cache"))
+    run_task(store, task_id, executor=InlineExecutor())
+    return store, task_id
+
+
 def test_codec_round_trip(sample_scenes) -> None:
     boxes = sample_scenes[0].boxes
     back = decode_boxes(*encode_boxes(boxes))
@@ -73,7 +84,7 @@ def test_a_task_is_planned_and_run_to_the_end(store: Store, world: Path) -> None
     task_id = create_task(store, campaign(world))
     task = get_task(store, task_id)
     assert [(s.name, s.severity) for s in task.subtasks] == [
-        ("original", 0), ("gaussian_noise_addition", 2), ("gaussian_noise_addition", 5), ("rotate_z", 3)]
+        ("original", 0), ("uniform_noise_addition", 2), ("uniform_noise_addition", 5), ("rotate_z", 3)]
     assert task.total == 4 * 3
     events: list[ProgressEvent] = []
     outcome = run_task(store, task_id, executor=InlineExecutor(), progress=events.append)
@@ -88,6 +99,11 @@ def test_a_task_is_planned_and_run_to_the_end(store: Store, world: Path) -> None
         rotated = next(r for r in s.scalars(select(FrameResult).join(Subtask).where(Subtask.name == "rotate_z")))
         assert {o.relation for o in rotated.relations} >= {"equivariance"}
         assert rotated.params and rotated.ground_truth.data  # concrete params and the moved ground truth
+        plans = {(sub.name, sub.severity): sub.plan for sub in s.scalars(select(Subtask))}
+        assert "preservation" in plans["uniform_noise_addition", 2].relation_names
+        assert "preservation" not in plans["uniform_noise_addition", 5].relation_names
+        assert plans["uniform_noise_addition", 5].unchecked["preservation"].startswith(
+            "uniform_noise_addition is meant to be harmless only up to severity 2")
     summary = summarise(store, task_id)
     assert summary.subtasks[0].label == "original" and summary.delta_ap
     assert {r.relation for r in summary.violations.relation} >= {"equivariance", "preservation"}
@@ -211,8 +227,8 @@ def test_a_system_that_kills_its_process_is_a_crash_of_that_frame_only(tmp_path:
     assert kinds.count("crash") == 4
 
 
-def test_a_finding_replays_exactly(reference) -> None:
-    store, task_id = reference
+def test_a_finding_replays_exactly(buggy) -> None:
+    store, task_id = buggy
     with store.session() as s:
         finding = s.scalar(select(Finding).where(Finding.task_id == task_id, Finding.kind != "crash").order_by(
             Finding.id))
@@ -223,13 +239,13 @@ def test_a_finding_replays_exactly(reference) -> None:
     assert replay.follow_now is not None and replay.follow_now.allclose(replay.follow_recorded, atol=1e-3)
 
 
-def test_a_replay_whose_record_was_altered_says_the_outputs_differ(reference) -> None:
+def test_a_replay_whose_record_was_altered_says_the_outputs_differ(buggy) -> None:
     """The record's follow-up boxes moved 0.5 m along x: the relation is violated again, but
     the outputs differ from the record (by 0.5 m, each box from its moved copy), so it is not
     reproduced."""
     from lidarfuzz.scene.boxes import Boxes3D
 
-    store, task_id = reference
+    store, task_id = buggy
     with store.session() as s:
         finding = next(f for f in s.scalars(select(Finding).where(Finding.task_id == task_id,
                                                                    Finding.kind != "crash").order_by(Finding.id))

@@ -1,4 +1,4 @@
-"""Issue 19's new operators (terrain, intensity units) and object rotation's
+"""Issue 19's new operators (terrain, intensity units, object placement) and object rotation's
 continuous range. Expected values are worked out by hand in the comments."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from lidarfuzz.operators import available, generator, get
 from lidarfuzz.operators.lidar.terrain import Terrain, TerrainParams
 from lidarfuzz.operators.lidar.units import IntensityUnits, IntensityUnitsParams
 from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.geometry import points_in_boxes
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -89,6 +90,34 @@ def test_units_percent_back_to_unit_and_undeclared():
     assert np.allclose(out.points.intensity, [13107.0, 65535.0])  # 51·257, 255·257
 
 
+# --------------------------------------------------------------------------- object placement
+def test_placement_puts_the_object_at_the_drawn_range_and_bearing(sample_scenes):
+    scene = sample_scenes[0]
+    op = get("object_placement")(distance_range=(14.0, 16.0), bearing_range=(-20.0, 20.0))
+    params = op.sample(rng(), scene)
+    assert len(params.insertions) == 1, params.reason
+    x, y, _ = params.insertions[0].center
+    assert 14.0 <= np.hypot(x, y) <= 16.0
+    assert -20.0 <= np.degrees(np.arctan2(y, x)) <= 20.0
+    mutant = op.apply(scene, params)
+    assert len(mutant.boxes) == len(scene.boxes) + 1
+    assert op.apply(scene, params) == mutant  # from params alone
+    # placed as object_insertion places: its points inside its box, at least min_points of them
+    inside = points_in_boxes(mutant.points.xyz, mutant.boxes.as_array()[-1:], margin=0.05)[:, 0]
+    assert inside.sum() >= 5
+
+
+def test_placement_behind_the_car_needs_labels_outside_the_camera(sample_scenes):
+    scene = sample_scenes[0]  # KITTI-style labels: only the front camera's view is labelled
+    behind = {"distance_range": (10.0, 20.0), "bearing_range": (160.0, 200.0)}
+    refused = get("object_placement")(**behind).sample(rng(), scene)
+    assert refused.is_identity() and "camera" in refused.reason
+    params = get("object_placement")(**behind, in_camera_view=False).sample(rng(), scene)
+    assert len(params.insertions) == 1, params.reason
+    x, y, _ = params.insertions[0].center
+    assert x < 0 and abs(np.degrees(np.arctan2(y, -x))) <= 20.0  # within 20 degrees of straight behind
+
+
 # --------------------------------------------------------------------------- object rotation
 def test_object_rotate_draws_continuous_angles(sample_scenes):
     # object_rotate already takes a continuous range: angles uniform in [0, 90], not from a list
@@ -100,7 +129,7 @@ def test_object_rotate_draws_continuous_angles(sample_scenes):
 
 
 # --------------------------------------------------------------------------- every new operator
-@pytest.mark.parametrize("name", ["terrain", "intensity_units"])
+@pytest.mark.parametrize("name", ["terrain", "intensity_units", "object_placement"])
 def test_new_operators_replay_from_params_and_are_listed(name, sample_scenes):
     scene = sample_scenes[0]
     op = available()[name].at_severity(3)

@@ -78,9 +78,9 @@ def test_region_operators_draw_their_region_where_the_points_are():
     # two far returns at (70, 70, 5) and (-70, -70, -2), so the bounding box is 140 m × 140 m. A 2 m
     # column drawn uniformly in that box would touch a point in about (2.9 / 140)² + 2 · (2 / 140)²
     # ≈ 0.08 % of draws; centred on a drawn point it always does. By hand: a column of edge 2 m (RRPD,
-    # severity 1) centred on a grid point reaches ±1 m, which covers the whole 0.9 m grid (100
-    # deleted); centred on a far point it holds that point alone (1 deleted). The column spans the
-    # cloud's height (-2 … 5, plus 0.5 m each side), so the z of a point never keeps it.
+    # severity 1's region, deleting all of it: share 1) centred on a grid point reaches ±1 m, which
+    # covers the whole 0.9 m grid (100 deleted); centred on a far point it holds that point alone (1
+    # deleted). The column spans the cloud's height (-2 … 5, plus 0.5 m each side), so the z of a point never keeps it.
     from lidarfuzz.scene.points import PointCloud
     from lidarfuzz.scene.scene import Scene
 
@@ -89,11 +89,13 @@ def test_region_operators_draw_their_region_where_the_points_are():
     cloud = PointCloud.from_channels({"x": np.r_[x, 70, -70], "y": np.r_[y, 70, -70], "z": np.r_[np.zeros(100), 5, -2],
                                       "intensity": np.full(102, 0.5)})
     scene = Scene(points=cloud)
-    deleted = {len(scene.points) - len(get("RRPD").at_severity(1)(scene, rng(t))[0].points) for t in range(30)}
+    rrpd = get("RRPD")(size_range=(2.0, 2.0), share_range=(1.0, 1.0))
+    deleted = {len(scene.points) - len(rrpd(scene, rng(t))[0].points) for t in range(30)}
     assert deleted <= {1, 100} and 100 in deleted
-    # RIM at severity 1 (factor 0.8, edge 4 m): the same region, every intensity in it 0.5 → 0.4.
+    # RIM at severity 1's factor 0.8 and edge 4 m, lowering: the same region, every intensity in it 0.5 → 0.4.
+    rim = get("RIM")(factor_range=(0.8, 0.8), size_range=(4.0, 4.0), direction="lower")
     for t in range(10):
-        intensity = get("RIM").at_severity(1)(scene, rng(t))[0].points.intensity
+        intensity = rim(scene, rng(t))[0].points.intensity
         assert np.count_nonzero(np.isclose(intensity, 0.4)) in (1, 100)
 
 

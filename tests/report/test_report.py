@@ -39,7 +39,10 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> tuple[Store, int, Path
     data = root / "data"
     generate_dataset(data, GenerationConfig(frames=4, seed=0, sensor="VLP-16"), workers=1, overwrite=True)
     store = Store(root / "ws")
-    task_id = create_task(store, parse_campaign({"dataset": str(data), "sut": "classic", "operators": OPERATORS}))
+    # a bug-zoo system (its ROI is not turned with the scene), so that the report has findings to show: the
+    # correct pipeline raises none on these harmless mutants
+    task_id = create_task(store, parse_campaign({"dataset": str(data), "sut": "classic-bug-roi-cache",
+                                                 "operators": OPERATORS}))
     run_task(store, task_id, executor=InlineExecutor())
     return store, task_id, data
 

@@ -22,7 +22,10 @@ from lidarfuzz.store.inventory import add_dataset, add_model
 from lidarfuzz.web import create_app
 
 BASE = "http://127.0.0.1"
-NOISE = [{"name": "gaussian_noise_addition", "severities": [5]}]
+#: The tasks' operator: the scene turned by 15-45 degrees, harmless to a correct system; the model
+#: registered as ``classic`` is a bug-zoo variant of the classic pipeline whose ROI does not turn with
+#: the scene, so that tasks have findings to show (the correct pipeline raises none here)
+TURN = [{"name": "rotate_z", "severities": [3]}]
 
 
 def simulated_world(factory: pytest.TempPathFactory, frames: int) -> Path:
@@ -42,7 +45,7 @@ def register(workspace: Path, world: Path) -> None:
     """The world as data set ``world`` and the classic pipeline as model ``classic``."""
     store = Store(workspace)
     add_dataset(store, "world", world)
-    add_model(store, "classic", "classic")
+    add_model(store, "classic", "classic-bug-roi-cache")
     store.close()
 
 
@@ -91,7 +94,7 @@ def finished(tmp_path_factory: pytest.TempPathFactory, world: Path) -> Iterator[
     register(workspace, world)
     with TestClient(create_app(workspace, inline=True), base_url=BASE) as client:
         reply = client.post("/api/tasks", json={"name": "noise", "dataset": "world", "sut": "classic",
-                                                "operators": NOISE})
+                                                "operators": TURN})
         assert reply.status_code == 201, reply.text
         task_id = reply.json()["id"]
         assert wait_for(client, task_id)["status"] == "done"

@@ -28,7 +28,7 @@ from lidarfuzz.campaign.runner import run_task
 from lidarfuzz.report.bev import load_pair
 from lidarfuzz.store import Status, Store, Task
 from lidarfuzz.web.frames import ONLY_MUTANT, ONLY_ORIGINAL, SAME, decode
-from tests.web.conftest import NOISE, register, wait_for
+from tests.web.conftest import TURN, register, wait_for
 
 MANY = [{"name": "gaussian_noise_addition", "severities": [1, 2, 3, 4, 5]},
         {"name": "uniform_point_deletion", "severities": [1, 2, 3, 4, 5]},
@@ -36,7 +36,7 @@ MANY = [{"name": "gaussian_noise_addition", "severities": [1, 2, 3, 4, 5]},
 
 
 def campaign(**extra: Any) -> dict[str, Any]:
-    return {"dataset": "world", "sut": "classic", "operators": NOISE, **extra}
+    return {"dataset": "world", "sut": "classic", "operators": TURN, **extra}
 
 
 def events(text: str) -> list[tuple[str, dict[str, Any]]]:
@@ -96,7 +96,7 @@ def test_a_task_is_created_run_by_the_workers_and_listed(finished: tuple[TestCli
     assert (row["dataset"], row["model"], row["operator_count"], row["kind"]) == ("world", "classic", 1, "mutation")
     assert row["finished_at"].endswith("+00:00")
     detail = client.get(f"/api/tasks/{task_id}").json()
-    assert [s["label"] for s in detail["subtasks"]] == ["original", "gaussian_noise_addition@5"]
+    assert [s["label"] for s in detail["subtasks"]] == ["original", "rotate_z@3"]
     assert all(s["status"] == "done" and s["done"] == s["total"] == 2 for s in detail["subtasks"])
     assert set(detail["subtasks"][1]["ap_moderate"]) == {"bbox", "bev", "3d", "aos"}
     assert "mAP" in detail["subtasks"][1]["ap_moderate"]["3d"]
@@ -153,9 +153,9 @@ def test_task_list_pages_newest_first(make_client: Callable[..., TestClient], tm
      "operators.0.severities"),
     ({"dataset": "world", "sut": "classic", "operators": [{"name": "no_such_operator"}]}, "operators.0.name"),
     ({"dataset": "world", "sut": "classic"}, "operators"),
-    ({"dataset": "world", "sut": "classic", "operators": NOISE, "speed": "fast"}, "speed"),
-    ({"dataset": "nowhere", "sut": "classic", "operators": NOISE}, "dataset"),
-    ({"dataset": "world", "sut": "no_such_sut", "operators": NOISE}, "no_such_sut"),
+    ({"dataset": "world", "sut": "classic", "operators": TURN, "speed": "fast"}, "speed"),
+    ({"dataset": "nowhere", "sut": "classic", "operators": TURN}, "dataset"),
+    ({"dataset": "world", "sut": "no_such_sut", "operators": TURN}, "no_such_sut"),
 ])
 def test_a_bad_campaign_is_a_422_naming_the_key(client: TestClient, body: dict[str, Any], named: str) -> None:
     reply = client.post("/api/tasks", json=body)
@@ -178,7 +178,7 @@ def test_events_stream_progress_then_end(client: TestClient) -> None:
     assert names[:-1] == ["progress"] * (len(names) - 1)
     last = seen[-1][1]
     assert last["status"] == "done" and last["done"] == last["total"] == 4
-    assert [s["label"] for s in last["subtasks"]] == ["original", "gaussian_noise_addition@5"]
+    assert [s["label"] for s in last["subtasks"]] == ["original", "rotate_z@3"]
     counts = [data["done"] for _, data in seen]
     assert counts == sorted(counts)  # counters only grow
     assert client.get("/api/tasks/12345/events").status_code == 404
@@ -283,7 +283,7 @@ def test_the_report_is_written_on_demand_and_cached(finished: tuple[TestClient, 
     client, task_id = finished
     page = client.get(f"/api/tasks/{task_id}/report")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
-    assert "gaussian_noise_addition" in page.text and "data:image/png;base64" in page.text
+    assert "rotate_z" in page.text and "data:image/png;base64" in page.text
     workspace = Path(client.get("/api/health").json()["workspace"])
     html = workspace / "reports" / f"task-{task_id}" / "report.html"
     written = html.stat().st_mtime_ns
@@ -297,7 +297,7 @@ def test_the_exports(finished: tuple[TestClient, int]) -> None:
     assert summary.status_code == 200 and summary.json()["task"]["id"] == task_id
     assert f"task-{task_id}-report.json" in summary.headers["content-disposition"]
     ap = list(csv.DictReader(io.StringIO(client.get(f"/api/tasks/{task_id}/ap.csv").text)))
-    assert {row["label"] for row in ap} == {"original", "gaussian_noise_addition@5"}
+    assert {row["label"] for row in ap} == {"original", "rotate_z@3"}
     violations = list(csv.DictReader(io.StringIO(client.get(f"/api/tasks/{task_id}/violations.csv").text)))
     assert {"relation", "rate"} <= set(violations[0])
     findings = list(csv.DictReader(io.StringIO(client.get(f"/api/tasks/{task_id}/findings.csv").text)))
@@ -328,7 +328,7 @@ def test_findings_are_filtered_and_paged(finished: tuple[TestClient, int]) -> No
     everything = client.get(f"/api/tasks/{task_id}/findings").json()
     assert everything["total"] == len(everything["items"]) > 0
     facets = everything["facets"]
-    assert facets["operator"] == ["gaussian_noise_addition"] and "preservation" in facets["relation"]
+    assert facets["operator"] == ["rotate_z"] and "equivariance" in facets["relation"]
     for relation in facets["relation"]:
         some = client.get(f"/api/tasks/{task_id}/findings", params={"relation": relation}).json()
         assert some["total"] == sum(f["relation"] == relation for f in everything["items"])
@@ -340,7 +340,7 @@ def test_findings_are_filtered_and_paged(finished: tuple[TestClient, int]) -> No
     page = client.get(f"/api/tasks/{task_id}/findings", params={"limit": 1, "offset": 1}).json()
     assert [f["id"] for f in page["items"]] == [everything["items"][1]["id"]]
     first = everything["items"][0]
-    assert first["label"] == "gaussian_noise_addition@5" and first["frame_id"] in ("000000", "000001")
+    assert first["label"] == "rotate_z@3" and first["frame_id"] in ("000000", "000001")
     assert client.get("/api/tasks/999/findings").status_code == 404
 
 
@@ -349,7 +349,7 @@ def test_a_finding_with_its_replay_record(finished: tuple[TestClient, int]) -> N
     finding_id = client.get(f"/api/tasks/{task_id}/findings").json()["items"][0]["id"]
     finding = client.get(f"/api/findings/{finding_id}").json()
     assert finding["task_id"] == task_id and finding["replay_command"] == f"lidarfuzz replay {finding_id}"
-    assert finding["replay"]["operator"]["name"] == "gaussian_noise_addition" and finding["replay"]["params"]
+    assert finding["replay"]["operator"]["name"] == "rotate_z" and finding["replay"]["params"]
     assert finding["detail"]["violations"]
     assert client.get("/api/findings/99999").status_code == 404
 
@@ -363,7 +363,7 @@ def _key_set(points: np.ndarray) -> set[bytes]:
 def test_a_findings_frames_decode_to_the_rebuilt_pair(finished: tuple[TestClient, int]) -> None:
     client, task_id = finished
     workspace = Path(client.get("/api/health").json()["workspace"])
-    findings = client.get(f"/api/tasks/{task_id}/findings", params={"relation": "preservation"}).json()["items"]
+    findings = client.get(f"/api/tasks/{task_id}/findings", params={"relation": "equivariance"}).json()["items"]
     finding_id = findings[0]["id"]
     reply = client.get(f"/api/findings/{finding_id}/frames")
     assert reply.status_code == 200 and reply.headers["content-type"] == "application/octet-stream"
@@ -389,9 +389,9 @@ def test_a_findings_frames_decode_to_the_rebuilt_pair(finished: tuple[TestClient
         pair.mutant.points.data[:, :3]).view(np.dtype((np.void, 12))).ravel())]
     np.testing.assert_array_equal(original[:, -1], expected_original)
     np.testing.assert_array_equal(mutant[:, -1], expected_mutant)
-    # gaussian noise only adds points: nothing is only in the original, and the extras are new
-    assert not np.any(original[:, -1] == ONLY_ORIGINAL)
-    assert int(np.sum(mutant[:, -1] == ONLY_MUTANT)) == len(pair.mutant.points) - len(pair.source.points) > 0
+    # a rotation keeps every point and moves it: as many points, and (off the axis) none where it was
+    assert len(pair.mutant.points) == len(pair.source.points)
+    assert int(np.sum(mutant[:, -1] == ONLY_MUTANT)) > 0.99 * len(pair.mutant.points)
     # boxes and highlights
     boxes = header["boxes"]
     geometric = int(np.sum(pair.source.boxes.has_geometry))

@@ -281,22 +281,23 @@ def test_journey_upload_register_run_report_and_view_a_finding(page: Any, server
     assert row.locator("td").nth(2).inner_text() == "3"
     page.screenshot(path=str(artifacts / "01-datasets.png"), full_page=True)
 
-    # 2. register the classic pipeline
+    # 2. register a bug-zoo variant of the classic pipeline (its ROI does not turn with the scene: the
+    # correct pipeline raises no finding on these harmless mutants)
     page.get_by_test_id("nav-models").click()
     page.get_by_test_id("model-name").fill("classic")
-    page.get_by_test_id("model-spec").fill("classic")
+    page.get_by_test_id("model-spec").fill("classic-bug-roi-cache")
     page.get_by_test_id("model-submit").click()
     page.locator("[data-testid=model-row][data-name=classic]").wait_for()
     page.screenshot(path=str(artifacts / "02-models.png"), full_page=True)
 
-    # 3. a task: beam_missing and fov_loss at severity 5 (both make the classic pipeline lose a car)
+    # 3. a task: rotate_z and fov_loss at severity 5 (the turn makes the variant lose cars off the old road)
     page.get_by_test_id("nav-tasks").click()
     page.get_by_test_id("new-task").click()
     page.get_by_test_id("new-task-form").wait_for()
     page.get_by_test_id("task-name").fill("browser test")
     page.get_by_test_id("task-dataset").select_option("world")
     page.get_by_test_id("task-model").select_option("classic")
-    for operator in ("beam_missing", "fov_loss"):
+    for operator in ("rotate_z", "fov_loss"):
         page.get_by_test_id(f"op-{operator}").check()
         for severity in (1, 3):
             page.get_by_test_id(f"op-{operator}-sev-{severity}").uncheck()

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from lidarfuzz.web import Limits
 from lidarfuzz.web.security import is_loopback
-from tests.web.conftest import NOISE, register
+from tests.web.conftest import TURN, register
 
 TOKEN = "s3cret-token"
 BAD_LABEL = "Car 0.00 0 1.5 100 100 200 200 1.5 1.6\n"  # 10 fields, KITTI has 15
@@ -137,7 +137,7 @@ def test_the_right_token_in_the_header_or_the_query(guarded: TestClient) -> None
     assert guarded.get("/api/health", headers={"Authorization": f"Bearer {TOKEN}"}).json()["token_required"] is True
     assert guarded.get("/api/datasets", params={"token": TOKEN}).status_code == 200
     auth = {"Authorization": f"Bearer {TOKEN}"}
-    task = guarded.post("/api/tasks", json={"dataset": "world", "sut": "classic", "operators": NOISE}, headers=auth)
+    task = guarded.post("/api/tasks", json={"dataset": "world", "sut": "classic", "operators": TURN}, headers=auth)
     assert task.status_code == 201
     stream = guarded.get(f"/api/tasks/{task.json()['id']}/events", params={"token": TOKEN})
     assert stream.status_code == 200 and "event: end" in stream.text
@@ -208,7 +208,7 @@ def test_an_upload_over_the_limit_is_refused_while_it_streams(make_client: Calla
 
 
 def test_other_requests_have_a_small_limit(client: TestClient) -> None:
-    huge = {"dataset": "world", "sut": "classic", "operators": NOISE, "name": "x" * (2 << 20)}
+    huge = {"dataset": "world", "sut": "classic", "operators": TURN, "name": "x" * (2 << 20)}
     assert client.post("/api/tasks", json=huge).status_code == 413
 
 
@@ -364,7 +364,7 @@ def test_specs_that_run_or_read_server_things_are_refused(client: TestClient, sp
 
 def test_a_subprocess_sut_is_refused_in_a_campaign_too(client: TestClient) -> None:
     reply = client.post("/api/tasks", json={"dataset": "world", "sut": "subprocess:sh -c 'touch /tmp/x'",
-                                            "operators": NOISE})
+                                            "operators": TURN})
     assert reply.status_code == 403 and "CLI" in reply.json()["detail"]
     assert client.get("/api/tasks").json()["total"] == 0
 

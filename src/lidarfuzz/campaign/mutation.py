@@ -27,10 +27,17 @@ from sqlalchemy.exc import IntegrityError
 
 from lidarfuzz.campaign.executor import Executor, ProcessExecutor
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
-from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for, subtask_label
+from lidarfuzz.campaign.plan import (
+    ORIGINAL,
+    KindPlan,
+    SubtaskPlan,
+    relations_for,
+    subtask_label,
+    unchecked_relations,
+)
 from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
 from lidarfuzz.store.boxes import StoredBoxes
-from lidarfuzz.store.contracts import TaskSummary, ViolationRecord
+from lidarfuzz.store.contracts import TOOL_ERRORS, TaskSummary, ViolationRecord
 from lidarfuzz.store.errors import StoreError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
 from lidarfuzz.store.store import Store
@@ -117,7 +124,7 @@ class _Run:
         """Rows of the findings table: a failure, and per violated relation one per class."""
         findings = []
         failure = result.failure
-        if failure is not None:
+        if failure is not None and failure.kind not in TOOL_ERRORS:  # lidarfuzz's own errors are not findings
             findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id, cls="", magnitude=None,
                                  kind=failure.kind, message=failure.message, detail={"detail": failure.detail},
                                  replay=self._replay(result)))
@@ -271,12 +278,13 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
         units = len(frame_ids) * spec.trials
         if choice.config is not None:
             op = cls(**choice.config)
-            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, 0, index, relations_for(op, spec.relations)))
+            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, 0, index, relations_for(op, spec.relations),
+                                        unchecked_relations(op, spec.relations)))
             continue
         for severity in choice.severities:
             op = cls.at_severity(severity)
             subtasks.append(SubtaskPlan(cls.name, op.spec(), units, severity, index,
-                                        relations_for(op, spec.relations)))
+                                        relations_for(op, spec.relations), unchecked_relations(op, spec.relations)))
     return KindPlan(subtasks)
 
 

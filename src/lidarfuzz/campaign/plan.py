@@ -66,8 +66,36 @@ def relations_for_kind(relation: Any, choice: Any) -> list[dict[str, Any]]:
 
 
 def relations_for(operator: Any, choice: Any) -> list[dict[str, Any]]:
-    """Relation specs to check for ``operator`` (see :func:`relations_for_kind`)."""
-    return relations_for_kind(operator.relation, choice)
+    """Relation specs to check for ``operator`` (see :func:`relations_for_kind`), without those that
+    assume a harmless mutation when the operator is not meant to be harmless at its setting
+    (:func:`unchecked_relations` says which and why)."""
+    from lidarfuzz.oracles.relations.registry import get
+
+    specs = relations_for_kind(operator.relation, choice)
+    if operator.harmless():
+        return specs
+    return [spec for spec in specs if not get(spec["name"]).assumes_harmless]
+
+
+def unchecked_relations(operator: Any, choice: Any) -> dict[str, str]:
+    """The relations :func:`relations_for` leaves out for ``operator``, each with the reason."""
+    from lidarfuzz.oracles.relations.registry import get
+
+    if operator.harmless():
+        return {}
+    if operator.harmless_up_to <= 0:
+        why = f"{operator.name} is not meant to be harmless at any severity"
+    else:
+        why = (f"{operator.name} is meant to be harmless only up to severity {operator.harmless_up_to} "
+               f"({operator.harmless_because})")
+    return {spec["name"]: why for spec in relations_for_kind(operator.relation, choice)
+            if get(spec["name"]).assumes_harmless}
+
+
+def harmless_basis(operator: Any) -> str:
+    """The "checked because …" of a harmlessness relation on ``operator``'s mutants."""
+    return f"{operator.name} is meant to be harmless here: {operator.harmless_because}" if operator.harmless() \
+        else ""
 
 
 @dataclass(frozen=True)
@@ -82,6 +110,8 @@ class SubtaskPlan:
         severity: 1–5, or 0 for an explicit config (or none).
         op_index: Position of its operator in the campaign (part of every mutant's seed).
         relations: Relation specs its results are checked against.
+        unchecked: Relations that apply to its operator's kind but are not checked, with the reason
+            (the operator is not meant to be harmless at this setting).
     """
 
     name: str
@@ -90,6 +120,7 @@ class SubtaskPlan:
     severity: int = 0
     op_index: int = 0
     relations: list[dict[str, Any]] = field(default_factory=list)
+    unchecked: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -101,5 +132,5 @@ class KindPlan:
     options: dict[str, Any] = field(default_factory=dict)
 
 
-__all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "operator_key", "relations_for", "relations_for_kind",
-           "select_frames", "subtask_label"]
+__all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "harmless_basis", "operator_key", "relations_for",
+           "relations_for_kind", "select_frames", "subtask_label", "unchecked_relations"]

@@ -29,6 +29,7 @@ from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
 from lidarfuzz.oracles.robustness import RelationRecord, count_form_rates, robustness_summary, violation_rates
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.store.contracts import (
+    TOOL_ERRORS,
     APExcluded,
     APRecord,
     DatasetRef,
@@ -101,12 +102,16 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     frames, records = [], []
     labelled = moved = False
     failures = cached = 0
+    tool_errors: dict[str, int] = defaultdict(int)
     seconds = 0.0
     regions: dict[str, set[str]] = defaultdict(set)
     for frame_id, detected, truth, failure, relations, secs, was_cached, *more in rows:
         if more and isinstance(more[0], Mapping) and more[0].get("region"):
             regions[str(more[0]["region"])].add(frame_id)
-        failures += int(failure is not None)
+        if failure is not None and failure.kind in TOOL_ERRORS:
+            tool_errors[failure.kind] += 1
+        else:
+            failures += int(failure is not None)
         cached += int(bool(was_cached))
         seconds += float(secs or 0.0)
         for item in relations or []:
@@ -135,7 +140,8 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     def rates(rows: Iterable[Any]) -> list[RateRow]:
         return [RateRow.model_validate(r.to_dict()) for r in rows]
 
-    out = SubtaskResults(frames=len(rows), failures=failures, cached=cached, sut_seconds=seconds)
+    out = SubtaskResults(frames=len(rows), failures=failures, tool_errors=dict(tool_errors), cached=cached,
+                         sut_seconds=seconds)
     out.ap = APRecord.of(evaluate_kitti(frames)) if labelled and frames else None
     if out.ap is None and moved and frames:
         out.ap_note = "no AP: the operator moved every labelled object out of the camera's view"

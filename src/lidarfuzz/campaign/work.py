@@ -8,7 +8,9 @@ any executor (inline, a process pool, later a cluster) can run workers.
 The SUT's outputs are cached by the system's fingerprint and an *input key*: the digest of
 the source frame's content (points, calibration, ROI, frame id, timestamp) for an original,
 and that digest with the operator's spec and concrete params for a mutant (params make a
-mutant exactly), so a unit whose input was seen before is not run again.
+mutant exactly), so a unit whose input was seen before is not run again. A worker whose system
+no longer has the task's recorded fingerprint (its code, weights or configuration changed since
+the task was created, then resumed) neither reads nor feeds the cache under that fingerprint.
 """
 
 from __future__ import annotations
@@ -108,6 +110,15 @@ def mutant_key(source_digest: str, operator: dict[str, Any], params: dict[str, A
 SCENE_CACHE = 16
 
 
+def _basis(operator: Any) -> str:
+    """Why a harmlessness relation checks this operator's mutants (a chain of a search: its validity)."""
+    from lidarfuzz.campaign.plan import harmless_basis
+
+    if hasattr(operator, "harmless") and hasattr(operator, "harmless_because"):
+        return harmless_basis(operator)
+    return ""
+
+
 class Worker:
     """Runs units of one task (see the module docstring)."""
 
@@ -125,6 +136,7 @@ class Worker:
         self._cache: Any = None
         self._lookup: Any = None
         self._connection: Any = None
+        self._changed: bool | None = None
         if context.store_url is not None:
             from lidarfuzz.store.store import Store
 
@@ -146,6 +158,17 @@ class Worker:
             sut.load()
             self._sut = sut
         return self._sut
+
+    @property
+    def system_changed(self) -> bool:
+        """Whether the system built from the task's spec now has another fingerprint than the
+        task recorded (computed once, without loading the system)."""
+        if self._changed is None:
+            from lidarfuzz.suts.registry import create
+
+            now = create(self.context.sut_spec, **self.context.sut_options).fingerprint()
+            self._changed = now != self.context.fingerprint
+        return self._changed
 
     def operator(self, spec: dict[str, Any]) -> Any:
         key = json.dumps(spec, sort_keys=True)
@@ -252,8 +275,9 @@ class Worker:
         t0 = time.perf_counter()
         digest = self.digest(source)
         key = digest if unit.operator is None else mutant_key(digest, unit.operator, result.params)
-        result.input_key = key
-        hit = self._cached(key)
+        fresh = self.system_changed  # the recorded fingerprint's outputs are another system's
+        result.input_key = "" if fresh else key  # "": the runner caches nothing under it
+        hit = None if fresh else self._cached(key)
         result.timings["cache"] = time.perf_counter() - t0
         if hit is not None:
             result.detections = hit
@@ -281,7 +305,7 @@ class Worker:
         t0 = time.perf_counter()
         kind = Relation(unit.operator_relation) if unit.operator_relation else operator.relation
         pair = Pair(source, follow, (unit.source or StoredBoxes(None)).boxes(), output,
-                    operator_relation=kind, transform=operator.transform(params))
+                    operator_relation=kind, transform=operator.transform(params), basis=_basis(operator))
         for spec in unit.relations:
             try:
                 result.relations.append(OutcomeRecord.of(self.relation(spec)(pair)))

@@ -101,10 +101,17 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
     rates.add_row("all", *[cell(r) for r in data.violations.relation], style="bold")
     print_table(rates)
     kinds = data.findings.by_kind
-    failures = {k: v for k, v in kinds.items() if k in ("crash", "timeout", "invalid_output", "operator_error")}
+    failures = {k: v for k, v in kinds.items() if k in ("crash", "timeout", "invalid_output")}
+    tool: dict[str, int] = {}
+    for entry in data.subtasks:
+        for kind, n in entry.tool_errors.items():
+            tool[kind] = tool.get(kind, 0) + n
     console.print(f"findings: {data.findings.total} "
                   f"({', '.join(f'{k} {v}' for k, v in sorted(kinds.items())) or 'none'})"
                   + (f"; [red]system failures: {failures}[/]" if failures else ""))
+    if tool:
+        console.print(f"[yellow]lidarfuzz's own errors (not the system's): "
+                      f"{', '.join(f'{k} {v}' for k, v in sorted(tool.items()))}[/]")
     print_search(store, task_id)
 
 

@@ -25,6 +25,8 @@ global RNG anywhere.
 from __future__ import annotations
 
 import enum
+import itertools
+import math
 import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
@@ -96,6 +98,41 @@ def uniform(rng: np.random.Generator, interval: tuple[float, float]) -> float:
     return float(lo) if lo == hi else float(rng.uniform(lo, hi))
 
 
+def _direction(column: list[Any]) -> int:
+    """+1 when a table column (severity 1 → 5) grows with severity, -1 when it shrinks, 0 when it is
+    constant or cannot be read as either (not numbers, not monotone)."""
+    if not column or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in column):
+        return 0
+    if column[-1] > column[0] and all(b >= a for a, b in itertools.pairwise(column)):
+        return 1
+    if column[-1] < column[0] and all(b <= a for a, b in itertools.pairwise(column)):
+        return -1
+    return 0
+
+
+def _no_stronger(value: Any, limit: Any, table: list[Any]) -> bool:
+    """``value`` is on the mild side of ``limit``, the direction read from ``table`` (severity 1 → 5).
+
+    A number compares one way. A range ``(lo, hi)`` must lie in the mild region the harmless
+    range bounds: on each side, the harmless end that moves outwards with severity bounds it (fog's
+    visibility ``(600, 900)`` allows ``(700, 800)`` and anything above 600; a height offset
+    ``(-0.2, 0.2)`` allows what lies between). Anything the table cannot place must equal ``limit``.
+    """
+    if value == limit:
+        return True
+    if isinstance(value, (tuple, list)) and isinstance(limit, (tuple, list)) and len(value) == len(limit) == 2:
+        ends = [_direction([row[k] for row in table]) for k in (0, 1)]
+        if ends == [0, 0] or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            return False
+        lower = min(limit) if ends in ([-1, -1], [0, -1], [-1, 0]) else (limit[0] if ends == [-1, 1] else -math.inf)
+        upper = max(limit) if ends in ([1, 1], [0, 1], [1, 0]) else (limit[1] if ends == [-1, 1] else math.inf)
+        return lower <= min(value) and max(value) <= upper
+    direction = _direction(table)
+    if direction == 0 or isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return value <= limit if direction > 0 else value >= limit
+
+
 CfgT = TypeVar("CfgT", bound=Config)
 ParT = TypeVar("ParT", bound=Params)
 
@@ -126,6 +163,13 @@ class Operator(ABC, Generic[S, CfgT, ParT]):
     #: True when the severity table's configs draw no randomness (e.g. a mirror): every seed
     #: then gives the same mutant.
     deterministic: ClassVar[bool] = False
+    #: The strongest severity at which a correct system should still find every object that keeps
+    #: its evidence (0: at none). Relations that assume harmlessness (preservation, invariance,
+    #: equivariance, DeepTest's, ground-truth recall) check this operator only up to here, and a
+    #: config only when no stronger than this severity's (:meth:`harmless`).
+    harmless_up_to: ClassVar[int] = 0
+    #: Why: one sentence a report shows beside each check ("checked because …").
+    harmless_because: ClassVar[str] = ""
 
     def __init__(self, config: CfgT | None = None, **fields: Any) -> None:
         if config is not None and fields:
@@ -140,6 +184,22 @@ class Operator(ABC, Generic[S, CfgT, ParT]):
         if severity not in cls.SEVERITIES:
             raise ValueError(f"{cls.name}: severity must be one of 0, {', '.join(map(str, cls.SEVERITIES))}")
         return cls(**cls.SEVERITIES[severity])
+
+    def harmless(self) -> bool:
+        """True when this config is no stronger than severity :attr:`harmless_up_to`'s.
+
+        A field's direction is read from the severity table (growing or shrinking from severity 1
+        to 5; a range compares end by end); a field the table does not vary, or a config the table
+        cannot place, must equal the harmless severity's value. Unknown: not harmless.
+        """
+        if self.harmless_up_to <= 0:
+            return False
+        mine = self.config.model_dump()
+        limit = self.ConfigModel(**self.SEVERITIES[self.harmless_up_to]).model_dump()
+        if mine == self.ConfigModel(**self.IDENTITY).model_dump():
+            return True
+        tables = [self.ConfigModel(**self.SEVERITIES[s]).model_dump() for s in sorted(self.SEVERITIES)]
+        return all(_no_stronger(mine[name], limit[name], [t[name] for t in tables]) for name in mine)
 
     @abstractmethod
     def sample(self, rng: np.random.Generator, sample: S) -> ParT:

@@ -19,8 +19,9 @@ Grammar (one rule per gate; spaces around ``>`` allowed; every gate fails when i
     subtasks; RELATION may be ``*`` (each relation on its own).
 ``failures``
     Frames on which the system under test crashed, timed out or returned invalid output;
-    KIND narrows it to ``crash``, ``timeout``, ``invalid_output`` or ``operator_error`` (a
-    mutation operator failing, not counted otherwise).
+    KIND narrows it to ``crash``, ``timeout``, ``invalid_output``, or one of lidarfuzz's own
+    errors, ``operator_error`` (an operator failing) or ``oracle_error`` (a relation failing),
+    which are not counted otherwise.
 
 SUBTASK is a subtask's label (``fog@3``, ``fog (config)``), an operator's name (``fog``: all
 its severities) or ``*`` (all; the default).
@@ -57,7 +58,7 @@ METRIC_NAMES = {"bbox": "bbox", "bev": "BEV", "3d": "3D"}
 CLASSES = ("Car", "Pedestrian", "Cyclist", "mAP")
 DIFFICULTIES = ("easy", "moderate", "hard")
 SUT_FAILURES = ("crash", "timeout", "invalid_output")
-FAILURE_KINDS = (*SUT_FAILURES, "operator_error")
+FAILURE_KINDS = (*SUT_FAILURES, "operator_error", "oracle_error")
 GRAMMAR = ("ap_drop:METRIC:CLASS:SUBTASK[:DIFFICULTY]>POINTS, violations:RELATION[:SUBTASK]>FRAMES, "
            "violation_rate:RELATION[:SUBTASK]>RATE or failures[:KIND]>COUNT")
 _RULE = re.compile(r"^\s*(?P<lhs>[^<>=]+?)\s*>\s*(?P<value>[^<>=]+?)\s*$")
@@ -246,7 +247,10 @@ def _violations(summary: TaskSummary, gate: Gate) -> GateResult:
 
 
 def _failures(summary: TaskSummary, gate: Gate) -> GateResult:
-    by_kind = summary.findings.by_kind
+    by_kind = dict(summary.findings.by_kind)
+    for entry in summary.subtasks:  # lidarfuzz's own errors are not findings: counted per subtask
+        for kind, n in entry.tool_errors.items():
+            by_kind[kind] = by_kind.get(kind, 0) + n
     kinds = SUT_FAILURES if gate.failure_kind == "*" else (gate.failure_kind,)
     counts = {k: int(by_kind.get(k, 0)) for k in kinds}
     total = sum(counts.values())

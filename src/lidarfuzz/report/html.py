@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 DIFFICULTIES = ("easy", "moderate", "hard")
 POINTS = ("R40", "R11")
 METRICS = (("bbox", "bbox"), ("bev", "BEV"), ("3d", "3D"))
-SUT_FAILURES = ("crash", "timeout", "invalid_output", "operator_error")
+SUT_FAILURES = ("crash", "timeout", "invalid_output")
 DASH = "–"
 
 
@@ -285,8 +285,12 @@ def _failures(summary: TaskSummary) -> dict[str, Any]:
     by_kind = summary.findings.by_kind
     kinds = [{"kind": k, "count": int(by_kind.get(k, 0))} for k in SUT_FAILURES]
     per_subtask = [{"label": s.label, "failures": s.failures} for s in summary.subtasks if s.failures]
-    return {"kinds": kinds, "total": sum(k["count"] for k in kinds[:3]), "per_subtask": per_subtask,
-            "operator_errors": kinds[3]["count"]}
+    tool = {"operator_error": 0, "oracle_error": 0}
+    for entry in summary.subtasks:
+        for kind, n in entry.tool_errors.items():
+            tool[kind] = tool.get(kind, 0) + n
+    return {"kinds": kinds, "total": sum(k["count"] for k in kinds), "per_subtask": per_subtask,
+            "operator_errors": tool["operator_error"], "oracle_errors": tool["oracle_error"]}
 
 
 def _findings(summary: TaskSummary, images: Mapping[int, bytes | str] | None) -> list[dict[str, Any]]:

@@ -75,10 +75,15 @@ class Contract(BaseModel):
 
 
 # -- a unit's outcome -------------------------------------------------------------------
+#: Failures that are lidarfuzz's own (an operator or a relation raised), never the system's: they are
+#: counted apart (``tool_errors``) and never become findings against the system under test.
+TOOL_ERRORS = ("operator_error", "oracle_error")
+
+
 class FailureRecord(Contract):
     """Why a unit has no usable output: the SUT crashed, timed out or returned an invalid output
     (:class:`lidarfuzz.suts.base.Failure`), the operator failed on the frame (``operator_error``) or
-    a relation raised (``oracle_error``)."""
+    a relation raised (``oracle_error``); the last two are :data:`TOOL_ERRORS`."""
 
     kind: str
     message: str = ""
@@ -98,11 +103,13 @@ class ViolationRecord(Contract):
     measure: str = ""
     range_m: Number = math.nan
     message: str = ""
+    evidence: dict[str, Number] = Field(default_factory=dict)
 
     @classmethod
     def of(cls, violation: Any) -> ViolationRecord:
         """From a :class:`~lidarfuzz.oracles.relations.base.Violation` (or any object with its fields)."""
-        return cls.model_validate({name: getattr(violation, name) for name in cls.model_fields})
+        return cls.model_validate({name: getattr(violation, name) for name in cls.model_fields
+                                   if hasattr(violation, name)})
 
 
 class OutcomeRecord(Contract):
@@ -114,13 +121,16 @@ class OutcomeRecord(Contract):
     violations: list[ViolationRecord] = Field(default_factory=list)
     checked: dict[str, int] = Field(default_factory=dict)
     stats: dict[str, Any] = Field(default_factory=dict)
+    basis: str = ""
+    skipped: dict[str, int] = Field(default_factory=dict)
 
     @classmethod
     def of(cls, outcome: Any) -> OutcomeRecord:
         """From a :class:`~lidarfuzz.oracles.relations.base.RelationOutcome`."""
         return cls(relation=outcome.relation, holds=outcome.holds, applicable=outcome.applicable,
                    violations=[ViolationRecord.of(v) for v in outcome.violations], checked=dict(outcome.checked),
-                   stats=dict(outcome.stats))
+                   stats=dict(outcome.stats), basis=getattr(outcome, "basis", ""),
+                   skipped=dict(getattr(outcome, "skipped", {})))
 
 
 class FindingReplay(Contract):
@@ -179,9 +189,11 @@ class TaskOptions(Contract):
 
 class SubtaskInputs(Contract):
     """What a subtask checks, fixed when the task is planned: the relation specs
-    (``{"name", "config"}``) its results are checked against."""
+    (``{"name", "config"}``) its results are checked against, and the relations left unchecked
+    with the reason (its operator is not meant to be harmless at this setting)."""
 
     relation_specs: list[dict[str, Any]] = Field(default_factory=list)
+    unchecked: dict[str, str] = Field(default_factory=dict)
 
     @property
     def relation_names(self) -> list[str]:
@@ -249,6 +261,7 @@ class SubtaskResults(Contract):
 
     frames: int = 0
     failures: int = 0
+    tool_errors: dict[str, int] = Field(default_factory=dict)
     cached: int = 0
     sut_seconds: float = 0.0
     ap: APRecord | None = None

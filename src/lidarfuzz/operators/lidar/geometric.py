@@ -49,12 +49,19 @@ class RotateZ(Operator[Scene, RotationConfig, RotationParams]):
     """The scene rotated about the sensor's vertical axis (the thesis's RAR, 0–180°): the same
     world seen with the car turned. Points, boxes (headings too) and the ROI rotate; labels
     get new alpha, 2D boxes and truncation from the unchanged camera (truncation 1 and no 2D
-    box for a box turned out of the image)."""
+    box for a box turned out of the image).
+
+    Thesis, section 3.2.3 (1): RAR rotates the cloud about the z axis by a random angle "in the
+    range 0 to 180 degrees" and modifies the labels to match. The default config is that range
+    (with either sign, ``both_directions``); the severity table splits it into bands."""
 
     name = "rotate_z"
     aliases = ("RAR",)
     family = "geometric"
     relation = Relation.EQUIVARIANT
+    harmless_up_to = 5
+    harmless_because = ("a spinning LiDAR sees the same street turned: the ROI turns with it and every object "
+                        "keeps its points")
     targets = GEOMETRY
     ConfigModel = RotationConfig
     ParamsModel = RotationParams
@@ -96,6 +103,9 @@ class HeightShift(Operator[Scene, HeightConfig, HeightParams]):
     aliases = ("HGT",)
     family = "geometric"
     relation = Relation.EQUIVARIANT
+    harmless_up_to = 5
+    harmless_because = ("mounts differ by up to half a metre between a car and a van, and a system that finds its "
+                        "ground should not care; no object changes shape")
     targets = frozenset({Target.POINTS, Target.BOXES})
     ConfigModel = HeightConfig
     ParamsModel = HeightParams
@@ -137,6 +147,8 @@ class GlobalTranslate(Operator[Scene, TranslationConfig, TranslationParams]):
     name = "global_translate"
     family = "geometric"
     relation = Relation.EQUIVARIANT
+    harmless_up_to = 2
+    harmless_because = "the sensor moved by up to 0.5 m sees the objects from almost the same place"
     targets = GEOMETRY
     ConfigModel = TranslationConfig
     ParamsModel = TranslationParams
@@ -178,6 +190,8 @@ class GlobalScale(Operator[Scene, ScaleConfig, ScaleParams]):
     name = "global_scale"
     family = "geometric"
     relation = Relation.EQUIVARIANT
+    harmless_up_to = 1
+    harmless_because = "a world up to 2 % larger or smaller keeps every object inside its class's sizes"
     targets = GEOMETRY
     ConfigModel = ScaleConfig
     ParamsModel = ScaleParams
@@ -226,6 +240,8 @@ class GlobalFlip(Operator[Scene, FlipConfig, FlipParams]):
     family = "geometric"
     deterministic = True
     relation = Relation.EQUIVARIANT
+    harmless_up_to = 5
+    harmless_because = "the mirrored street (left-hand traffic) holds the same objects with the same points"
     targets = GEOMETRY
     ConfigModel = FlipConfig
     ParamsModel = FlipParams

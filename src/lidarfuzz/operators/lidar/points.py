@@ -11,7 +11,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 import shapely
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
 from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, scene_intensity_scale, with_added_points
@@ -24,14 +24,22 @@ POINTS = frozenset({Target.POINTS})
 
 
 # --------------------------------------------------------------------------- UNA
+Noise = Literal["uniform", "gaussian"]
+
+
 class UniformNoiseConfig(Config):
     ratio_range: Range = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
-    jitter_range: Range = Field((0.1, 0.1), description="std of the offset from the copied point, metres")
+    jitter_range: Range = Field((0.1, 0.1), description="offset from the copied point, metres: the half-width a "
+                                                        "(uniform, each axis in [-a, a]) or the std (gaussian)")
+    distribution: Noise = Field("uniform", description="uniform (the thesis's UNA) or gaussian (lidarfuzz before "
+                                                       "issue 19)")
 
 
 class UniformNoiseParams(Params):
     ratio: float = Field(ge=0)
     jitter: float = Field(ge=0)
+    # params stored before the option had Gaussian offsets: they replay as they were drawn
+    distribution: Noise = "gaussian"
     seed: int
 
     def is_identity(self) -> bool:
@@ -39,14 +47,22 @@ class UniformNoiseParams(Params):
 
 
 class UniformNoiseAddition(Operator[Scene, UniformNoiseConfig, UniformNoiseParams]):
-    """Spurious returns spread over the scene: copies of uniformly chosen points, each moved by
-    Gaussian jitter (the thesis's UNA). Adds points (intensity copied); leaves existing
-    points, boxes and calibration alone."""
+    """Spurious returns spread over the scene: copies of uniformly chosen points, each moved by a
+    small random offset (the thesis's UNA). Adds points (intensity copied); leaves existing
+    points, boxes and calibration alone.
+
+    Thesis, section 3.2.2 (1): UNA adds "randomly, uniformly distributed noise": it takes a number
+    of random points uniformly from the cloud as base points, copies each base point's data and
+    modifies it slightly at random, and adds the copies. The offset is uniform by default
+    (``distribution: uniform``: each axis in [-a, a] with a = ``jitter``, variance a²/3);
+    ``distribution: gaussian`` keeps lidarfuzz's earlier Gaussian offset (std = ``jitter``)."""
 
     name = "uniform_noise_addition"
     aliases = ("UNA",)
     family = "noise"
     relation = Relation.INVARIANT
+    harmless_up_to = 2
+    harmless_because = "0.5-1 % of points duplicated within 10 cm of a real return; an object they crowd is not checked"
     targets = POINTS
     ConfigModel = UniformNoiseConfig
     ParamsModel = UniformNoiseParams
@@ -56,7 +72,8 @@ class UniformNoiseAddition(Operator[Scene, UniformNoiseConfig, UniformNoiseParam
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> UniformNoiseParams:
         return UniformNoiseParams(ratio=uniform(rng, self.config.ratio_range),
-                                  jitter=uniform(rng, self.config.jitter_range), seed=draw_seed(rng))
+                                  jitter=uniform(rng, self.config.jitter_range),
+                                  distribution=self.config.distribution, seed=draw_seed(rng))
 
     def apply(self, sample: Scene, params: UniformNoiseParams) -> Scene:
         cloud = sample.points
@@ -65,7 +82,11 @@ class UniformNoiseAddition(Operator[Scene, UniformNoiseConfig, UniformNoiseParam
             return sample
         rng = np.random.default_rng(params.seed)
         base = rng.integers(0, len(cloud), count)
-        xyz = cloud.xyz[base].astype(np.float64) + rng.normal(0.0, params.jitter, (count, 3))
+        if params.distribution == "uniform":
+            offset = rng.uniform(-params.jitter, params.jitter, (count, 3))
+        else:
+            offset = rng.normal(0.0, params.jitter, (count, 3))
+        xyz = cloud.xyz[base].astype(np.float64) + offset
         return sample.with_points(with_added_points(cloud, xyz, cloud.intensity[base]))
 
 
@@ -84,12 +105,17 @@ class PointDeletionParams(Params):
 
 class UniformPointDeletion(Operator[Scene, PointDeletionConfig, PointDeletionParams]):
     """Lost returns, uniformly at random over the cloud (the thesis's UPD): exactly
-    round(ratio · N) points, drawn without replacement. Keeps boxes and calibration."""
+    round(ratio · N) points, drawn without replacement. Keeps boxes and calibration.
+
+    Thesis, section 3.2.2 (2): UPD "randomly deletes a certain number of points" from the cloud;
+    the number is ``ratio`` times the cloud's size, drawn per mutant from ``ratio_range``."""
 
     name = "uniform_point_deletion"
     aliases = ("UPD",)
     family = "deletion"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "5 % of points dropped at random leaves every object most of its points"
     targets = POINTS
     ConfigModel = PointDeletionConfig
     ParamsModel = PointDeletionParams
@@ -132,12 +158,23 @@ class NearNoiseParams(Params):
 class GaussianNoiseAddition(Operator[Scene, NearNoiseConfig, NearNoiseParams]):
     """Airborne clutter (snowflakes, haze, dust) whose density falls off with distance from the
     sensor: points at a half-normal distance in uniformly random directions, with low
-    intensity (the thesis's NNA). Adds points only."""
+    intensity (the thesis's NNA). Adds points only.
+
+    Thesis, section 3.2.2 (3): NNA adds noise whose amount "falls off with distance from the car,
+    so that the noise is Gaussian along the distance from the vehicle"; it draws the number of
+    noise points at random and their x, y, z with a Gaussian generator. Here the distance from the
+    sensor is half-normal with std ``spread`` and the direction uniform, which gives that fall-off;
+    three choices the thesis does not make: 0.5 m is added to the distance (no return from inside
+    the sensor's housing), no point lies below the cloud's lowest z (nothing under the ground),
+    and the noise's intensity is drawn from ``intensity_range`` (the thesis does not say)."""
 
     name = "gaussian_noise_addition"
     aliases = ("NNA",)
     family = "noise"
     relation = Relation.INVARIANT
+    harmless_up_to = 0
+    harmless_because = ("airborne clutter around the sensor, like snow: even at 0.5 % of the cloud it fills the "
+                        "gaps between nearby objects, which any clustering system may rightly join")
     targets = POINTS
     ConfigModel = NearNoiseConfig
     ParamsModel = NearNoiseParams
@@ -215,12 +252,19 @@ class RegionNoiseParams(Params):
 class RandomRegionNoiseAddition(Operator[Scene, RegionNoiseConfig, RegionNoiseParams]):
     """A local burst of clutter (spray, a dust cloud, a reflection artefact): points uniformly
     inside one region drawn within the cloud's extent, intensity copied from random points
-    (the thesis's RRNA). Adds points only."""
+    (the thesis's RRNA). Adds points only.
+
+    Thesis, section 3.2.2 (4): RRNA takes the extremes of each coordinate, draws a random region
+    within them and adds randomly distributed noise points inside it. Here the region's centre is
+    uniform in the cloud's extent, its x-y edge ``size`` and its height the cloud's whole height
+    (a column; the thesis does not give the region's shape), and the points uniform in it."""
 
     name = "random_region_noise_addition"
     aliases = ("RRNA",)
     family = "noise"
     relation = Relation.INVARIANT
+    harmless_up_to = 5
+    harmless_because = "the noise lands in one region; an object it crowds is not checked"
     targets = POINTS
     ConfigModel = RegionNoiseConfig
     ParamsModel = RegionNoiseParams
@@ -249,39 +293,72 @@ class RandomRegionNoiseAddition(Operator[Scene, RegionNoiseConfig, RegionNoisePa
         return sample.with_points(with_added_points(sample.points, xyz, intensity))
 
 
+class RegionDeletionConfig(RegionConfig):
+    share_range: Range = Field((0.3, 0.9), description="share of the region's points deleted, drawn per mutant "
+                                                       "(1: every point, lidarfuzz's RRPD before issue 19)")
+
+    @model_validator(mode="after")
+    def _share_is_a_probability(self) -> RegionDeletionConfig:
+        if not 0.0 <= min(self.share_range) <= max(self.share_range) <= 1.0:
+            raise ValueError(f"share_range: must lie in [0, 1], got {self.share_range}")
+        return self
+
+
 class RegionDeletionParams(Params):
     center: tuple[float, float, float]
     size: tuple[float, float, float]
+    # params stored before the share existed deleted the whole region: they replay as drawn
+    share: float = Field(1.0, ge=0, le=1, description="chance that each point in the region is deleted")
+    seed: int = 0
 
     def is_identity(self) -> bool:
-        return min(self.size) == 0
+        return min(self.size) == 0 or self.share == 0
 
 
-class RandomRegionPointDeletion(Operator[Scene, RegionConfig, RegionDeletionParams]):
-    """A blind patch (dirt on the window, a blocked sector): every point inside one
-    full-height region centred on a randomly drawn point of the cloud is deleted (the thesis's
-    RRPD; the region is never empty). Keeps boxes."""
+class RandomRegionPointDeletion(Operator[Scene, RegionDeletionConfig, RegionDeletionParams]):
+    """A patchy blind spot (a puddle or a dark, absorbing surface, dirt on the window): a random
+    share of the points inside one full-height region centred on a randomly drawn point of the
+    cloud is deleted (the thesis's RRPD; the region is never empty). Keeps boxes.
+
+    Thesis, section 3.2.2 (5): RRPD takes the extremes of each coordinate, draws a random region
+    within them, and then "randomly deletes points within the region". Here each point in the
+    region is deleted independently with probability ``share`` (drawn per mutant from
+    ``share_range``), so a region of N points loses Binomial(N, share) of them; ``share_range:
+    (1, 1)`` deletes every point in it, as lidarfuzz did before. One deviation, on purpose: the
+    region is centred on a point of the cloud rather than anywhere in its bounding box, which is
+    mostly empty (see ``_draw_region_on_points``)."""
 
     name = "random_region_point_deletion"
     aliases = ("RRPD",)
     family = "deletion"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = "points vanish from one region; an object left below half its evidence is not checked"
     targets = POINTS
-    ConfigModel = RegionConfig
+    ConfigModel = RegionDeletionConfig
     ParamsModel = RegionDeletionParams
     IDENTITY: ClassVar = {"size_range": (0.0, 0.0)}
-    SEVERITIES: ClassVar = {s: {"size_range": (e, e)} for s, e in [(1, 2.0), (2, 4.0), (3, 6.0), (4, 8.0), (5, 10.0)]}
+    # Larger regions and larger shares together: severity 5 clears nearly all of a 10 m column.
+    SEVERITIES: ClassVar = {s: {"size_range": (e, e), "share_range": (lo, hi)} for s, e, lo, hi in
+                            [(1, 2.0, 0.2, 0.4), (2, 4.0, 0.3, 0.5), (3, 6.0, 0.4, 0.7), (4, 8.0, 0.6, 0.9),
+                             (5, 10.0, 0.8, 1.0)]}
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> RegionDeletionParams:
         center, size = _draw_region_on_points(rng, sample, uniform(rng, self.config.size_range))
         if size[0] == 0:
             size = [0.0, 0.0, 0.0]
-        return RegionDeletionParams(center=tuple(center), size=tuple(size))  # type: ignore[arg-type]
+        return RegionDeletionParams(center=tuple(center), size=tuple(size),  # type: ignore[arg-type]
+                                    share=uniform(rng, self.config.share_range), seed=draw_seed(rng))
 
     def apply(self, sample: Scene, params: RegionDeletionParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
         inside = in_axis_box(sample.points.xyz, params.center, params.size)
+        if params.share < 1.0:
+            chosen = np.flatnonzero(inside)
+            deleted = np.random.default_rng(params.seed).random(len(chosen)) < params.share
+            inside = np.zeros(len(inside), bool)
+            inside[chosen[deleted]] = True
         return sample.with_points(sample.points.select(~inside)) if inside.any() else sample
 
 
@@ -311,12 +388,18 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
     """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
     a random share of the points get their intensity multiplied by a random factor each
     (the thesis's UIM), clipped to the data's own scale ([0, 1], 0–255 or 0–65535; declared, else inferred).
-    Positions are untouched."""
+    Positions are untouched.
+
+    Thesis, section 3.2.4 (1): UIM draws the number of points to modify, picks them at random, and
+    "enhances or attenuates" each one's intensity by a random ratio of its own value; here the
+    ratio is uniform in ``factor_range`` (spanning 1 at every severity) per point."""
 
     name = "intensity_scaling"
     aliases = ("UIM",)
     family = "intensity"
     relation = Relation.INVARIANT
+    harmless_up_to = 2
+    harmless_because = "up to a fifth of the returns 35 % brighter or darker keeps the geometry and most reflectances"
     targets = POINTS
     ConfigModel = IntensityScaleConfig
     ParamsModel = IntensityScaleParams
@@ -343,8 +426,22 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
         return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
 
 
+Direction = Literal["both", "lower", "raise"]
+
+
 class RegionIntensityConfig(RegionConfig):
-    factor_range: Range = Field((0.5, 0.5), description="one factor for every point in the region")
+    factor_range: Range = Field((0.5, 0.5), description="one factor f for every point in the region: lower "
+                                                        "multiplies by min(f, 1/f), raise by max(f, 1/f)")
+    direction: Direction = Field("both", description="both (lower or raise, even odds: the thesis's RIM), lower "
+                                                     "(lidarfuzz before issue 19) or raise")
+
+    @model_validator(mode="after")
+    def _factor_positive(self) -> RegionIntensityConfig:
+        low = min(self.factor_range)
+        if low < 0 or (low == 0 and self.direction != "lower"):
+            raise ValueError(f"factor_range: must be above 0 (0 only with direction lower: 1/f is the raising "
+                             f"factor), got {self.factor_range}")
+        return self
 
 
 class RegionIntensityParams(Params):
@@ -357,15 +454,24 @@ class RegionIntensityParams(Params):
 
 
 class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntensityParams]):
-    """A region whose reflectivity changes as one (a puddle, a dirty patch of the window):
-    every point inside one full-height region centred on a randomly drawn point of the cloud
-    has its intensity multiplied by a common factor (the thesis's RIM), clipped to the data's
-    scale. Positions are untouched."""
+    """A region whose reflectivity changes as one (a puddle, a dirty patch of the window, spray
+    from a street sprinkler): every point inside one full-height region centred on a randomly
+    drawn point of the cloud has its intensity multiplied by a common factor (the thesis's RIM),
+    clipped to the data's scale. Positions are untouched.
+
+    Thesis, section 3.2.4 (2): RIM picks a random region (as RRNA or RRPD do), draws "a ratio of
+    change of the intensity" with a random number generator and changes the intensity of every
+    point in the region by that one ratio; section 3.2.4 (1) says the intensity modifications
+    "enhance or attenuate" it. So with ``direction: both`` (the default) the drawn factor f lowers
+    (by min(f, 1/f)) or raises (by max(f, 1/f)) with even odds, a raised value clipped at the
+    data's full scale; ``direction: lower`` is lidarfuzz's earlier RIM, ``raise`` only raises."""
 
     name = "region_intensity_scaling"
     aliases = ("RIM",)
     family = "intensity"
     relation = Relation.INVARIANT
+    harmless_up_to = 2
+    harmless_because = "one region up to 40 % darker keeps its geometry"
     targets = POINTS
     ConfigModel = RegionIntensityConfig
     ParamsModel = RegionIntensityParams
@@ -375,8 +481,13 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> RegionIntensityParams:
         center, size = _draw_region_on_points(rng, sample, uniform(rng, self.config.size_range))
+        drawn = uniform(rng, self.config.factor_range)
+        direction = self.config.direction
+        if direction == "both":
+            direction = "raise" if rng.random() < 0.5 else "lower"
+        factor = drawn if drawn == 0 else (max if direction == "raise" else min)(drawn, 1.0 / drawn)
         return RegionIntensityParams(center=tuple(center), size=tuple(size),  # type: ignore[arg-type]
-                                     factor=uniform(rng, self.config.factor_range))
+                                     factor=factor)
 
     def apply(self, sample: Scene, params: RegionIntensityParams) -> Scene:
         cloud = sample.points
@@ -464,6 +575,9 @@ class OutsideRoiScatter(Operator[Scene, OutsideRoiScatterConfig, OutsideRoiScatt
     aliases = ("ROI_SCATTER",)
     family = "noise"
     relation = Relation.INVARIANT
+    harmless_up_to = 5
+    harmless_because = ("points off the drivable area are what an HD-map ROI filter exists to ignore; an object they "
+                        "crowd is not checked")
     targets = POINTS
     ConfigModel = OutsideRoiScatterConfig
     ParamsModel = OutsideRoiScatterParams

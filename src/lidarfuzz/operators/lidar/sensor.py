@@ -198,6 +198,9 @@ class BeamMissing(Operator[Scene, BeamMissingConfig, BeamMissingParams]):
     name = "beam_missing"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = ("one beam in ten missing leaves every object most of its rows; one left below half is not "
+                        "checked")
     targets = POINTS
     ConfigModel = BeamMissingConfig
     ParamsModel = BeamMissingParams
@@ -258,6 +261,8 @@ class CrossSensor(Operator[Scene, CrossSensorConfig, CrossSensorParams]):
     name = "cross_sensor"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 0
+    harmless_because = "another sensor's beam pattern changes every object's point density"
     targets = POINTS
     ConfigModel = CrossSensorConfig
     ParamsModel = CrossSensorParams
@@ -328,6 +333,8 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
     aliases = ("lidar_crosstalk",)
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "0.4 % of returns displaced by another LiDAR; an object they crowd is not checked"
     targets = POINTS
     ConfigModel = CrosstalkConfig
     ParamsModel = CrosstalkParams
@@ -393,6 +400,9 @@ class FovLoss(Operator[Scene, FovLossConfig, FovLossParams]):
     aliases = ("fov_lost",)
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = ("objects outside the lost sector keep every point; those inside have no evidence and are not "
+                        "checked")
     targets = POINTS
     ConfigModel = FovLossConfig
     ParamsModel = FovLossParams
@@ -445,6 +455,8 @@ class MotionDistortion(Operator[Scene, MotionDistortionConfig, MotionDistortionP
     name = "motion_distortion"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 0
+    harmless_because = "the ego's motion during the sweep shears objects by up to half a metre"
     targets = POINTS
     ConfigModel = MotionDistortionConfig
     ParamsModel = MotionDistortionParams
@@ -510,6 +522,8 @@ class SpatialMisalignment(Operator[Scene, MisalignmentConfig, MisalignmentParams
     name = "spatial_misalignment"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 0
+    harmless_because = "a miscalibrated sensor moves every object against the map and the labels"
     targets = POINTS
     ConfigModel = MisalignmentConfig
     ParamsModel = MisalignmentParams
@@ -571,6 +585,8 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
     name = "range_degradation"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "10 % less range with 2 cm of noise: objects beyond it lose their evidence and are not checked"
     targets = POINTS
     ConfigModel = RangeDegradationConfig
     ParamsModel = RangeDegradationParams
@@ -640,6 +656,8 @@ class IntensityQuantisation(Operator[Scene, QuantisationConfig, QuantisationPara
     aliases = ("intensity_quantization",)
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 2
+    harmless_because = "32 or 64 intensity levels are as fine as many sensors report"
     targets = POINTS
     ConfigModel = QuantisationConfig
     ParamsModel = QuantisationParams
@@ -690,6 +708,8 @@ class IntensitySaturation(Operator[Scene, SaturationConfig, SaturationParams]):
     name = "intensity_saturation"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "up to 25 % more gain, clipped at 0.8, keeps the order of reflectances"
     targets = POINTS
     ConfigModel = SaturationConfig
     ParamsModel = SaturationParams
@@ -734,6 +754,8 @@ class GaussianJitter(Operator[Scene, GaussianJitterConfig, GaussianJitterParams]
     name = "gaussian_jitter"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "2 cm of Gaussian jitter is a HDL-64E's own ranging noise"
     targets = POINTS
     ConfigModel = GaussianJitterConfig
     ParamsModel = GaussianJitterParams
@@ -773,6 +795,8 @@ class UniformJitter(Operator[Scene, UniformJitterConfig, UniformJitterParams]):
     name = "uniform_jitter"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "2 cm of uniform jitter is within a HDL-64E's ranging noise"
     targets = POINTS
     ConfigModel = UniformJitterConfig
     ParamsModel = UniformJitterParams
@@ -816,6 +840,8 @@ class ImpulseJitter(Operator[Scene, ImpulseJitterConfig, ImpulseJitterParams]):
     name = "impulse_jitter"
     family = "sensor"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "3 % of points off by 10 cm is within a real scan's outliers"
     targets = POINTS
     ConfigModel = ImpulseJitterConfig
     ParamsModel = ImpulseJitterParams

@@ -210,6 +210,8 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
     name = "fog"
     family = "weather"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "light fog (visibility 600-900 m) takes almost no return from an object within 70 m"
     targets = POINTS
     ConfigModel = FogConfig
     ParamsModel = FogParams
@@ -423,6 +425,8 @@ class Rain(_Precipitation):
 
     name = "rain"
     particle_reflectance = WATER_REFLECTANCE
+    harmless_up_to = 1
+    harmless_because = "drizzle (0.4-0.6 mm/h) scatters a few returns; an object they crowd is not checked"
     SEVERITIES: ClassVar = {s: {"rate_range": (0.8 * v, 1.2 * v)} for s, v in
                             [(1, 0.5), (2, 2.0), (3, 5.0), (4, 15.0), (5, 40.0)]}
 
@@ -447,6 +451,8 @@ class Snow(_Precipitation):
 
     name = "snow"
     particle_reflectance = ICE_REFLECTANCE
+    harmless_up_to = 1
+    harmless_because = "light snow (0.16-0.24 mm/h) scatters a few returns; an object they crowd is not checked"
     SEVERITIES: ClassVar = {s: {"rate_range": (0.8 * v, 1.2 * v)} for s, v in
                             [(1, 0.2), (2, 0.5), (3, 1.0), (4, 2.0), (5, 4.0)]}
 
@@ -553,6 +559,8 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
     name = "wet_ground"
     family = "weather"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "a damp road (wetness 0.15-0.25) darkens the ground, not the objects"
     targets = POINTS
     ConfigModel = WetGroundConfig
     ParamsModel = WetGroundParams

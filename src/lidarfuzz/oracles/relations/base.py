@@ -50,6 +50,8 @@ class Violation:
         measure: What ``magnitude`` measures (``iou``, ``metres``, ``score``, ``count``, ...).
         range_m: Distance of the object from the sensor in metres (NaN when not known).
         message: One readable sentence.
+        evidence: What a reviewer needs to judge it: the object's points before, kept and added
+            (:mod:`~lidarfuzz.oracles.relations.evidence`), its best partner's IoU.
     """
 
     relation: str
@@ -62,9 +64,12 @@ class Violation:
     measure: str = ""
     range_m: float = float("nan")
     message: str = ""
+    evidence: Mapping[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in self.__dict__.items()}
+        out = {k: (None if isinstance(v, float) and np.isnan(v) else v) for k, v in self.__dict__.items()}
+        out["evidence"] = dict(self.evidence)
+        return out
 
 
 @dataclass(frozen=True)
@@ -80,6 +85,9 @@ class RelationOutcome:
             ``n_follow``, ``count_holds``).
         applicable: False when the relation does not apply to this pair (e.g. equivariance
             for an operator without a transform); such outcomes count in no rate.
+        basis: Why the relation was checked here: the assumption that held ("checked because …").
+        skipped: Objects left unchecked because the assumption failed for them, by reason
+            (e.g. ``lost most of its points``).
     """
 
     relation: str
@@ -88,6 +96,8 @@ class RelationOutcome:
     checked: Mapping[str, int] = field(default_factory=dict)
     stats: Mapping[str, float] = field(default_factory=dict)
     applicable: bool = True
+    basis: str = ""
+    skipped: Mapping[str, int] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -97,6 +107,8 @@ class RelationOutcome:
             "violations": [v.to_dict() for v in self.violations],
             "checked": dict(self.checked),
             "stats": dict(self.stats),
+            "basis": self.basis,
+            "skipped": dict(self.skipped),
         }
 
 
@@ -114,6 +126,8 @@ class Pair(Generic[S, O]):
         transform: The 4×4 map from the source to the follow-up frame, for equivariant
             operators (:meth:`~lidarfuzz.operators.base.Operator.transform`).
         reference: Dataset-level figures a relation may need (e.g. DeepTest's ``mse_orig``).
+        basis: Why the operator is expected to be harmless here (its ``harmless_because``), which
+            the outcome repeats as its basis.
     """
 
     source: S
@@ -123,6 +137,7 @@ class Pair(Generic[S, O]):
     operator_relation: OperatorRelation | None = None
     transform: NDArray[np.float64] | None = None
     reference: Mapping[str, float] = field(default_factory=dict)
+    basis: str = ""
 
 
 CfgT = TypeVar("CfgT", bound=RelationConfig)
@@ -136,10 +151,15 @@ class MetamorphicRelation(ABC, Generic[S, O, CfgT]):
         description: One line for listings.
         applies_to: The operator relations this relation is meaningful for; a pair whose
             operator relation is not in it gets an outcome with ``applicable=False``.
+        assumes_harmless: The relation expects the mutation to be harmless, so a campaign checks
+            it only where the operator is meant to be (:meth:`Operator.harmless`).
+        assumption: What the relation assumes, in one sentence (listings and reports show it).
     """
 
     name: ClassVar[str]
     description: ClassVar[str] = ""
+    assumes_harmless: ClassVar[bool] = False
+    assumption: ClassVar[str] = ""
     ConfigModel: ClassVar[type[RelationConfig]]
     applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset(OperatorRelation)
 

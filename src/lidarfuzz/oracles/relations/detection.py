@@ -30,15 +30,17 @@ from pydantic import ConfigDict, Field
 
 from lidarfuzz.operators.base import Relation as OperatorRelation
 from lidarfuzz.oracles.matching import IGNORED_LABELS, Matching, ground_range, match_boxes, overlap_matrix
-from lidarfuzz.oracles.relations.base import MetamorphicRelation, Pair, RelationConfig, RelationOutcome, Violation
+from lidarfuzz.oracles.relations.base import MetamorphicRelation, Pair, RelationOutcome, Violation
+from lidarfuzz.oracles.relations.evidence import Evidence, EvidenceConfig, with_evidence
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
 from lidarfuzz.scene.geometry import box_corners, transform_boxes
 
 DetectionPair = Pair[Any, Boxes3D]
 
 
-class MatchConfig(RelationConfig):
-    """How boxes are matched and what counts as detected."""
+class MatchConfig(EvidenceConfig):
+    """How boxes are matched, what counts as detected, and when an object still carries the
+    evidence it was found by (:class:`~lidarfuzz.oracles.relations.evidence.EvidenceConfig`)."""
 
     metric: Literal["bev", "3d"] = Field(default="bev", description="IoU used to match boxes")
     min_iou: float | dict[str, float] = Field(
@@ -109,6 +111,18 @@ def _checked(boxes: Boxes3D) -> dict[str, int]:
     return dict(Counter(boxes.labels.astype(str).tolist()))
 
 
+def _points_note(evidence: Evidence | None) -> str:
+    if evidence is None:
+        return ""
+    return f"; it kept {evidence.kept} of {evidence.before} points, {evidence.added} added around it"
+
+
+def _evidence_of(evidence: list[Evidence], local: int, **more: float) -> dict[str, float]:
+    out: dict[str, float] = dict(evidence[local].as_dict()) if evidence else {}
+    out.update(more)
+    return out
+
+
 def _missing(
     relation: str,
     src: Boxes3D,
@@ -118,9 +132,11 @@ def _missing(
     metric: str,
     kind: str = "missing",
     what: str = "no match in the follow-up",
+    evidence: list[Evidence] | None = None,
 ) -> list[Violation]:
     best = _best_iou(src.select(unmatched), follow, metric)
     ranges = _ranges(src)
+    evidence = evidence or []
     out = []
     for k, local in enumerate(unmatched.tolist()):
         i = int(src_index[local])
@@ -134,16 +150,39 @@ def _missing(
                 magnitude=float(best[k]),
                 measure="iou",
                 range_m=float(ranges[local]),
-                message=f"{cls} #{i} at {ranges[local]:.1f} m: {what} (best IoU {best[k]:.2f})",
+                message=f"{cls} #{i} at {ranges[local]:.1f} m: {what} (best IoU {best[k]:.2f})"
+                f"{_points_note(evidence[local] if evidence else None)}",
+                evidence=_evidence_of(evidence, local, best_iou=float(best[k])),
             )
         )
     return out
+
+
+def basis(pair: Pair[Any, Any], cfg: MatchConfig) -> str:
+    """The outcome's "checked because …": the operator's harmlessness and the evidence rule."""
+    parts = [pair.basis] if pair.basis else []
+    if cfg.evidence:
+        parts.append(f"objects checked where the mutant keeps at least {cfg.min_kept_share:.0%} of their points "
+                     f"and adds at most {cfg.max_added_share:.0%} within {cfg.neighbourhood_m:g} m")
+    return "; ".join(parts)
+
+
+def _keep_evidence(pair: Pair[Any, Any], boxes: Boxes3D, follow_boxes: Boxes3D, index: NDArray[np.int64],
+                   cfg: MatchConfig) -> tuple[NDArray[np.int64], Boxes3D, list[Evidence], dict[str, int]]:
+    """``index`` (and ``boxes``, its rows) without the objects whose evidence the mutation destroyed,
+    the evidence of those kept, and the count left out by reason."""
+    keep, evidence, skipped = with_evidence(pair.source, boxes.as_array(), pair.follow, follow_boxes.as_array(), cfg)
+    kept_evidence = [e for e, k in zip(evidence, keep.tolist(), strict=True) if k] if evidence else []
+    return index[keep], boxes.select(keep), kept_evidence, skipped
 
 
 class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
     """Zhou & Sun MR1: no object detected in the source disappears in the follow-up."""
 
     name: ClassVar[str] = "preservation"
+    assumes_harmless: ClassVar[bool] = True
+    assumption: ClassVar[str] = ("the operator is harmless at this setting, and each object keeps its evidence "
+                                 "(most of its points, few added around it)")
     description: ClassVar[str] = "every source detection (in the ROI) has a same-class match in the follow-up"
     ConfigModel = MatchConfig
     applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})
@@ -154,17 +193,21 @@ class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _detected(pair.follow_output, cfg.min_score)
         fol_roi = _in_roi(pair.follow, pair.follow_output, fol_idx, cfg.roi_only)
+        n_source = len(src_idx)  # the count form counts every source object, as the paper does
         src = pair.source_output.select(src_idx)
+        src_idx, src, evidence, skipped = _keep_evidence(pair, src, src, src_idx, cfg)
         follow = pair.follow_output.select(fol_idx)
         m = _match(src, follow, cfg)
-        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric)
-        count_holds = len(src_idx) <= len(fol_roi)
+        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric, evidence=evidence)
+        count_holds = n_source <= len(fol_roi)
         return RelationOutcome(
             self.name,
             holds=not violations,
             violations=tuple(violations),
             checked=_checked(src),
-            stats={"n_source": len(src_idx), "n_follow": len(fol_roi), "count_holds": float(count_holds)},
+            stats={"n_source": n_source, "n_follow": len(fol_roi), "count_holds": float(count_holds)},
+            basis=basis(pair, cfg),
+            skipped=skipped,
         )
 
 
@@ -176,6 +219,9 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
     """Detections follow the operator's transform: det(T(x)) = T(det(x)), both ways."""
 
     name: ClassVar[str] = "equivariance"
+    assumes_harmless: ClassVar[bool] = True
+    assumption: ClassVar[str] = ("the operator moves the whole scene by T and is harmless at this setting, and "
+                                 "each object keeps its evidence in T's frame")
     description: ClassVar[str] = "follow-up detections equal the source detections moved by the operator's transform"
     ConfigModel = EquivarianceConfig
     applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.EQUIVARIANT})
@@ -194,7 +240,13 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
         if cfg.max_truncation is not None:  # nor objects the move carries to the edge of the view
             keep = _view_share_outside(pair.follow, moved) <= cfg.max_truncation
             src_idx, src, moved = src_idx[keep], src.select(keep), moved.select(keep)
+        keep, evidence, skipped = with_evidence(pair.source, src.as_array(), pair.follow, moved.as_array(), cfg,
+                                                pair.transform)
+        evidence = [e for e, k in zip(evidence, keep.tolist(), strict=True) if k] if evidence else []
         follow = pair.follow_output.select(fol_idx)
+        # a follow-up box that an unchecked source object accounts for is not spurious
+        m_all = _match(moved, follow, cfg)
+        src_idx, src, moved = src_idx[keep], src.select(keep), moved.select(keep)
         m = _match(moved, follow, cfg)
         violations = _missing(
             self.name,
@@ -204,9 +256,11 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
             m.unmatched_a,
             cfg.metric,
             what="its transformed box has no match in the follow-up",
+            evidence=evidence,
         )
         checked = Counter(_checked(src))
         if cfg.check_spurious:
+            m = Matching(m.pairs, m.iou, m.unmatched_a, m_all.unmatched_b)
             if cfg.max_truncation is not None:
                 outside = _view_share_outside(pair.follow, follow.select(m.unmatched_b))
                 m = Matching(m.pairs, m.iou, m.unmatched_a, m.unmatched_b[outside <= cfg.max_truncation])
@@ -226,6 +280,7 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
                         range_m=float(ranges[local]),
                         message=f"{cls} #{j} of the follow-up at {ranges[local]:.1f} m matches no transformed "
                         f"source detection (best IoU {best[k]:.2f})",
+                        evidence={"best_iou": float(best[k])},
                     )
                 )
             checked.update(_checked(follow.select(m.unmatched_b)))
@@ -235,6 +290,8 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
             violations=tuple(violations),
             checked=dict(checked),
             stats={"n_source": len(src_idx), "n_follow": len(fol_idx)},
+            basis=basis(pair, cfg),
+            skipped=skipped,
         )
 
 
@@ -249,6 +306,9 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
     """The same objects, within tolerances on score, centre and heading."""
 
     name: ClassVar[str] = "invariance"
+    assumes_harmless: ClassVar[bool] = True
+    assumption: ClassVar[str] = ("the operator is harmless at this setting, and each object keeps its "
+                                 "evidence")
     description: ClassVar[str] = "source detections found again with bounded score drop, centre drift and turn"
     ConfigModel = InvarianceConfig
     applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})
@@ -259,9 +319,10 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
         src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _detected(pair.follow_output, 0.0)
         src = pair.source_output.select(src_idx)
+        src_idx, src, evidence, skipped = _keep_evidence(pair, src, src, src_idx, cfg)
         follow = pair.follow_output.select(fol_idx)
         m = _match(src, follow, cfg)
-        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric)
+        violations = _missing(self.name, src, src_idx, follow, m.unmatched_a, cfg.metric, evidence=evidence)
         ranges = _ranges(src)
         drift = (
             np.hypot(*(follow.centers[m.pairs[:, 1], :2] - src.centers[m.pairs[:, 0], :2]).T) if len(m.pairs) else []
@@ -286,7 +347,9 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
                             magnitude=value,
                             measure=measure,
                             range_m=rng,
-                            message=f"{cls} #{i} at {rng:.1f} m: {text} (limit {limit:g})",
+                            message=f"{cls} #{i} at {rng:.1f} m: {text} (limit {limit:g})"
+                            f"{_points_note(evidence[a] if evidence else None)}",
+                            evidence=_evidence_of(evidence, a, partner_iou=float(m.iou[k]) if len(m.iou) else 0.0),
                         )
                     )
         return RelationOutcome(
@@ -295,6 +358,8 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
             violations=tuple(violations),
             checked=_checked(src),
             stats={"n_source": len(src_idx), "n_matched": len(m.pairs)},
+            basis=basis(pair, cfg),
+            skipped=skipped,
         )
 
 
@@ -332,6 +397,9 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
     """Ground-truth objects the source detections found and the follow-up detections lost."""
 
     name: ClassVar[str] = "gt_recall"
+    assumes_harmless: ClassVar[bool] = True
+    assumption: ClassVar[str] = ("the operator is harmless at this setting, and each labelled object keeps its "
+                                 "evidence (followed through moves by its track)")
     description: ClassVar[str] = "objects found in the source (matched to ground truth) are still found"
     ConfigModel = MatchConfig
 
@@ -354,6 +422,14 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         considered = np.zeros(len(src_gt), dtype=bool)
         considered[in_roi] = True
         considered &= (found_src >= 0) & (corr >= 0)
+        evidence_of: dict[int, Evidence] = {}
+        skipped: dict[str, int] = {}
+        candidates = np.flatnonzero(considered)
+        if cfg.evidence and candidates.size:
+            keep, evidence, skipped = with_evidence(pair.source, src_gt.select(candidates).as_array(), pair.follow,
+                                                    fol_gt.select(corr[candidates]).as_array(), cfg)
+            considered[candidates[~keep]] = False
+            evidence_of = dict(zip(candidates.tolist(), evidence, strict=False))  # none when not judged
         ranges = _ranges(src_gt)
         violations = []
         lost = considered & (found_fol[np.maximum(corr, 0)] < 0)
@@ -375,7 +451,8 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
                     measure="iou",
                     range_m=float(ranges[g]),
                     message=f"ground-truth {cls} #{g} at {ranges[g]:.1f} m was detected in the source, "
-                    f"not in the follow-up (best IoU {best[k]:.2f})",
+                    f"not in the follow-up (best IoU {best[k]:.2f}){_points_note(evidence_of.get(g))}",
+                    evidence={**(evidence_of[g].as_dict() if g in evidence_of else {}), "best_iou": float(best[k])},
                 )
             )
         n_gt = int(np.count_nonzero(corr >= 0))
@@ -389,6 +466,8 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
                 "n_found_source": int(np.count_nonzero(considered)),
                 "n_lost": int(np.count_nonzero(lost)),
             },
+            basis=basis(pair, cfg),
+            skipped=skipped,
         )
 
 
@@ -429,6 +508,9 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
     """
 
     name: ClassVar[str] = "deeptest_tolerance"
+    assumes_harmless: ClassVar[bool] = True
+    assumption: ClassVar[str] = ("the transformation is harmless at this setting, so the error may grow at most λ "
+                                 "times the data set's")
     description: ClassVar[str] = "(y_follow - y)^2 <= lambda * MSE_orig, DeepTest's relaxed relation"
     ConfigModel = DeepTestConfig
     applies_to: ClassVar[frozenset[OperatorRelation]] = frozenset({OperatorRelation.INVARIANT})

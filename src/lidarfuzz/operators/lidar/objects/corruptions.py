@@ -52,6 +52,8 @@ class ObjectRemoval(Operator[Scene, ObjectRemovalConfig, ObjectRemovalParams]):
     aliases = ("OBJ_REMOVE",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = "the objects left keep every point; the removed ones have no evidence and are not checked"
     targets = POINTS_BOXES
     ConfigModel = ObjectRemovalConfig
     ParamsModel = ObjectRemovalParams
@@ -106,6 +108,9 @@ class ObjectCutout(Operator[Scene, ObjectCutoutConfig, ObjectCutoutParams]):
     aliases = ("OBJ_CUTOUT",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = ("objects left whole keep every point; a cut object whose evidence falls below half is not "
+                        "checked")
     targets = POINTS
     ConfigModel = ObjectCutoutConfig
     ParamsModel = ObjectCutoutParams
@@ -170,6 +175,9 @@ class ObjectDensityLoss(Operator[Scene, ObjectDensityConfig, ObjectDensityParams
     aliases = ("OBJ_SPARSE",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = ("objects left whole keep every point; a thinned object whose evidence falls below half is not "
+                        "checked")
     targets = POINTS
     ConfigModel = ObjectDensityConfig
     ParamsModel = ObjectDensityParams
@@ -218,6 +226,8 @@ class ObjectJitter(Operator[Scene, ObjectJitterConfig, ObjectJitterParams]):
     aliases = ("OBJ_JITTER",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "2 cm of jitter on one object is within a HDL-64E's ranging noise"
     targets = POINTS
     ConfigModel = ObjectJitterConfig
     ParamsModel = ObjectJitterParams

@@ -267,6 +267,9 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
     aliases = ("OBJ_INSERT",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 5
+    harmless_because = ("inserted objects take no point from the others; an object they hide or crowd loses its "
+                        "evidence and is not checked")
     targets = POINTS_BOXES
     ConfigModel = ObjectInsertionConfig
     ParamsModel = ObjectInsertionParams
@@ -335,7 +338,7 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         library, pts, origin = self.library, _Pts(sample.points.xyz), _Pts(cloud.xyz)
         others = Boxes3D.from_array(np.array([self._box(p) for p in placed]).reshape(-1, 7), ["Car"] * len(placed))
         occupied = Boxes3D.concat([sample.boxes, others])
-        lo, hi = np.deg2rad(self.config.azimuth_range)
+        lo, hi = np.deg2rad(self._azimuths_deg())
         in_view = self._in_view(sample)
         if in_view:
             right, left = _camera_azimuths(sample.calib)  # type: ignore[arg-type]
@@ -345,9 +348,7 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
                 return None
         min_points = self.config.min_points
         for _ in range(self.config.attempts):
-            entry = int(rng.choice(entries))
-            distance = library.ranges[entry] * uniform(rng, self.config.distance_ratio_range)
-            azimuth = uniform(rng, (float(lo), float(hi)))
+            entry, distance, azimuth = self._draw_place(rng, entries, float(lo), float(hi))
             yaw = float(wrap_angle(library.views[entry] + azimuth))
             box = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), 0.0, *library.sizes[entry], yaw])
             if not _on_roi(sample, box):
@@ -383,6 +384,18 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
                 continue
             return insertion, step
         return None
+
+    def _azimuths_deg(self) -> tuple[float, float]:
+        """The azimuths places are drawn from, degrees (subclasses that place by bearing override it)."""
+        return self.config.azimuth_range
+
+    def _draw_place(self, rng: np.random.Generator, entries: NDArray[np.intp], lo: float,
+                    hi: float) -> tuple[int, float, float]:
+        """One candidate place: a library entry, its range from the sensor (metres, near the entry's
+        source range) and its azimuth (radians, in [lo, hi])."""
+        entry = int(rng.choice(entries))
+        distance = self.library.ranges[entry] * uniform(rng, self.config.distance_ratio_range)
+        return entry, float(distance), uniform(rng, (lo, hi))
 
     def _insert(self, cloud: PointCloud, pts: _Pts, ins: Insertion) -> _Inserted:
         """``cloud`` with the entry's points placed as ``ins`` says, occlusion applied both ways."""

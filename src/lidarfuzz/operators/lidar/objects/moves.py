@@ -167,6 +167,8 @@ class ObjectTranslate(_ObjectMove, Operator[Scene, ObjectTranslateConfig, Object
     aliases = ("OBJ_SHIFT",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "an object moved by 0.5 m keeps its points and stays at almost the same range"
     targets = POINTS_BOXES
     ConfigModel = ObjectTranslateConfig
     ParamsModel = ObjectTranslateParams
@@ -235,6 +237,8 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
     aliases = ("OBJ_ROTATE",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 1
+    harmless_because = "an object turned by 5 degrees keeps its points"
     targets = POINTS_BOXES
     ConfigModel = ObjectRotateConfig
     ParamsModel = ObjectRotateParams
@@ -290,6 +294,8 @@ class ObjectScale(_ObjectMove, Operator[Scene, ObjectScaleConfig, ObjectScalePar
     aliases = ("OBJ_SCALE",)
     family = "object"
     relation = Relation.DEGRADING
+    harmless_up_to = 0
+    harmless_because = "a resized object may leave its class's sizes"
     targets = POINTS_BOXES
     ConfigModel = ObjectScaleConfig
     ParamsModel = ObjectScaleParams
