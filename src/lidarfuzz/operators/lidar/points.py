@@ -471,7 +471,7 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
     family = "intensity"
     relation = Relation.INVARIANT
     harmless_up_to = 2
-    harmless_because = "one region up to 40 % darker keeps its geometry"
+    harmless_because = "one region up to 40 % darker or 67 % brighter keeps its geometry"
     targets = POINTS
     ConfigModel = RegionIntensityConfig
     ParamsModel = RegionIntensityParams
