@@ -128,7 +128,7 @@ def test_the_app_on_a_postgresql_store(make_client: Callable[..., TestClient], f
     reply = client.post("/api/datasets/upload", data={"name": "world"}, files={"files": ("w.zip", zipped.getvalue())})
     assert reply.status_code == 201, reply.text
     assert Path(reply.json()["path"]).is_relative_to((tmp_path / "files" / "uploads").resolve())
-    assert client.post("/api/models", json={"name": "classic", "spec": "classic"}).status_code == 201
+    assert client.post("/api/models", json={"name": "classic", "spec": "classic-bug-roi-cache"}).status_code == 201
     task_id = client.post("/api/tasks", json=campaign()).json()["id"]
     with client.stream("GET", f"/api/tasks/{task_id}/events") as stream:
         assert events("".join(stream.iter_text()))[-1][1]["status"] == "done"
