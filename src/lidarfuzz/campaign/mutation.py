@@ -31,6 +31,7 @@ from lidarfuzz.campaign.plan import (
     ORIGINAL,
     KindPlan,
     SubtaskPlan,
+    operator_stream,
     relations_for,
     subtask_label,
     unchecked_relations,
@@ -273,17 +274,18 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
     from lidarfuzz.operators.registry import get
 
     subtasks = []
-    for index, choice in enumerate(spec.operators):
+    for choice in spec.operators:
         cls = get(choice.name)
         units = len(frame_ids) * spec.trials
+        stream = operator_stream(cls.name, choice.config)
         if choice.config is not None:
             op = cls(**choice.config)
-            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, 0, index, relations_for(op, spec.relations),
+            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, 0, stream, relations_for(op, spec.relations),
                                         unchecked_relations(op, spec.relations)))
             continue
         for severity in choice.severities:
             op = cls.at_severity(severity)
-            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, severity, index,
+            subtasks.append(SubtaskPlan(cls.name, op.spec(), units, severity, stream,
                                         relations_for(op, spec.relations), unchecked_relations(op, spec.relations)))
     return KindPlan(subtasks)
 

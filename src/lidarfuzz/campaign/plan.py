@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,6 +22,21 @@ def operator_key(spec: dict[str, Any] | None) -> str:
     if spec is None:
         return ORIGINAL
     return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:32]
+
+
+def operator_stream(name: str, config: dict[str, Any] | None = None) -> int:
+    """The seed stream of an operator's mutants (the ``operator_index`` of
+    :func:`lidarfuzz.operators.base.seed_sequence`): keyed by the operator's name, and its explicit
+    config when it has one, never by its place in the campaign, so adding or reordering operators
+    leaves every other mutant unchanged and two tasks' mutants comparable. Severities of one operator
+    share a stream (common random numbers: rotate_z@1 and @5 turn the same frames the same way
+    round). 31 bits, so it fits every database's integer column.
+
+        >>> operator_stream("fog") == operator_stream("fog") != operator_stream("rain")
+        True
+    """
+    key = name if config is None else f"{name} {json.dumps(config, sort_keys=True)}"
+    return zlib.crc32(key.encode("utf-8")) & 0x7FFFFFFF
 
 
 def subtask_label(name: str, severity: int) -> str:
@@ -108,7 +124,8 @@ class SubtaskPlan:
             the originals).
         units: How many frame results complete it.
         severity: 1–5, or 0 for an explicit config (or none).
-        op_index: Position of its operator in the campaign (part of every mutant's seed).
+        op_index: Its mutants' seed stream (:func:`operator_stream`; tasks planned before it was
+            keyed by spec hold the operator's position in the campaign, and keep it).
         relations: Relation specs its results are checked against.
         unchecked: Relations that apply to its operator's kind but are not checked, with the reason
             (the operator is not meant to be harmless at this setting).
@@ -132,5 +149,5 @@ class KindPlan:
     options: dict[str, Any] = field(default_factory=dict)
 
 
-__all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "harmless_basis", "operator_key", "relations_for",
-           "relations_for_kind", "select_frames", "subtask_label", "unchecked_relations"]
+__all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "harmless_basis", "operator_key", "operator_stream",
+           "relations_for", "relations_for_kind", "select_frames", "subtask_label", "unchecked_relations"]

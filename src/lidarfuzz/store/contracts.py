@@ -141,7 +141,8 @@ class FindingReplay(Contract):
     Attributes:
         dataset: The data set's path.
         options: The system's options.
-        op_index: The operator's place in the campaign (part of the mutant's seed).
+        op_index: The seed stream of its mutants (keyed by the operator's spec; the operator's place
+            in the campaign for tasks planned before that).
         operator: The operator spec (None: the finding is on an original).
         relation: The violated relation's spec (None: a failure).
         operator_relation: Overrides the operator's own relation kind (a search's valid tests are

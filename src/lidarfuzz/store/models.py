@@ -137,7 +137,7 @@ class Subtask(Base):
     name: Mapped[str] = mapped_column(String(100), default="",
                                       server_default="")  # the operator's name ("original" for none)
     op_index: Mapped[int] = mapped_column(Integer, default=0,
-                                          server_default="0")  # its place in the task (seeds its generator)
+                                          server_default="0")  # its mutants' seed stream (keyed by the operator)
     severity: Mapped[int] = mapped_column(Integer)  # 0: the originals, or an operator given an explicit config
     status: Mapped[Status] = mapped_column(_status(), default=Status.PENDING)
     done: Mapped[int] = mapped_column(Integer, default=0)
