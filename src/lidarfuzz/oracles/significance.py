@@ -1,0 +1,128 @@
+"""Is one system's violation rate significantly above another's?
+
+A relation violated on 9 of 20 frames by the system under test and on 1 of 20 by a reference
+(a correct system, or the previous version) is a finding about the system; 2 of 20 against
+1 of 20 is the floor. :func:`compare_rates` decides with a **one-sided Fisher exact test**
+(``scipy.stats.fisher_exact(..., alternative="greater")`` on the 2 × 2 table of violated and
+not violated frames): exact at the small counts a campaign has (a z-test's normal approximation
+is not), and never significant when A's rate is not above B's. The threshold is
+:data:`ALPHA` = 0.05.
+
+A comparison tests many rows at once (operator × severity × relation × class), so
+:func:`compare_many` controls the family-wise error with **Holm's step-down correction** over
+the rows that were tested: a row is significant when its Holm-adjusted p-value is below α.
+
+Example:
+    >>> row = compare_rates(9, 20, 1, 20)
+    >>> round(row.p_value, 4), row.significant
+    (0.0042, True)
+    >>> compare_rates(2, 20, 1, 20).significant
+    False
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+#: Significance threshold of every comparison lidarfuzz reports.
+ALPHA = 0.05
+#: The test, as reports name it.
+TEST_NAME = "one-sided Fisher exact test (A's rate > B's)"
+#: The multiple-comparison correction over a comparison's rows, as reports name it.
+CORRECTION_NAME = "Holm step-down over the rows tested"
+
+
+@dataclass(frozen=True)
+class RateComparison:
+    """A's and B's violation counts and whether A's rate is significantly higher.
+
+    Attributes:
+        violated_a, checked_a: A's violating and checked frames.
+        violated_b, checked_b: B's.
+        p_value: The one-sided Fisher exact p-value (NaN when either side checked nothing).
+        p_adjusted: After Holm's correction over a family of rows (``p_value`` when alone).
+        alpha: The threshold.
+        significant: ``p_adjusted < alpha``.
+    """
+
+    violated_a: int
+    checked_a: int
+    violated_b: int
+    checked_b: int
+    p_value: float
+    p_adjusted: float
+    alpha: float = ALPHA
+
+    @property
+    def rate_a(self) -> float:
+        return self.violated_a / self.checked_a if self.checked_a else math.nan
+
+    @property
+    def rate_b(self) -> float:
+        return self.violated_b / self.checked_b if self.checked_b else math.nan
+
+    @property
+    def difference(self) -> float:
+        """A's rate minus B's (NaN when either is undefined)."""
+        return self.rate_a - self.rate_b
+
+    @property
+    def tested(self) -> bool:
+        return not math.isnan(self.p_value)
+
+    @property
+    def significant(self) -> bool:
+        return self.tested and self.p_adjusted < self.alpha
+
+
+def fisher_greater(violated_a: int, checked_a: int, violated_b: int, checked_b: int) -> float:
+    """One-sided p-value of "A violates more often than B" (NaN when a side checked nothing)."""
+    for name, violated, checked in (("A", violated_a, checked_a), ("B", violated_b, checked_b)):
+        if not 0 <= violated <= checked:
+            raise ValueError(f"{name}: violated {violated} must be between 0 and checked {checked}")
+    if checked_a == 0 or checked_b == 0:
+        return math.nan
+    from scipy.stats import fisher_exact  # scipy's import takes a while: only when testing
+
+    table = [[violated_a, checked_a - violated_a], [violated_b, checked_b - violated_b]]
+    return float(fisher_exact(table, alternative="greater").pvalue)
+
+
+def compare_rates(violated_a: int, checked_a: int, violated_b: int, checked_b: int, *,
+                  alpha: float = ALPHA) -> RateComparison:
+    """One row on its own (no correction)."""
+    p = fisher_greater(violated_a, checked_a, violated_b, checked_b)
+    return RateComparison(violated_a, checked_a, violated_b, checked_b, p, p, alpha)
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (NaN entries are not tested and stay NaN).
+
+    With ``m`` tested p-values sorted ascending, the ``k``-th (from 0) becomes
+    ``max_{j <= k} min(1, (m - j) p_(j))``.
+
+    Example:
+        >>> holm([0.01, 0.04, 0.03, float("nan")])  # m = 3: 3 x 0.01, max(0.03, 2 x 0.03), max(.., 1 x 0.04)
+        [0.03, 0.06, 0.06, nan]
+    """
+    tested = sorted((p, i) for i, p in enumerate(p_values) if not math.isnan(p))
+    out = [math.nan] * len(p_values)
+    m = len(tested)
+    running = 0.0
+    for rank, (p, index) in enumerate(tested):
+        running = max(running, min(1.0, (m - rank) * p))
+        out[index] = round(running, 12)
+    return out
+
+
+def compare_many(counts: Sequence[tuple[int, int, int, int]], *, alpha: float = ALPHA) -> list[RateComparison]:
+    """Rows of ``(violated_a, checked_a, violated_b, checked_b)``, Holm-corrected together."""
+    rows = [compare_rates(*c, alpha=alpha) for c in counts]
+    adjusted = holm([r.p_value for r in rows])
+    return [replace(r, p_adjusted=p) for r, p in zip(rows, adjusted, strict=True)]
+
+
+__all__ = ["ALPHA", "CORRECTION_NAME", "TEST_NAME", "RateComparison", "compare_many", "compare_rates",
+           "fisher_greater", "holm"]
