@@ -94,7 +94,7 @@ class RelationOutcome:
     holds: bool
     violations: tuple[Violation, ...] = ()
     checked: Mapping[str, int] = field(default_factory=dict)
-    stats: Mapping[str, float] = field(default_factory=dict)
+    stats: Mapping[str, Any] = field(default_factory=dict)
     applicable: bool = True
     basis: str = ""
     skipped: Mapping[str, int] = field(default_factory=dict)
