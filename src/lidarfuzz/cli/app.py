@@ -19,6 +19,7 @@ from rich.markup import escape
 from lidarfuzz.cli import (
     campaign,
     catalog,
+    compare,
     convert,
     coverage,
     demo,
@@ -82,6 +83,7 @@ app.command("list")(campaign.list_tasks_command)
 app.command("status")(campaign.status)
 app.command("report")(reporting.report)
 app.command("replay")(replay.replay)
+app.command("compare")(compare.compare)
 app.command("profile")(coverage.profile)
 app.command("serve")(serve.serve)
 app.command("train")(train.train_command)

@@ -104,7 +104,7 @@ def holm(p_values: Sequence[float]) -> list[float]:
     ``max_{j <= k} min(1, (m - j) p_(j))``.
 
     Example:
-        >>> holm([0.01, 0.04, 0.03, float("nan")])  # m = 3: 3 x 0.01, max(0.03, 2 x 0.03), max(.., 1 x 0.04)
+        >>> [round(p, 6) for p in holm([0.01, 0.04, 0.03, float("nan")])]  # m = 3: 3 x 0.01, 2 x 0.03, max(0.06, 0.04)
         [0.03, 0.06, 0.06, nan]
     """
     tested = sorted((p, i) for i, p in enumerate(p_values) if not math.isnan(p))
@@ -113,7 +113,7 @@ def holm(p_values: Sequence[float]) -> list[float]:
     running = 0.0
     for rank, (p, index) in enumerate(tested):
         running = max(running, min(1.0, (m - rank) * p))
-        out[index] = round(running, 12)
+        out[index] = running
     return out
 
 
