@@ -94,6 +94,29 @@ def test_relations_do_not_apply_to_other_operator_kinds() -> None:
     assert Preservation()(pair(boxes([(10, 0)], [0.9]), Boxes3D.empty(), None)).applicable
 
 
+# -- hysteresis about the score threshold ----------------------------------------------------
+def test_a_score_wobbling_across_the_threshold_is_not_a_lost_or_a_new_object() -> None:
+    # min_score 0.5, score_margin 0.1: a source detection is checked from 0.6; a follow-up
+    # detection counts as found from 0.4; a new one counts as spurious from 0.6
+    src = boxes([(10, 0), (30, 4)], scores=[0.9, 0.55])  # the second is not clear: not checked
+    out = Preservation()(pair(src, boxes([(10, 0)], scores=[0.45])))  # 0.9 -> 0.45: found again
+    assert out.holds and out.checked == {"Car": 1}
+    assert out.stats["n_source"] == 2  # the count form still counts at the threshold itself
+    lost = Preservation()(pair(src, boxes([(10, 0)], scores=[0.35])))  # below 0.4: lost
+    assert [v.source_index for v in lost.violations] == [0]
+    assert not Preservation(score_margin=0.0)(pair(src, boxes([(10, 0)], scores=[0.9]))).holds  # 0.55 now checked
+    t = rotation(0.3)
+    follow = Boxes3D.concat([moved(src, t).select([0]), boxes([(5, 5), (-8, 3)], scores=[0.55, 0.65])])
+    out = Equivariance()(pair(src, follow, Relation.EQUIVARIANT, transform=t))
+    # (5, 5) at 0.55 is not clear: not spurious; (-8, 3) at 0.65 is; the source's 0.55 at (30, 4)
+    # moved and lost is not checked
+    assert [(v.kind, v.follow_index) for v in out.violations] == [("spurious", 2)]
+    # a follow-up detection that a source detection below the clear line accounts for is not new
+    follow = Boxes3D.concat([moved(src, t)])  # both moved, the second still at 0.55
+    assert Equivariance()(pair(src, Boxes3D.from_array(follow.as_array(), follow.labels, scores=[0.9, 0.65]),
+                                Relation.EQUIVARIANT, transform=t)).holds
+
+
 # -- equivariance -----------------------------------------------------------------------------
 def rotation(angle: float, shift: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)

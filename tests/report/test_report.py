@@ -37,7 +37,7 @@ PNG = "data:image/png;base64,"
 def campaign(tmp_path_factory: pytest.TempPathFactory) -> tuple[Store, int, Path]:
     root = tmp_path_factory.mktemp("report")
     data = root / "data"
-    generate_dataset(data, GenerationConfig(frames=4, seed=0, sensor="VLP-16"), workers=1, overwrite=True)
+    generate_dataset(data, GenerationConfig(frames=4, seed=0, sensor="HDL-64E"), workers=1, overwrite=True)
     store = Store(root / "ws")
     # a bug-zoo system (its ROI is not turned with the scene), so that the report has findings to show: the
     # correct pipeline raises none on these harmless mutants

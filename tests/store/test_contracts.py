@@ -134,7 +134,7 @@ def test_migration_0004_moves_what_older_versions_stored(tmp_path: Path) -> None
 def test_the_summary_schema_names_every_field_the_summary_has() -> None:
     schema = TaskSummary.model_json_schema(mode="serialization", by_alias=True)
     assert set(schema["properties"]) == {"task", "classes", "subtasks", "delta_ap", "ap_warnings", "robustness",
-                                         "violations", "findings", "run", "search", "kind_summary"}
+                                         "violations", "findings", "run", "search", "deeptest", "kind_summary"}
     assert "class" in schema["$defs"]["DeltaRow"]["properties"]
 
 

@@ -31,7 +31,7 @@ SHOWN_ON: dict[str, tuple[int, bool]] = {
     "classic-bug-dense-cell": (5, True),
     "classic-bug-yaw-wrap": (2, True),
     "classic-bug-roi-cache": (0, True),
-    "classic-bug-fixed-ground": (4, False),
+    "classic-bug-fixed-ground": (3, False),
     "classic-bug-sign-filter": (0, False),
     "classic-bug-forward-ground": (3, False),
 }

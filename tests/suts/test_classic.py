@@ -72,6 +72,25 @@ def test_clustering_separates_blobs_and_joins_close_points() -> None:
     assert split_clusters(grid_clusters(xyz[:, :2], 0.3), 150, 1000) == []
 
 
+def test_a_car_the_grid_cut_in_two_is_joined() -> None:
+    # a car 16-20 m ahead seen from behind: its bumper (a face 1.6 m wide, 0.3-0.85 m above the
+    # road) and its roof (1.6 x 1.5 m at 1.2-1.45 m), with 0.9 m of glass returning nothing
+    # between them: two 0.5 m-grid clusters, each a car on its own (the bumper by the low-car rule:
+    # 1.6 m long, 0.85 m high), whose completed boxes overlap. Together: 2.6 x 1.6 m, 1.45 m high,
+    # one car.
+    rng = np.random.default_rng(3)
+    road = np.c_[rng.uniform(0, 40, 6000), rng.uniform(-10, 10, 6000), np.full(6000, -1.7)]
+    bumper = np.c_[rng.uniform(16.0, 16.1, 200), rng.uniform(-0.8, 0.8, 200), rng.uniform(-1.4, -0.85, 200)]
+    roof = np.c_[rng.uniform(17.0, 18.6, 200), rng.uniform(-0.75, 0.75, 200), rng.uniform(-0.5, -0.25, 200)]
+    xyz = np.r_[road, bumper, roof]
+    scene = Scene(PointCloud(np.c_[xyz, np.full(len(xyz), 0.3)].astype(np.float32)))
+    joined = ClassicPipeline().detect(scene)
+    assert joined.labels.tolist() == ["Car"]
+    assert joined.centers[0, 1] == pytest.approx(0.0, abs=0.1)
+    assert 15.9 <= joined.centers[0, 0] - joined.as_array()[0, 3] / 2 <= 16.1  # starts at the bumper
+    assert ClassicPipeline(merge_iou=0).detect(scene).labels.tolist() == ["Car", "Car"]
+
+
 @pytest.mark.parametrize("yaw", [0.0, 0.4, 1.2, -0.7])
 def test_lshape_recovers_the_heading_and_size_of_two_visible_sides(yaw: float) -> None:
     # the two sides of a 4 × 1.8 m car facing a sensor at the origin, car centred at (15, 6)

@@ -8,6 +8,9 @@
   one; ``cls == ""`` is the frame-level row): violating / checked frames of each, the difference,
   the p-value of "A's rate is above B's" (:mod:`lidarfuzz.oracles.significance`: one-sided Fisher
   exact test, Holm-corrected over the rows tested, α = 0.05) and whether it is significant;
+* **objects lost** per operator × severity (relation ``objects_lost``): the labelled objects each
+  system found on the original and lost on the mutant, counted per object and tested the same
+  way. It assumes nothing harmless, so a degrading operator at any severity is compared too;
 * **disagreements**: each (mutant, relation) checked on both where one violates and the other
   does not, with the finding that replays it;
 * **breakdowns** of recall and AP by range band, class, object size and occlusion, for the
@@ -48,7 +51,7 @@ from pydantic import Field
 from sqlalchemy import select
 
 from lidarfuzz.campaign.lifecycle import get_task
-from lidarfuzz.campaign.plan import subtask_label
+from lidarfuzz.campaign.plan import ORIGINAL, subtask_label
 from lidarfuzz.oracles.kitti_eval import CLASSES, LOOSE_OVERLAPS, KittiEvalResult, KittiFrame, evaluate_kitti
 from lidarfuzz.oracles.matching import RANGE_BINS, ground_range, match_boxes, range_bin_labels
 from lidarfuzz.oracles.robustness import RelationRecord, violation_rates
@@ -306,10 +309,44 @@ def _rate_table(records: Sequence[RelationRecord]) -> dict[tuple[str, str, str],
     return table
 
 
+#: The differential row of every mutant subtask (see :func:`_lost_table`).
+OBJECTS_LOST = "objects_lost"
+
+
+def _lost_table(side: _Side, labels: dict[tuple[str, int], tuple[str, str, int]]) -> dict[tuple[str, str, str],
+                                                                                       tuple[int, int]]:
+    """(label, ``objects_lost``, "") → (objects lost, objects found): labelled objects each side found
+    on the original frame and lost on its mutant (:func:`~lidarfuzz.oracles.relations.detection.objects_lost`).
+    No harmlessness is assumed, so this row exists at every severity: a degrading mutation costs both
+    systems objects, and the test asks whether it costs A significantly more than B. Counted per
+    object, not per frame. Units where either run failed are left out (failures are findings of
+    their own)."""
+    from lidarfuzz.oracles.relations.detection import objects_lost
+
+    originals = side.units.get((ORIGINAL, 0), {})
+    table: dict[tuple[str, str, str], tuple[int, int]] = {}
+    for key, units in side.units.items():
+        if key[0] == ORIGINAL:
+            continue
+        lost = found = 0
+        for (frame_id, _trial), unit in units.items():
+            source = originals.get((frame_id, 0))
+            if source is None or source.failure is not None or unit.failure is not None:
+                continue
+            counts = objects_lost(source.ground_truth, source.detections, unit.ground_truth, unit.detections)
+            if counts is not None:
+                lost, found = lost + counts[0], found + counts[1]
+        if found:
+            table[(labels[key][0], OBJECTS_LOST, "")] = (lost, found)
+    return table
+
+
 def comparison_rows(a: _Side, b: _Side, labels: dict[tuple[str, int], tuple[str, str, int]], *,
                     alpha: float = ALPHA) -> list[ComparisonRow]:
-    """Every (label, relation, class) either side checked, with the Holm-corrected test."""
-    table_a, table_b = _rate_table(_records(a, labels)), _rate_table(_records(b, labels))
+    """Every (label, relation, class) either side checked, and every mutant subtask's objects lost
+    (:func:`_lost_table`), with the Holm-corrected test."""
+    table_a = _rate_table(_records(a, labels)) | _lost_table(a, labels)
+    table_b = _rate_table(_records(b, labels)) | _lost_table(b, labels)
     by_label = {label: (name, severity) for label, name, severity in labels.values()}
     order = {label: i for i, (label, _, _) in enumerate(labels.values())}
     keys = sorted(set(table_a) | set(table_b), key=lambda k: (order.get(k[0], len(order)), k[1], k[2]))

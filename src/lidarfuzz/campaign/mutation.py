@@ -1,13 +1,19 @@
 """The detection campaign (kind ``mutation``): every frame through each operator × severity.
 
 Order: the originals first (their outputs are the source side of every relation), then each
-operator × severity in the task's order. A result is one transaction: its frame result, its
-findings, the cache entry and the counters, so a kill at any instant leaves whole results and
-counters that agree with them (and :func:`~lidarfuzz.campaign.lifecycle.recount` re-derives the
-counters anyway on every start). Units are keyed by (subtask, frame, trial) under a unique
-constraint: a resumed task runs exactly the units that have no result, and nothing is counted
-twice. Units run on an :class:`~lidarfuzz.campaign.executor.Executor`; this process is the single
-writer.
+operator × severity in the task's order. When a subtask checks DeepTest's relation, every original
+runs before any mutant: its ``MSE_orig`` is over the whole original data set, so it is computed
+from the stored originals and passed in the relation's config (stored with each finding, so a
+replay judges by the same limit); each verdict is then final when it is stored. When a subtask
+completes, DeepTest's ε filter (Eq. 3) judges it as a whole, and the findings of a subtask it drops
+say that they are not counted as erroneous behaviours (the report's Table 7 does not count them).
+
+A result is one transaction: its frame result, its findings, the cache entry and the counters,
+so a kill at any instant leaves whole results and counters that agree with them (and
+:func:`~lidarfuzz.campaign.lifecycle.recount` re-derives the counters anyway on every start).
+Units are keyed by (subtask, frame, trial) under a unique constraint: a resumed task runs exactly
+the units that have no result, and nothing is counted twice. Units run on an
+:class:`~lidarfuzz.campaign.executor.Executor`; this process is the single writer.
 
 The hooks of :class:`~lidarfuzz.campaign.lifecycle.KindImplementation` are at the end; the
 lifecycle around them (status, heartbeat, cancel) is :mod:`lidarfuzz.campaign.lifecycle`.
@@ -16,13 +22,15 @@ lifecycle around them (status, heartbeat, cancel) is :mod:`lidarfuzz.campaign.li
 from __future__ import annotations
 
 import importlib
+import json
+import math
 import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import bindparam, insert, select, update
+from sqlalchemy import bindparam, insert, literal, select, update
 from sqlalchemy.exc import IntegrityError
 
 from lidarfuzz.campaign.executor import Executor, ProcessExecutor
@@ -78,6 +86,7 @@ class _Run:
         dialect_insert = importlib.import_module(f"sqlalchemy.dialects.{dialect}").insert
         self._cache_insert: Any = dialect_insert(SutOutput).on_conflict_do_nothing()  # a concurrent twin: fine
         self._dataset: Any = None
+        self._mse_orig: dict[str, float] = {}  # DeepTest's MSE_orig by relation spec (see _with_mse_orig)
 
     # -- units ------------------------------------------------------------------------
     def _finished_keys(self) -> set[tuple[int, str, int]]:
@@ -100,7 +109,8 @@ class _Run:
         for sub in subtasks:
             is_original = sub.name == ORIGINAL
             trials = 1 if is_original else self.trials
-            relations = tuple(sub.plan.relation_specs) if not is_original else ()
+            relations = tuple(self._with_mse_orig(spec) for spec in sub.plan.relation_specs) if not is_original \
+                else ()
             label = subtask_label(sub.name, sub.severity)
             for frame_id in block:
                 for trial in range(trials):
@@ -112,6 +122,37 @@ class _Run:
                     output, failed = sources.get(frame_id, (None, True))
                     yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
                                    relations, output, failed)
+
+    # -- DeepTest's MSE_orig ----------------------------------------------------------
+    @staticmethod
+    def _needs_mse_orig(spec: dict[str, Any]) -> bool:
+        return spec.get("name") == "deeptest_tolerance" and (spec.get("config") or {}).get("mse_orig") is None
+
+    def _compute_mse_orig(self, original: Subtask, subtasks: Iterable[Subtask]) -> None:
+        """DeepTest's MSE_orig of every ``deeptest_tolerance`` spec the subtasks check, from all the
+        stored originals (a frame the system failed on has no output and is left out)."""
+        from lidarfuzz.oracles.relations.detection import DeepTestTolerance
+
+        specs = {json.dumps(spec, sort_keys=True): spec for sub in subtasks for spec in sub.plan.relation_specs
+                 if self._needs_mse_orig(spec)}
+        if not specs:
+            return
+        with self.store.session() as s:
+            rows = s.execute(select(FrameResult.ground_truth, FrameResult.detections, FrameResult.failure).where(
+                FrameResult.subtask_id == original.id)).all()
+        frames = [(truth.boxes(), detections.boxes()) for truth, detections, failure in rows
+                  if failure is None and not detections.missing]
+        for key, spec in specs.items():
+            value, _ = DeepTestTolerance(**(spec.get("config") or {})).mse_orig_of(frames)
+            if math.isfinite(value):  # no object found on any original: the relation has nothing to scale
+                self._mse_orig[key] = value
+
+    def _with_mse_orig(self, spec: dict[str, Any]) -> dict[str, Any]:
+        """``spec`` with the data set's MSE_orig in its config, when it is DeepTest's and one is known."""
+        if not self._needs_mse_orig(spec):
+            return spec
+        value = self._mse_orig.get(json.dumps(spec, sort_keys=True))
+        return spec if value is None else {**spec, "config": {**(spec.get("config") or {}), "mse_orig": value}}
 
     # -- results ----------------------------------------------------------------------
     def _replay(self, result: UnitResult, relation: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -212,6 +253,15 @@ class _Run:
             operator = from_spec(row.operator) if row.operator else None
             row.results = evaluate_subtask(rows, self.calibration, operator=operator,
                                            unlabelled=self.task.options.unlabelled_frames)
+            deeptest = row.results.deeptest
+            if deeptest is not None and deeptest.mse_orig_from == "data set" and not deeptest.kept:
+                note = (f"not counted as an erroneous behaviour: DeepTest's ε filter drops this transformation "
+                        f"(|MSE_t − MSE_orig| = |{deeptest.mse:.3g} − {deeptest.mse_orig:.3g}| > ε = "
+                        f"{deeptest.configured_epsilon:g}); ")
+                s.execute(update(Finding).where(
+                    Finding.kind == "deeptest_tolerance",
+                    Finding.frame_result_id.in_(select(FrameResult.id).where(FrameResult.subtask_id == sub.id)),
+                ).values(message=literal(note) + Finding.message).execution_options(synchronize_session=False))
             row.status = Status.DONE
         self.stats.evaluate += time.perf_counter() - start
 
@@ -241,9 +291,15 @@ class _Run:
         subs = sorted(self.subtasks.values(), key=lambda x: (x.name != ORIGINAL, x.id))
         original = subs[0]
         done = self._finished_keys()
-        for start in range(0, len(self.frame_ids), BLOCK):
-            block = self.frame_ids[start:start + BLOCK]
-            self.consume(self.executor.run(self._units([original], done, {}, block)))
+        blocks = [self.frame_ids[start:start + BLOCK] for start in range(0, len(self.frame_ids), BLOCK)]
+        originals_first = any(self._needs_mse_orig(spec) for sub in subs[1:] for spec in sub.plan.relation_specs)
+        if originals_first:  # DeepTest's MSE_orig is over every original (see the module docstring)
+            for block in blocks:
+                self.consume(self.executor.run(self._units([original], done, {}, block)))
+            self._compute_mse_orig(original, subs[1:])
+        for block in blocks:
+            if not originals_first:
+                self.consume(self.executor.run(self._units([original], done, {}, block)))
             sources = self._sources(original)
             self.consume(self.executor.run(self._units(subs[1:], done, sources, block)))
         for sub in subs:

@@ -4,7 +4,8 @@
 truth — boxes move with their objects — and its violation counts); :func:`summarise` runs when
 the task completes and builds the one JSON-able structure every report reads: the thesis's AP
 table, ΔAP per operator × severity, Robo3D's RR (and CE against a baseline task), violation
-rates per relation, operator, severity and class, the count form of MR1, and the findings.
+rates per relation, operator, severity and class, the count form of MR1, DeepTest's Table 7
+(erroneous mutants per λ and ε, :func:`deeptest_table`), and the findings.
 
 Detections are evaluated as KITTI results are: boxes outside the camera's view are left out,
 since labels exist only there. A frame where the system failed counts as one with no
@@ -33,6 +34,9 @@ from lidarfuzz.store.contracts import (
     APExcluded,
     APRecord,
     DatasetRef,
+    DeepTestErrors,
+    DeepTestRow,
+    DeepTestTable,
     DeltaRow,
     FindingsSummary,
     ModelRef,
@@ -155,7 +159,45 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     out.count_form = rates(count_form_rates(records, by=("severity",)))
     if regions:
         out.regions = {name: len(ids) for name, ids in sorted(regions.items())}
+    out.deeptest = deeptest_errors(records)
     return out
+
+
+def deeptest_errors(records: Iterable[RelationRecord]) -> DeepTestErrors | None:
+    """DeepTest's figures of one subtask (its MSE, Eq. 3 at the relation's ε, erroneous mutants per
+    λ of :data:`~lidarfuzz.oracles.deeptest.LAMBDAS`); None when it has no ``deeptest_tolerance``
+    outcome with per-object errors."""
+    from lidarfuzz.oracles.deeptest import transformation_errors
+
+    found = transformation_errors((r.outcome.stats, r.outcome.holds) for r in records
+                                  if r.relation == "deeptest_tolerance" and r.outcome.applicable)
+    return None if found is None else DeepTestErrors.model_validate(found.to_dict())
+
+
+def deeptest_table(subtasks: Sequence[SubtaskSummary]) -> DeepTestTable | None:
+    """DeepTest's Table 7 over a task's subtasks (each one transformation); None without any."""
+    from lidarfuzz.oracles.deeptest import TransformationErrors, erroneous_table
+
+    entries = [e for e in subtasks if e.deeptest is not None]
+    if not entries:
+        return None
+    errors = []
+    for entry in entries:
+        d = entry.deeptest
+        assert d is not None
+        errors.append(TransformationErrors(d.mse_orig, d.mse_orig_from, d.mse, d.objects, d.mutants, d.violated,
+                                           tuple(d.lambdas), tuple(d.erroneous), d.configured_lambda,
+                                           d.configured_epsilon))
+    table = erroneous_table(errors)
+    rows = []
+    for entry, e in zip(entries, errors, strict=True):
+        rows.append(DeepTestRow(label=entry.label, operator=entry.operator, severity=entry.severity, mse=e.mse,
+                                difference=e.mse - e.mse_orig, objects=e.objects, mutants=e.mutants,
+                                violated=e.violated, kept=e.kept))
+    first = errors[0]
+    return DeepTestTable.model_validate({**table.to_dict(), "configured_lambda": first.configured_lambda,
+                                         "configured_epsilon": first.configured_epsilon,
+                                         "transformations": [r.dump() for r in rows]})
 
 
 def ap_result(record: APRecord | None) -> KittiEvalResult | None:
@@ -300,6 +342,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> Tas
                     done=task.done, total=task.total, baseline=baseline)
     return TaskSummary(task=info, classes=list(CLASSES), subtasks=subtasks, delta_ap=delta_rows,
                        ap_warnings=ap_warnings(subtasks), robustness=robustness, violations=violation,
+                       deeptest=deeptest_table(subtasks[1:]),
                        findings=FindingsSummary(total=sum(kinds.values()), by_kind=kinds, top=top),
                        run=task.summary.run if task.summary else None)
 
@@ -328,4 +371,5 @@ def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[
     return chosen
 
 
-__all__ = ["ap_result", "ap_warnings", "evaluate_subtask", "outcome_from_record", "summarise", "top_findings"]
+__all__ = ["ap_result", "ap_warnings", "deeptest_errors", "deeptest_table", "evaluate_subtask", "outcome_from_record",
+           "summarise", "top_findings"]

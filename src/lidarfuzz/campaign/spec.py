@@ -7,7 +7,7 @@ Example (``campaign.yaml``)::
     name: fog-vs-classic
     dataset: sim                # a registered data set, or a path
     sut: classic                # a registered model, or a SUT spec
-    operators:
+    operators:                  # or auto: the default set (lidarfuzz.campaign.defaults)
       - name: fog
         severities: [1, 3, 5]
       - name: rotate_z          # the thesis's names work too (RAR)
@@ -17,6 +17,7 @@ Example (``campaign.yaml``)::
     seed: 0
     frames: 50                  # the first 50 frames (all when left out)
     frame_order: first          # or random: 50 frames drawn with the seed (kept in data-set order)
+    reference: classic-v1       # optional: a system (or a list) run on the same mutants, compared in the report
 """
 
 from __future__ import annotations
@@ -99,7 +100,8 @@ class CampaignSpec(_Model):
     kind: str = Field(default=DEFAULT_KIND, description="; ".join(f"{k.name}: {k.help}" for k in TASK_KINDS))
     operators: list[OperatorChoice] = Field(
         default_factory=list, validate_default=True,
-        description="mutation: what to run; guided / fuzz: the operator pool (default pool if empty)")
+        description="mutation: what to run (auto: the default set, lidarfuzz.campaign.defaults); guided / fuzz: "
+                    "the operator pool (default pool if empty)")
     search: dict[str, Any] = Field(
         default_factory=dict, description="guided / fuzz: budget, criteria, guide, max_failed_tries, batch, ...")
     relations: Literal["auto"] | list[str | RelationChoice] = Field(
@@ -109,6 +111,23 @@ class CampaignSpec(_Model):
     frames: int | None = Field(default=None, ge=1, description="only N frames (see frame_order)")
     frame_order: Literal["first", "random"] = Field(
         default="first", description="with frames: the first N, or N drawn at random with the seed")
+    reference: list[str] = Field(
+        default_factory=list, description="differential testing: systems (registered model names or SUT specs) "
+                                          "each run as a task of its own on the same frames, operators and seed; "
+                                          "the report compares the system's violation rates and AP with theirs")
+
+    @field_validator("reference", mode="before")
+    @classmethod
+    def _one_or_more(cls, value: Any) -> Any:
+        return [value] if isinstance(value, str) else value
+
+    @field_validator("reference")
+    @classmethod
+    def _references(cls, value: list[str]) -> list[str]:
+        blank = [i for i, ref in enumerate(value) if not ref.strip()]
+        if blank:
+            raise ValueError(f"entry {blank[0]} is empty: name a registered model or a SUT spec")
+        return value
 
     @field_validator("kind")
     @classmethod
@@ -117,6 +136,15 @@ class CampaignSpec(_Model):
             return task_kind(value).name
         except ValueError as exc:
             raise ValueError(str(exc)) from None
+
+    @field_validator("operators", mode="before")
+    @classmethod
+    def _default_set(cls, value: Any) -> Any:
+        if value == "auto":
+            from lidarfuzz.campaign.defaults import default_operators
+
+            return default_operators()
+        return value
 
     @field_validator("operators")
     @classmethod

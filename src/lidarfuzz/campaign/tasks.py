@@ -124,7 +124,9 @@ def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
 def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None = None,
                 isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None,
                 dataset_options: DatasetOptions | None = None) -> int:
-    """Plan ``spec`` as a new pending task; returns its id.
+    """Plan ``spec`` as a new pending task; returns its id. A campaign naming ``reference``
+    systems also gets one pending task per reference (listed in the task's
+    ``options.references``; run them too, then the task's report compares).
 
     ``dataset_options`` (the CLI's ``--layout``, ``--allow-unlabelled``) register a data set given
     by path; ``allow_unlabelled`` also lets a registered one run with frames that have no labels.
@@ -139,28 +141,40 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         frame_ids = select_frames(opened.frame_ids(), spec.frames, spec.frame_order, spec.seed)
         allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
         unlabelled = unlabelled_frames(opened, frame_ids, allow, dataset.path)
-        kind = task_kind(spec.kind).implementation().plan(spec, model, frame_ids)
-        plans = [SubtaskPlan(ORIGINAL, None, len(frame_ids), 0, -1), *kind.subtasks]
-        keys = [operator_key(p.operator) for p in plans]
-        if len(set(keys)) != len(keys):
-            raise ConflictError("the campaign lists the same operator configuration twice")
-        relations = ["auto"] if spec.relations == "auto" else [
-            r if isinstance(r, str) else r.model_dump() for r in spec.relations]
-        # unlabelled frames: run through the SUT, left out of AP
         options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
-                              timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
-                              kind_options=kind.options)
-        task = Task(name=spec.name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed, options=options,
-                    operators=[c.model_dump(mode="json") for c in spec.operators], relations=relations)
-        s.add(task)
-        for plan, key in zip(plans, keys, strict=True):
-            task.subtasks.append(Subtask(operator_key=key, operator=plan.operator or {}, name=plan.name,
-                                         op_index=plan.op_index, severity=plan.severity, total=plan.units,
-                                         plan=SubtaskInputs(relation_specs=plan.relations,
-                                                             unchecked=plan.unchecked)))
-        task.total = sum(plan.units for plan in plans)
+                              timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled)
+        task = _add_task(s, spec, spec.name, dataset, model, options)
+        references = [_add_task(s, spec, f"{spec.name or 'campaign'}: reference {ref}", dataset,
+                                _model_row(s, ref, {}), options.model_copy(update={"reference_of": task.id}))
+                      for ref in spec.reference]
+        if references:
+            task.options = task.options.model_copy(update={"references": [r.id for r in references]})
         s.flush()
         return task.id
+
+
+def _add_task(s: Any, spec: CampaignSpec, name: str, dataset: Dataset, model: Model, options: TaskOptions) -> Task:
+    """One task of ``spec`` on ``model`` with its subtasks planned (a campaign with references adds
+    one per reference system: the same frames, operators and seed, so the same mutants)."""
+    kind = task_kind(spec.kind).implementation().plan(spec, model, options.frame_ids)
+    plans = [SubtaskPlan(ORIGINAL, None, len(options.frame_ids), 0, -1), *kind.subtasks]
+    keys = [operator_key(p.operator) for p in plans]
+    if len(set(keys)) != len(keys):
+        raise ConflictError("the campaign lists the same operator configuration twice")
+    relations = ["auto"] if spec.relations == "auto" else [
+        r if isinstance(r, str) else r.model_dump() for r in spec.relations]
+    # unlabelled frames: run through the SUT, left out of AP
+    task = Task(name=name, dataset_id=dataset.id, model_id=model.id, seed=spec.seed,
+                options=options.model_copy(update={"kind_options": kind.options}),
+                operators=[c.model_dump(mode="json") for c in spec.operators], relations=relations)
+    s.add(task)
+    for plan, key in zip(plans, keys, strict=True):
+        task.subtasks.append(Subtask(operator_key=key, operator=plan.operator or {}, name=plan.name,
+                                     op_index=plan.op_index, severity=plan.severity, total=plan.units,
+                                     plan=SubtaskInputs(relation_specs=plan.relations, unchecked=plan.unchecked)))
+    task.total = sum(plan.units for plan in plans)
+    s.flush()
+    return task
 
 
 def list_tasks(store: Store, limit: int | None = None, *, offset: int = 0,

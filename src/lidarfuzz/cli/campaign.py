@@ -24,6 +24,7 @@ from lidarfuzz.cli.common import (
     print_listing,
     print_table,
 )
+from lidarfuzz.cli.compare import print_comparisons
 from lidarfuzz.cli.reporting import print_summary, reports_dir, write_report
 from lidarfuzz.errors import LidarfuzzError
 
@@ -100,6 +101,8 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
         console.print(f"task {task_id} cancelled; what is done is stored (lidarfuzz resume {task_id} finishes it)")
         return 1
     print_summary(store, task_id)
+    if report:
+        print_comparisons(store, task_id)
     code = 0
     if report:
         code = write_report(store, task_id, reports_dir(workspace, task_id), gates or [])
@@ -111,7 +114,8 @@ def run(
     dataset: Annotated[str | None, typer.Option(help="Registered data set name, or a path.")] = None,
     sut: Annotated[str | None, typer.Option(help="Registered model name, or a SUT spec (lidarfuzz suts).")] = None,
     op: Annotated[list[str] | None, typer.Option(help="Operator, optionally with severities: fog@1,3,5 "
-                                                      "(repeatable; default severities 1,3,5).")] = None,
+                                                      "(repeatable; default severities 1,3,5), or auto: the "
+                                                      "default operator set.")] = None,
     relations: Annotated[str, typer.Option(help="auto, or comma-separated relation names.")] = "auto",
     seed: Annotated[int, typer.Option(help="Campaign seed (every mutant derives from it).")] = 0,
     trials: Annotated[int, typer.Option(min=1, help="Mutants per frame and severity.")] = 1,
@@ -144,16 +148,23 @@ def run(
     allow_unlabelled: Annotated[bool, typer.Option(help="Run a labelled data set whose frames are not all "
                                                          "labelled: every frame through the SUT and relations, AP "
                                                          "from the labelled ones.")] = False,
+    reference: Annotated[list[str] | None, typer.Option(
+        help="Differential testing: a reference system (registered model or SUT spec) run on the same mutants; "
+             "the report compares the two (repeatable).")] = None,
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
     """Create a campaign task and run it: originals and mutants through the SUT, AP, relations, report.
+
+    With a reference system (--reference, or reference: in the campaign file) each reference runs
+    as a task of its own on the same mutants first; the report then sets the system's violation
+    rates beside the reference's and flags those significantly above (lidarfuzz compare A B).
 
     With --kind guided or fuzz the task is a coverage-guided search on a learned SUT (e.g. pillars):
     generated tests, neuron coverage and deduplicated, minimised findings.
     """
     from lidarfuzz.campaign.kinds import find_kind
     from lidarfuzz.campaign.spec import load_campaign, parse_campaign
-    from lidarfuzz.campaign.tasks import create_task
+    from lidarfuzz.campaign.tasks import create_task, get_task
     from lidarfuzz.io.options import options_from_flags
     from lidarfuzz.operators.mutate import parse_assignments
 
@@ -161,6 +172,8 @@ def run(
         if dataset or sut or op:
             raise LidarfuzzError("give a campaign file or --dataset/--sut/--op, not both")
         spec = load_campaign(campaign)
+        if reference:
+            spec = spec.model_copy(update={"reference": [*spec.reference, *reference]})
     else:
         takes_ops = (row := find_kind(kind)) is not None and row.requires_operators
         needed = (("--dataset", dataset), ("--sut", sut)) + ((("--op", op),) if takes_ops else ())
@@ -178,17 +191,26 @@ def run(
         if guide is not None:
             search["guide"] = guide
         spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind,
-                               "operators": [parse_op(o) for o in op or []], "search": search,
+                               "operators": "auto" if op == ["auto"] else [parse_op(o) for o in op or []], "search": search,
                                "relations": chosen, "seed": seed, "trials": trials, "frames": frames,
-                               "frame_order": "random" if random_frames else "first"},
+                               "frame_order": "random" if random_frames else "first",
+                               "reference": reference or []},
                               "command line")
     store = open_store(workspace)
     task_id = create_task(store, spec, sut_options=parse_assignments(option or []), isolate=isolate,
                           timeout=timeout, save_mutants=str(save_mutants.resolve()) if save_mutants else None,
                           dataset_options=options_from_flags(layout, allow_unlabelled))
+    references = get_task(store, task_id).options.references
     if detach:
-        console.print(f"created task {task_id}; run it with: lidarfuzz resume {task_id}")
+        console.print(f"created task {task_id}; run it with: lidarfuzz resume {task_id}"
+                      + "".join(f"; its reference: lidarfuzz resume {ref}" for ref in references))
         return
+    for ref in references:  # first, so that the task's report compares with them
+        code = execute(workspace, ref, workers=workers, inline=inline, report=False)
+        if code:
+            console.print(f"the reference task {ref} did not finish: task {task_id} was not run "
+                          f"(lidarfuzz resume {ref}, then lidarfuzz resume {task_id})")
+            raise typer.Exit(code)
     raise typer.Exit(execute(workspace, task_id, workers=workers, inline=inline, gates=gate))
 
 def resume(

@@ -14,13 +14,11 @@ from typing import Annotated
 
 import typer
 
+from lidarfuzz.campaign.defaults import DEFAULT_OPERATORS, DEFAULT_SEVERITIES
 from lidarfuzz.cli.common import console
 from lidarfuzz.settings import settings
 
 DEFAULT_WORKSPACE = Path(settings().workspace)
-#: One operator per family, chosen to be quick and telling (lidarfuzz operators lists them all).
-DEMO_OPERATORS: tuple[str, ...] = ("gaussian_noise_addition", "uniform_point_deletion", "rotate_z",
-                                   "intensity_scaling", "fog", "beam_missing", "object_translate")
 
 
 def build_world(root: Path, frames: int, seed: int, *, sequence: bool = False) -> tuple[Path, bool]:
@@ -45,8 +43,8 @@ def demo(
 ) -> None:
     """Run the main job on the built-in data: the classic pipeline against every operator family.
 
-    Simulates the world (first run only), runs originals and mutants (7 operators × severities
-    1, 3, 5) through the classic pipeline, checks every applicable metamorphic relation,
+    Simulates the world (first run only), runs originals and mutants (the default operator set
+    × severities 1, 3, 5) through the classic pipeline, checks every applicable metamorphic relation,
     prints the AP table and the violation summary and writes the HTML report.
     """
     from sqlalchemy import select
@@ -71,9 +69,10 @@ def demo(
     if not have_model:
         add_model(store, "classic", "classic", notes="the classic Apollo-style obstacle pipeline")
     spec = parse_campaign({"name": "demo", "dataset": name, "sut": "classic", "seed": seed,
-                           "operators": [{"name": op, "severities": [1, 3, 5]} for op in DEMO_OPERATORS]})
+                           "operators": "auto"})
     task_id = create_task(store, spec)
-    console.rule(f"[bold]campaign: classic pipeline × {len(DEMO_OPERATORS)} operators × 3 severities")
+    console.rule(f"[bold]campaign: classic pipeline × the default set ({len(DEFAULT_OPERATORS)} operators) × "
+                 f"severities {', '.join(map(str, DEFAULT_SEVERITIES))}")
     code = execute(str(workspace), task_id, workers=workers, inline=False)
     console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
     console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "

@@ -100,6 +100,7 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
         rates.add_row(op, *[cell(by.get((relation, op))) for relation in relations])
     rates.add_row("all", *[cell(r) for r in data.violations.relation], style="bold")
     print_table(rates)
+    print_deeptest(data)
     kinds = data.findings.by_kind
     failures = {k: v for k, v in kinds.items() if k in ("crash", "timeout", "invalid_output")}
     tool: dict[str, int] = {}
@@ -113,6 +114,14 @@ def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> Non
         console.print(f"[yellow]lidarfuzz's own errors (not the system's): "
                       f"{', '.join(f'{k} {v}' for k, v in sorted(tool.items()))}[/]")
     print_search(store, task_id)
+
+
+def print_deeptest(data: Any) -> None:
+    """DeepTest's Table 7 of a task summary (nothing when no subtask checked ``deeptest_tolerance``)."""
+    from lidarfuzz.report.deeptest import deeptest_lines
+
+    for line in deeptest_lines(data.deeptest):
+        console.print(escape(line), highlight=False, soft_wrap=True)
 
 
 def print_search(store: Any, task_id: int) -> None:
@@ -159,8 +168,10 @@ def report(
     task: int,
     out: Annotated[Path | None, typer.Option(help="Folder for report.html, JSON, CSV and JUnit XML "
                                                   "(default: <workspace>/reports/task-ID).")] = None,
-    baseline: Annotated[int | None, typer.Option(help="A task of a baseline system on the same campaign "
-                                                      "(for Robo3D's corruption error, CE/mCE).")] = None,
+    baseline: Annotated[int | None, typer.Option(help="A task of a baseline system on the same campaign: "
+                                                      "compared with (violation rates with a significance test, "
+                                                      "disagreements, recall/AP by group; lidarfuzz compare) and "
+                                                      "for Robo3D's corruption error, CE/mCE.")] = None,
     gate: Annotated[list[str] | None, typer.Option(help="JUnit gate, e.g. ap_drop:3d:Car:fog@3>10 or "
                                                         "violations:preservation>0 (repeatable).")] = None,
     quiet: Annotated[bool, typer.Option(help="Do not print the tables.")] = False,
@@ -170,5 +181,8 @@ def report(
     store = open_store(workspace)
     if not quiet:
         print_summary(store, task)
+        from lidarfuzz.cli.compare import print_comparisons
+
+        print_comparisons(store, task, baseline)
     target = out or reports_dir(workspace, task)
     raise typer.Exit(write_report(store, task, target, gate or [], baseline))

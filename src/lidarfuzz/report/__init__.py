@@ -6,6 +6,8 @@
     report.json       the task summary's JSON form (TaskSummary.dump() of lidarfuzz.campaign.results.summarise)
     ap.csv, delta_ap.csv, violations.csv, findings.csv
     junit.xml         gates as test cases, for CI (grammar: lidarfuzz.report.gates)
+    comparison-B.json the comparison with task B (a baseline, or a reference task of the campaign;
+                      lidarfuzz.campaign.compare.TaskComparison), one per compared task
 
 Example:
     >>> from lidarfuzz.store import Store
@@ -20,6 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from lidarfuzz.report.comparison import comparisons_for
 from lidarfuzz.report.exports import finding_rows, junit_from_results, junit_xml, write_csvs, write_json
 from lidarfuzz.report.gates import Gate, GateError, GateResult, evaluate, parse_gate, parse_gates
 from lidarfuzz.report.html import render_html
@@ -40,6 +43,7 @@ class ReportFiles:
     junit: Path
     passed: bool
     results: tuple[GateResult, ...] = ()
+    comparisons: tuple[Path, ...] = ()
 
     @property
     def failed(self) -> tuple[GateResult, ...]:
@@ -57,7 +61,9 @@ def write_report(store: Store, task_id: int, out_dir: str | Path, *, baseline: i
         store: The campaign store.
         task_id: The task.
         out_dir: Where the files go.
-        baseline: A task of another system on the same campaign, for Robo3D's CE and mCE.
+        baseline: A task of another system on the same campaign, for Robo3D's CE and mCE, and
+            compared with (violation rates and their significance, disagreements, recall and AP
+            by group); without it, the reference tasks the task's campaign created are.
         gates: Rules (or parsed :class:`Gate`) for ``junit.xml``; none: the default set
             (see :mod:`lidarfuzz.report.exports`).
         images: How many findings get a bird's-eye picture (each takes about a second).
@@ -76,14 +82,21 @@ def write_report(store: Store, task_id: int, out_dir: str | Path, *, baseline: i
     results = evaluate(summary, parsed)
     top = [f.id for f in summary.findings.top]
     pictures = finding_images(store, top, limit=images)
+    comparisons, notes = comparisons_for(store, task_id, baseline)
+    compared = []
+    for comparison in comparisons:
+        path = out / f"comparison-{comparison.b.task}.json"
+        path.write_text(comparison.model_dump_json(by_alias=True, indent=2), encoding="utf-8")
+        compared.append(path)
     html = out / "report.html"
-    html.write_text(render_html(summary, images=pictures, image_limit=images), encoding="utf-8")
+    html.write_text(render_html(summary, images=pictures, image_limit=images, comparisons=comparisons,
+                                comparison_notes=notes), encoding="utf-8")
     report_json = write_json(summary, out / "report.json")
     csvs = write_csvs(summary, out, finding_rows(store, task_id))
     junit = out / "junit.xml"
     junit.write_text(junit_from_results(summary, results), encoding="utf-8")
     return ReportFiles(out, html, report_json, csvs["ap"], csvs["delta_ap"], csvs["violations"], csvs["findings"],
-                       junit, all(r.passed for r in results), tuple(results))
+                       junit, all(r.passed for r in results), tuple(results), tuple(compared))
 
 
 __all__ = ["Gate", "GateError", "GateResult", "ReportFiles", "junit_xml", "parse_gate", "render_html", "write_report"]

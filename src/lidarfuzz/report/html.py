@@ -22,8 +22,10 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from lidarfuzz.report.charts import ap_value, charts
+from lidarfuzz.report.deeptest import deeptest_view
 
 if TYPE_CHECKING:
+    from lidarfuzz.campaign.compare import TaskComparison
     from lidarfuzz.store.contracts import DeltaRow, RateRow, TaskSummary
 
 DIFFICULTIES = ("easy", "moderate", "hard")
@@ -307,9 +309,11 @@ def _findings(summary: TaskSummary, images: Mapping[int, bytes | str] | None) ->
 
 
 def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = None,
-            chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None) -> dict[str, Any]:
+            chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None,
+            comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = ()) -> dict[str, Any]:
     """Everything the template shows, formatted."""
     from lidarfuzz import __version__
+    from lidarfuzz.report.comparison import comparison_view
 
     task = summary.task
     drawn = charts(summary) if chart_pngs is None else chart_pngs
@@ -331,6 +335,7 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
         "charts": {name: data_uri(png) for name, png in drawn.items()},
         "robustness": _robustness(summary),
         "violations": _violations(summary),
+        "deeptest": deeptest_view(summary.deeptest),
         "failures": _failures(summary),
         "findings": _findings(summary, images),
         "findings_total": summary.findings.total,
@@ -338,6 +343,8 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
         "version": __version__,
         "generated": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "baseline": task.baseline,
+        "comparisons": [comparison_view(c) for c in comparisons],
+        "comparison_notes": list(comparison_notes),
     }
 
 
@@ -352,7 +359,8 @@ def _environment() -> Any:
 
 
 def render_html(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = None,
-                chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None) -> str:
+                chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None,
+                comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = ()) -> str:
     """The report of ``summary`` as one HTML document.
 
     Args:
@@ -361,9 +369,12 @@ def render_html(summary: TaskSummary, *, images: Mapping[int, bytes | str] | Non
             (:func:`lidarfuzz.report.bev.finding_images`).
         chart_pngs: Charts by name (``ap``, ``delta``, ``violations``); drawn here when None.
         image_limit: How many pictures were asked for (shown when findings have none).
+        comparisons: Comparisons with reference or baseline tasks (:mod:`lidarfuzz.report.comparison`).
+        comparison_notes: Why a comparison that was asked for could not be made.
     """
     template = _environment().get_template("report.html.j2")
-    return template.render(**context(summary, images=images, chart_pngs=chart_pngs, image_limit=image_limit))
+    return template.render(**context(summary, images=images, chart_pngs=chart_pngs, image_limit=image_limit,
+                                     comparisons=comparisons, comparison_notes=comparison_notes))
 
 
 __all__ = ["context", "fmt_ap", "fmt_delta", "fmt_pct", "render_html"]

@@ -176,6 +176,9 @@ class TaskOptions(Contract):
         save_mutants: Folder where mutants are written as a KITTI data set (None: not saved).
         unlabelled_frames: Frames without labels in a labelled data set (run, left out of AP).
         kind_options: The kind's own options, validated by its module (a search's config).
+        references: Tasks of reference systems a campaign created beside this one, on the same
+            frames, operators and seed (``reference:`` in the campaign; compared in its report).
+        reference_of: On such a reference task: the task it is the reference of.
     """
 
     kind: str = "mutation"
@@ -186,6 +189,8 @@ class TaskOptions(Contract):
     save_mutants: str | None = None
     unlabelled_frames: list[str] = Field(default_factory=list)
     kind_options: dict[str, Any] = Field(default_factory=dict)
+    references: list[int] = Field(default_factory=list)
+    reference_of: int | None = None
 
 
 class SubtaskInputs(Contract):
@@ -256,6 +261,23 @@ class SearchProgress(Contract):
     stats: dict[str, int] = Field(default_factory=dict)
 
 
+class DeepTestErrors(Contract):
+    """``deeptest_tolerance`` over one subtask's mutants (one transformation, DeepTest's Eq. 2 and 3;
+    :class:`lidarfuzz.oracles.deeptest.TransformationErrors`)."""
+
+    mse_orig: Number = math.nan
+    mse_orig_from: str = "data set"
+    mse: Number = math.nan
+    objects: int = 0
+    mutants: int = 0
+    violated: int = 0
+    lambdas: list[float] = Field(default_factory=list)
+    erroneous: list[int] = Field(default_factory=list)
+    configured_lambda: Number = math.nan
+    configured_epsilon: Number = math.nan
+    kept: bool = False
+
+
 class SubtaskResults(Contract):
     """A complete subtask's figures (:func:`lidarfuzz.campaign.results.evaluate_subtask`), and a
     search's progress while it runs. Empty while the subtask is incomplete."""
@@ -274,6 +296,7 @@ class SubtaskResults(Contract):
     count_form: list[RateRow] = Field(default_factory=list)
     regions: dict[str, int] | None = None
     search: SearchProgress | None = None
+    deeptest: DeepTestErrors | None = None
 
 
 # -- the task's summary ---------------------------------------------------------------------
@@ -355,6 +378,36 @@ class ViolationTables(Contract):
     relation_operator_class: list[RateRow] = Field(default_factory=list)
     relation_class_objects: list[RateRow] = Field(default_factory=list)
     count_form: list[RateRow] = Field(default_factory=list)
+
+
+class DeepTestRow(Contract):
+    """One transformation in DeepTest's table: its MSE, and whether Eq. 3 keeps it at the relation's ε."""
+
+    label: str
+    operator: str
+    severity: int = 0
+    mse: Number = math.nan
+    difference: Number = math.nan
+    objects: int = 0
+    mutants: int = 0
+    violated: int = 0
+    kept: bool = False
+
+
+class DeepTestTable(Contract):
+    """DeepTest's Table 7 for a task (:class:`lidarfuzz.oracles.deeptest.ErroneousTable`): mutants
+    erroneous at each λ (rows) over the transformations Eq. 3 keeps at each ε (columns), and with no
+    filter; with the data set's MSE_orig and the relation's own λ and ε."""
+
+    mse_orig: Number = math.nan
+    configured_lambda: Number = math.nan
+    configured_epsilon: Number = math.nan
+    lambdas: list[float] = Field(default_factory=list)
+    epsilons: list[float] = Field(default_factory=list)
+    counts: list[list[int]] = Field(default_factory=list)
+    unfiltered: list[int] = Field(default_factory=list)
+    transformations: list[DeepTestRow] = Field(default_factory=list)
+    notes: list[str] = Field(default_factory=list)
 
 
 class TopFinding(Contract):
@@ -444,6 +497,7 @@ class TaskSummary(Contract):
     findings: FindingsSummary = Field(default_factory=FindingsSummary)
     run: RunTimings | None = None
     search: SearchSummary | None = None
+    deeptest: DeepTestTable | None = None
     kind_summary: dict[str, Any] = Field(default_factory=dict)
     """What a task kind reports beyond the shared tables, as its own module's contract dumps it
     (a new kind adds its figures here without changing this contract)."""
@@ -454,7 +508,8 @@ def summary_schema() -> dict[str, Any]:
     return TaskSummary.model_json_schema(mode="serialization", by_alias=True)
 
 
-__all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeltaRow", "FailureRecord", "FindingReplay",
+__all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeepTestErrors", "DeepTestRow",
+           "DeepTestTable", "DeltaRow", "FailureRecord", "FindingReplay",
            "FindingsSummary", "ModelRef", "Number", "OperatorRobustnessRow", "OutcomeRecord", "RateRow",
            "RobustnessRecord", "RunTimings", "SearchProgress", "SearchSummary", "StatusName", "SubtaskInputs",
            "SubtaskResults", "SubtaskSummary", "TaskInfo", "TaskOptions", "TaskSummary", "TopFinding",

@@ -10,8 +10,9 @@
   ``max_score_drop``, its centre moving at most ``max_drift_m`` and its heading turning at
   most ``max_heading_change`` radians.
 * ``deeptest_tolerance`` — DeepTest's relaxed relation for regression outputs:
-  ``(ŷ_t − y)^2 <= λ · MSE_orig``; for boxes the regressed value is each ground-truth
-  object's centre, for scalar outputs (e.g. a steering angle) the sample's label.
+  ``(ŷ_t − y)^2 <= λ · MSE_orig`` with ``MSE_orig`` over the original data set; for boxes the
+  regressed value is each ground-truth object's centre, for scalar outputs (e.g. a steering
+  angle) the sample's label. Its ε filter and Table 7 are :mod:`lidarfuzz.oracles.deeptest`.
 * ``gt_recall`` — objects of the ground truth that the source detections found and the
   follow-up detections lost.
 
@@ -22,6 +23,7 @@ accepts any score, so that a drop is measured instead of declared a loss.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -48,6 +50,12 @@ class MatchConfig(EvidenceConfig):
     )
     method: Literal["hungarian", "greedy"] = Field(default="hungarian", description="optimal or greedy by score")
     min_score: float = Field(default=0.5, ge=0.0, description="a detection counts as detected from this score")
+    score_margin: float = Field(
+        default=0.1, ge=0.0,
+        description="hysteresis about min_score: only clear detections (score >= min_score + margin) are checked, "
+                    "and a follow-up detection scoring down to min_score - margin still counts as found, so a score "
+                    "wobbling across the threshold is not a lost or a new object",
+    )
     roi_only: bool = Field(default=True, description="check only objects inside the frame's drivable-area ROI")
     max_truncation: float | None = Field(
         default=None, ge=0.0, le=1.0,
@@ -81,6 +89,16 @@ def _not_truncated(sample: Any, boxes: Boxes3D, index: NDArray[np.int64], limit:
 def _detected(boxes: Boxes3D, min_score: float) -> NDArray[np.int64]:
     keep = ~(boxes.scores < min_score) & ~np.isin(np.char.lower(boxes.labels.astype(str)), list(IGNORED_LABELS))
     return np.flatnonzero(keep)
+
+
+def _clear(boxes: Boxes3D, cfg: MatchConfig) -> NDArray[np.int64]:
+    """Detections clearly above the threshold: the ones a relation holds the follow-up to."""
+    return _detected(boxes, cfg.min_score + cfg.score_margin)
+
+
+def _found(boxes: Boxes3D, cfg: MatchConfig) -> NDArray[np.int64]:
+    """Detections that count as finding an object again (the threshold less the margin)."""
+    return _detected(boxes, max(cfg.min_score - cfg.score_margin, 0.0))
 
 
 def _in_roi(sample: Any, boxes: Boxes3D, index: NDArray[np.int64], roi_only: bool) -> NDArray[np.int64]:
@@ -189,11 +207,14 @@ class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
 
     def check(self, pair: DetectionPair) -> RelationOutcome:
         cfg = self.config
-        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        # the count form counts every source object at the threshold, as the paper does
+        n_source = len(_not_truncated(pair.source, pair.source_output, _in_roi(
+            pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only),
+            cfg.max_truncation))
+        fol_roi = _in_roi(pair.follow, pair.follow_output, _detected(pair.follow_output, cfg.min_score), cfg.roi_only)
+        src_idx = _in_roi(pair.source, pair.source_output, _clear(pair.source_output, cfg), cfg.roi_only)
         src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
-        fol_idx = _detected(pair.follow_output, cfg.min_score)
-        fol_roi = _in_roi(pair.follow, pair.follow_output, fol_idx, cfg.roi_only)
-        n_source = len(src_idx)  # the count form counts every source object, as the paper does
+        fol_idx = _found(pair.follow_output, cfg)
         src = pair.source_output.select(src_idx)
         src_idx, src, evidence, skipped = _keep_evidence(pair, src, src, src_idx, cfg)
         follow = pair.follow_output.select(fol_idx)
@@ -209,6 +230,11 @@ class Preservation(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
             basis=basis(pair, cfg),
             skipped=skipped,
         )
+
+
+def _moved(boxes: Boxes3D, transform: NDArray[np.float64]) -> Boxes3D:
+    """``boxes`` carried by the operator's transform."""
+    return Boxes3D.from_array(transform_boxes(boxes.as_array(), transform), boxes.labels, scores=boxes.scores)
 
 
 class EquivarianceConfig(MatchConfig):
@@ -232,11 +258,11 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
     def check(self, pair: DetectionPair) -> RelationOutcome:
         cfg = self.config
         assert pair.transform is not None
-        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        src_idx = _in_roi(pair.source, pair.source_output, _clear(pair.source_output, cfg), cfg.roi_only)
         src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
-        fol_idx = _in_roi(pair.follow, pair.follow_output, _detected(pair.follow_output, cfg.min_score), cfg.roi_only)
+        fol_idx = _found(pair.follow_output, cfg)
         src = pair.source_output.select(src_idx)
-        moved = Boxes3D.from_array(transform_boxes(src.as_array(), pair.transform), src.labels, scores=src.scores)
+        moved = _moved(src, pair.transform)
         if cfg.max_truncation is not None:  # nor objects the move carries to the edge of the view
             keep = _view_share_outside(pair.follow, moved) <= cfg.max_truncation
             src_idx, src, moved = src_idx[keep], src.select(keep), moved.select(keep)
@@ -244,8 +270,6 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
                                                 pair.transform)
         evidence = [e for e, k in zip(evidence, keep.tolist(), strict=True) if k] if evidence else []
         follow = pair.follow_output.select(fol_idx)
-        # a follow-up box that an unchecked source object accounts for is not spurious
-        m_all = _match(moved, follow, cfg)
         src_idx, src, moved = src_idx[keep], src.select(keep), moved.select(keep)
         m = _match(moved, follow, cfg)
         violations = _missing(
@@ -260,7 +284,11 @@ class Equivariance(MetamorphicRelation[Any, Boxes3D, EquivarianceConfig]):
         )
         checked = Counter(_checked(src))
         if cfg.check_spurious:
-            m = Matching(m.pairs, m.iou, m.unmatched_a, m_all.unmatched_b)
+            # a clear follow-up detection in the ROI that no source detection (any that counts as
+            # found, checked or not) accounts for
+            fol_idx = _in_roi(pair.follow, pair.follow_output, _clear(pair.follow_output, cfg), cfg.roi_only)
+            follow = pair.follow_output.select(fol_idx)
+            m = _match(_moved(pair.source_output.select(_found(pair.source_output, cfg)), pair.transform), follow, cfg)
             if cfg.max_truncation is not None:
                 outside = _view_share_outside(pair.follow, follow.select(m.unmatched_b))
                 m = Matching(m.pairs, m.iou, m.unmatched_a, m.unmatched_b[outside <= cfg.max_truncation])
@@ -315,7 +343,7 @@ class Invariance(MetamorphicRelation[Any, Boxes3D, InvarianceConfig]):
 
     def check(self, pair: DetectionPair) -> RelationOutcome:
         cfg = self.config
-        src_idx = _in_roi(pair.source, pair.source_output, _detected(pair.source_output, cfg.min_score), cfg.roi_only)
+        src_idx = _in_roi(pair.source, pair.source_output, _clear(pair.source_output, cfg), cfg.roi_only)
         src_idx = _not_truncated(pair.source, pair.source_output, src_idx, cfg.max_truncation)
         fol_idx = _detected(pair.follow_output, 0.0)
         src = pair.source_output.select(src_idx)
@@ -383,14 +411,38 @@ def gt_correspondence(source_gt: Boxes3D, follow_gt: Boxes3D) -> NDArray[np.int6
     return None
 
 
-def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig) -> NDArray[np.int64]:
-    """For each ground-truth box, the detection (score >= min_score) matched to it, or -1."""
-    idx = _detected(dets, cfg.min_score)
+def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig, min_score: float | None = None) -> NDArray[np.int64]:
+    """For each ground-truth box, the detection (score >= ``min_score``, the config's by default)
+    matched to it, or -1."""
+    idx = _detected(dets, cfg.min_score if min_score is None else min_score)
     if len(idx) == 0:  # nothing detected: every object unmatched
         return np.full(len(gt), -1, dtype=np.int64)
     m = _match(dets.select(idx), gt, cfg)
     partner = m.partner_of_b(len(gt))
     return np.where(partner >= 0, idx[np.maximum(partner, 0)], -1)
+
+
+def objects_lost(source_gt: Boxes3D, source_output: Boxes3D, follow_gt: Boxes3D, follow_output: Boxes3D,
+                 cfg: MatchConfig | None = None) -> tuple[int, int] | None:
+    """(lost, found): labelled objects the source output found (score >= ``min_score``) and how
+    many of them the follow-up output lost, objects followed by track id. No harmlessness is
+    assumed: a differential comparison reads it on any mutant, beside a reference system's count
+    on the same mutant. None when the two ground truths cannot be paired up.
+
+        >>> gt = Boxes3D.create([[10, 0, -1], [20, 0, -1]], [[4, 2, 1.5]] * 2, [0, 0], ["Car"] * 2,
+        ...                     track_ids=[1, 2])
+        >>> objects_lost(gt, gt, gt, gt.select([0]))
+        (1, 2)
+    """
+    cfg = cfg or MatchConfig()
+    source_gt = source_gt.select(source_gt.has_geometry)
+    follow_gt = follow_gt.select(follow_gt.has_geometry)
+    corr = gt_correspondence(source_gt, follow_gt)
+    if corr is None:
+        return None
+    found = (_gt_matches(source_output, source_gt, cfg) >= 0) & (corr >= 0)
+    lost = found & (_gt_matches(follow_output, follow_gt, cfg)[np.maximum(corr, 0)] < 0) if len(follow_gt) else found
+    return int(np.count_nonzero(lost)), int(np.count_nonzero(found))
 
 
 class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
@@ -415,8 +467,8 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         src_gt, fol_gt = pair.source.boxes, pair.follow.boxes
         corr = gt_correspondence(src_gt, fol_gt)
         assert corr is not None
-        found_src = _gt_matches(pair.source_output, src_gt, cfg)
-        found_fol = _gt_matches(pair.follow_output, fol_gt, cfg)
+        found_src = _gt_matches(pair.source_output, src_gt, cfg, cfg.min_score + cfg.score_margin)
+        found_fol = _gt_matches(pair.follow_output, fol_gt, cfg, max(cfg.min_score - cfg.score_margin, 0.0))
         in_roi = _in_roi(pair.source, src_gt, np.arange(len(src_gt)), cfg.roi_only)
         in_roi = _not_truncated(pair.source, src_gt, in_roi, cfg.max_truncation, labelled=True)
         considered = np.zeros(len(src_gt), dtype=bool)
@@ -435,7 +487,7 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         lost = considered & (found_fol[np.maximum(corr, 0)] < 0)
         best = _best_iou(
             fol_gt.select(corr[lost]),
-            pair.follow_output.select(_detected(pair.follow_output, cfg.min_score)),
+            pair.follow_output.select(_found(pair.follow_output, cfg)),
             cfg.metric,
         )
         for k, g in enumerate(np.flatnonzero(lost).tolist()):
@@ -474,8 +526,20 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
 class DeepTestConfig(MatchConfig):
     lambda_: float = Field(default=5.0, gt=0.0, alias="lambda", description="λ: allowed multiple of MSE_orig")
     epsilon: float = Field(default=0.03, ge=0.0, description="ε: keep transformations with |MSE_t − MSE_orig| ≤ ε")
+    mse_orig: float | None = Field(
+        default=None, ge=0.0, description="MSE_orig of the original data set (a campaign sets it from its originals)"
+    )
 
     model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+
+
+def centre_squared_errors(truth: Boxes3D, output: Boxes3D, cfg: MatchConfig) -> NDArray[np.float64]:
+    """Squared centre error (m²) of each ground-truth object ``output`` found (matched as
+    :func:`deeptest_tolerance <DeepTestTolerance>` matches them); objects not found are left out."""
+    gt = truth.select(truth.has_geometry)
+    found = _gt_matches(output, gt, cfg)
+    ok = found >= 0
+    return np.sum((output.centers[found[ok]] - gt.centers[ok]) ** 2, axis=1).astype(np.float64)
 
 
 def _regression(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -498,13 +562,17 @@ def _regression(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.
 
 
 class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
-    """DeepTest's relaxed relation: the follow-up's squared error is within λ times the original MSE.
+    """DeepTest's relaxed relation (Eq. 2): the follow-up's squared error is within λ times MSE_orig.
 
-    ``MSE_orig`` is the mean squared error of the system on the original data set; pass it
-    as ``pair.reference["mse_orig"]`` (a campaign computes it from the originals). Without
-    it, the source sample's own error stands in. DeepTest's ε filter — count violations only
-    for transformations whose MSE stays within ε of ``MSE_orig`` — applies across a whole
-    transformation and is :meth:`keeps_transformation`.
+    ``MSE_orig`` is the mean squared error of the system on the original data set (for boxes:
+    over every ground-truth object the originals' detections matched, :meth:`mse_orig_of`). A
+    campaign computes it from its originals before any mutant is checked and passes it as the
+    config's ``mse_orig`` (so a finding replays with the same limit); ``pair.reference["mse_orig"]``
+    overrides it. Without either, the source sample's own error stands in, and the outcome says so
+    (``stats["mse_orig_from"] == "frame"``). DeepTest's ε filter (Eq. 3) — count violations only
+    for transformations whose MSE stays within ε of ``MSE_orig`` — judges a whole transformation,
+    so it is applied when a subtask is summarised (:meth:`keeps_transformation`,
+    :mod:`lidarfuzz.oracles.deeptest`); ``stats`` keep each object's squared error for it.
     """
 
     name: ClassVar[str] = "deeptest_tolerance"
@@ -522,9 +590,11 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
         src_sq = np.sum((src_pred - src_y) ** 2, axis=1)
         fol_sq = np.sum((fol_pred - fol_y) ** 2, axis=1)
         if "mse_orig" in pair.reference:
-            mse_orig = float(pair.reference["mse_orig"])
+            mse_orig, origin = float(pair.reference["mse_orig"]), "data set"
+        elif cfg.mse_orig is not None:
+            mse_orig, origin = float(cfg.mse_orig), "data set"
         else:
-            mse_orig = float(src_sq.mean()) if src_sq.size else float("nan")
+            mse_orig, origin = (float(src_sq.mean()) if src_sq.size else float("nan")), "frame"
         limit = cfg.lambda_ * mse_orig
         violations = []
         if np.isfinite(limit):
@@ -536,7 +606,9 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
                         magnitude=float(fol_sq[k]),
                         measure="squared error",
                         gt_index=k,
-                        message=f"squared error {fol_sq[k]:.3g} exceeds λ·MSE_orig = {limit:.3g}",
+                        message=f"squared error {fol_sq[k]:.3g} exceeds λ·MSE_orig = {cfg.lambda_:g} × "
+                        f"{mse_orig:.3g} = {limit:.3g}" + (" (MSE_orig of this frame alone)" if origin == "frame"
+                                                           else ""),
                     )
                 )
         return RelationOutcome(
@@ -546,10 +618,32 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
             checked={"": int(fol_sq.size)},
             stats={
                 "mse_orig": mse_orig,
+                "mse_orig_from": origin,
+                "lambda": cfg.lambda_,
+                "epsilon": cfg.epsilon,
                 "sum_squared_error": float(fol_sq.sum()),
                 "n": int(fol_sq.size),
+                "squared_errors": [float(e) for e in fol_sq],
+                "source_squared_errors": [float(e) for e in src_sq],
             },
         )
+
+    def mse_orig_of(self, frames: Iterable[tuple[Boxes3D, Boxes3D]]) -> tuple[float, int]:
+        """MSE_orig over a data set's originals, given as (ground truth, the system's output) per
+        frame: the mean squared centre error over every object found, and how many there were
+        (NaN, 0 when none was found).
+
+        Example:
+            >>> gt = Boxes3D.create([[10.0, 0, 0], [20.0, 0, 0]], [[4, 2, 1.5]] * 2, [0.0, 0.0], ["Car"] * 2)
+            >>> out = Boxes3D.create([[10.1, 0, 0], [20.3, 0, 0]], [[4, 2, 1.5]] * 2, [0.0, 0.0], ["Car"] * 2,
+            ...                      scores=[0.9, 0.9])
+            >>> mse, n = DeepTestTolerance().mse_orig_of([(gt, out)])
+            >>> round(mse, 3), n  # (0.01 + 0.09) / 2
+            (0.05, 2)
+        """
+        errors = [centre_squared_errors(truth, output, self.config) for truth, output in frames]
+        every = np.concatenate(errors) if errors else np.zeros(0)
+        return (float(every.mean()), int(every.size)) if every.size else (float("nan"), 0)
 
     def keeps_transformation(self, mse_transformation: float, mse_orig: float) -> bool:
         """DeepTest's Equation 3: ``|MSE_(trans, param) − MSE_orig| <= ε``."""

@@ -40,5 +40,12 @@ class ClassicConfig(BaseModel):
     box: Literal["lshape", "min_area"] = Field(default="lshape", description="MinBox method")
     angle_step_deg: float = Field(default=1.0, gt=0.0, le=15.0, description="heading search step")
     complete_to_prior: bool = Field(default=True, description="grow partly seen boxes to the class's typical size")
+    merge_iou: float = Field(
+        default=0.2, ge=0.0, le=1.0,
+        description="two boxes of one class overlapping this much (BEV IoU) are one object cut in two, joined when "
+                    "their points together still fit the class (0 = never)")
     # classification and score
     min_score: float = Field(default=0.05, ge=0.0, le=1.0, description="objects scoring lower are not reported")
+    report_unknown: bool = Field(
+        default=False, description="also report clusters no class rule fits, as Unknown (Apollo's obstacle "
+                                   "perception reports them; off: they are dropped)")

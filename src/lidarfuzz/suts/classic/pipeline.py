@@ -22,8 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lidarfuzz.scene.boxes import Boxes3D
+from lidarfuzz.scene.geometry import iou_bev
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.suts.base import SystemUnderTest
+from lidarfuzz.suts.base import SystemUnderTest, validate_detections
 from lidarfuzz.suts.classic.boxes import Footprint, box_from_footprint, end_on, fit_footprint, long_axis_first
 from lidarfuzz.suts.classic.classify import PRIORS, Measurement, classify
 from lidarfuzz.suts.classic.cluster import euclidean_clusters, grid_clusters, split_clusters
@@ -58,6 +59,13 @@ class ClassicPipeline(SystemUnderTest[Scene, Boxes3D]):
 
     def config(self) -> dict[str, Any]:
         return self.settings.model_dump(mode="json")
+
+    def validate(self, output: Boxes3D) -> str | None:
+        """Outputs of the declared classes, and ``Unknown`` as well with ``report_unknown``."""
+        classes = self.classes
+        if self.settings.report_unknown and classes is not None:
+            classes = (*classes, "Unknown")
+        return validate_detections(output, classes)
 
     # -- stages ---------------------------------------------------------------------------
     def points_xyzi(self, scene: Scene) -> NDArray[np.float32]:
@@ -104,7 +112,7 @@ class ClassicPipeline(SystemUnderTest[Scene, Boxes3D]):
 
     def merged(self, m: Measurement) -> bool:
         """A footprint too wide or long for any class, but not a building: worth splitting."""
-        return self.settings.split_cell > 0 and (m.width > 2.4 or m.length > 5.8) and m.length < 25.0
+        return self.settings.split_cell > 0 and (m.width > 2.4 or m.length > 5.8 or m.height > 2.0) and m.length < 25.0
 
     def classify(self, m: Measurement, points: NDArray[np.float32]) -> tuple[str, float]:
         return classify(m)
@@ -123,6 +131,42 @@ class ClassicPipeline(SystemUnderTest[Scene, Boxes3D]):
     def score(self, m: Measurement, margin: float) -> float:
         """More points and a squarer fit to the class rule: more confidence (in [0, 1])."""
         return float(np.clip((1.0 - np.exp(-m.points / 30.0)) * (0.6 + 0.4 * np.clip(margin, 0.0, 1.0)), 0.0, 1.0))
+
+    def merge_fragments(self, points: NDArray[np.float32], height: NDArray[np.float64],
+                        rows: list[NDArray[np.float64]], labels: list[str], scores: list[float],
+                        members: list[NDArray[np.int64]]) -> None:
+        """Join an object the grid cut in two (a car's bumper and its roof, with the glass between
+        them returning nothing): two boxes of one class overlapping by ``merge_iou`` in bird's-eye
+        view become one when their points together still fit that class. In place."""
+        threshold = self.settings.merge_iou
+        if threshold <= 0 or len(rows) < 2:
+            return
+        refused: set[tuple[int, int]] = set()  # pairs (by member size and first index) that do not fit
+        while True:
+            iou = iou_bev(np.array(rows), np.array(rows))
+            np.fill_diagonal(iou, 0.0)
+            same = np.array(labels)[:, None] == np.array(labels)[None, :]
+            order = np.argsort(-(iou * same), axis=None)
+            for flat in order:
+                i, j = divmod(int(flat), len(rows))
+                if iou[i, j] * same[i, j] < threshold:
+                    return
+                key = (int(members[i][0]), int(members[j][0]))
+                if i >= j or key in refused:
+                    continue
+                index = np.concatenate([members[i], members[j]])
+                m, fp = self.measure(points[index], height[index])
+                cls, margin = self.classify(m, points[index])
+                if cls != labels[i]:
+                    refused.add(key)
+                    continue
+                rows[i] = self.build_box(points[index], height[index], cls, m, fp)
+                scores[i], members[i] = self.score(m, margin), index
+                for bucket in (rows, labels, scores, members):
+                    del bucket[j]
+                break
+            else:
+                return
 
     # -- the whole -----------------------------------------------------------------------
     def detect(self, sample: Scene) -> Boxes3D:
@@ -143,6 +187,7 @@ class ClassicPipeline(SystemUnderTest[Scene, Boxes3D]):
         rows: list[NDArray[np.float64]] = []
         labels: list[str] = []
         scores: list[float] = []
+        members: list[NDArray[np.int64]] = []
         queue = [(index, True) for index in clusters]
         while queue:
             index, may_split = queue.pop(0)
@@ -156,13 +201,17 @@ class ClassicPipeline(SystemUnderTest[Scene, Boxes3D]):
                                            cfg.max_points)
                     if len(parts) > 1:
                         queue.extend((index[part], False) for part in parts)
-                continue
+                        continue
+                if not cfg.report_unknown:
+                    continue
             score = self.score(m, margin)
             if score < cfg.min_score:
                 continue
             rows.append(self.build_box(cluster_points, cluster_height, cls, m, fp))
             labels.append(cls)
             scores.append(score)
+            members.append(index)
+        self.merge_fragments(points, height, rows, labels, scores, members)
         times.add("boxes", t)
         if not rows:
             return Boxes3D.empty()

@@ -159,8 +159,12 @@ def _check_references(ctx: WebContext, spec: Any) -> None:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"request body: field 'dataset': no data set named {spec.dataset!r} "
                             f"(GET /api/datasets lists them; upload or generate one first)")
-    if spec.sut not in {m.name for m in list_models(ctx.store)}:
+    models = {m.name for m in list_models(ctx.store)}
+    if spec.sut not in models:
         check_model_spec(spec.sut, ctx.uploads, field="sut")
+    for index, reference in enumerate(spec.reference):  # reference systems pass the same check
+        if reference not in models:
+            check_model_spec(reference, ctx.uploads, field=f"reference.{index}")
 
 
 @router.post("/tasks", status_code=status.HTTP_201_CREATED)
@@ -170,6 +174,8 @@ async def tasks_create(ctx: Web, body: Annotated[dict[str, Any], Body(examples=[
     spec = parse_campaign(body, "request body")
     _check_references(ctx, spec)
     task_id = await run_in_threadpool(create_task, ctx.store, spec)
+    for reference in get_task(ctx.store, task_id).options.references:  # a campaign's reference systems
+        ctx.workers.submit(reference)
     ctx.workers.submit(task_id)
     return {"id": task_id, "status": Status.PENDING.value}
 
