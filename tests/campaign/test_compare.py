@@ -59,7 +59,7 @@ def test_the_variant_is_significantly_above_classic_under_rotate_z_only(store: S
     frame_level = next(r for r in result.rows if r.label == "rotate_z@3" and r.relation == "equivariance"
                        and r.cls == "")
     # 3 frames x 2 trials: the variant breaks equivariance on every rotated frame, classic on none;
-    # alone p = 1 / C(12, 6) = 1/924 (the only table as extreme), Holm multiplies by at most the rows
+    # alone p = 1 / C(12, 6) = 1/924 (the only table as extreme), the correction multiplies by at most the rows
     assert (frame_level.violated_a, frame_level.checked_a, frame_level.violated_b, frame_level.checked_b) == (
         6, 6, 0, 6)
     assert frame_level.p_value == pytest.approx(1 / 924)

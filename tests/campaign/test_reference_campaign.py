@@ -59,7 +59,7 @@ def test_the_campaign_links_its_reference_task(store: Store) -> None:
 def test_the_report_sets_the_reference_beside_the_system(store: Store, tmp_path: Path) -> None:
     files = write_report(store, 1, tmp_path / "report", images=0)
     html = files.html.read_text(encoding="utf-8")
-    assert 'id="comparison-2"' in html and "one-sided Fisher exact test" in html and "Holm" in html
+    assert 'id="comparison-2"' in html and "one-sided Fisher exact test" in html and "Tarone" in html
     saved = json.loads((tmp_path / "report" / "comparison-2.json").read_text(encoding="utf-8"))
     assert files.comparisons == (tmp_path / "report" / "comparison-2.json",)
     # equivariance under rotate_z: 6/6 against 0/6, any class and Car

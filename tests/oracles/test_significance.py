@@ -13,7 +13,7 @@ from math import comb
 
 import pytest
 
-from lidarfuzz.oracles.significance import ALPHA, compare_many, compare_rates, holm
+from lidarfuzz.oracles.significance import ALPHA, compare_many, compare_rates, holm, smallest_p, tarone_family
 
 
 def test_nine_of_twenty_against_one_of_twenty_is_significant() -> None:
@@ -52,13 +52,26 @@ def test_holm_multiplies_by_the_rank_and_keeps_order() -> None:
     assert adjusted[:3] == pytest.approx([0.03, 0.06, 0.06]) and math.isnan(adjusted[3])
 
 
-def test_a_row_significant_alone_may_not_be_among_many() -> None:
-    # 9/20 vs 1/20 alone: p = 0.00418 < 0.05; with 19 untested-looking (p = 1) rows beside it,
-    # Holm multiplies it by 20: 0.0836 >= 0.05
+def test_rows_that_could_never_be_significant_do_not_dilute_the_others() -> None:
+    # 9/20 vs 1/20 alone: p = 0.00418 < 0.05. Beside it, 19 rows of 0/20 vs 0/20 can reach no
+    # p below 1 (Tarone's untestable rows): k = 1 (one row can reach 0.05 / 1), so it stays
+    # significant; Bonferroni or Holm over all 20 would give 20 x 0.00418 = 0.0836
     rows = compare_many([(9, 20, 1, 20)] + [(0, 20, 0, 20)] * 19)
     assert rows[0].p_value == pytest.approx(0.0041809, abs=1e-7)
-    assert rows[0].p_adjusted == pytest.approx(20 * rows[0].p_value)
-    assert not rows[0].significant
+    assert rows[0].p_adjusted == pytest.approx(rows[0].p_value) and rows[0].significant
+    # 20 rows that each could reach p = 1/C(40,20) < 0.05/20 (10 violations on 20 + 20 checks):
+    # k = 20, and 9/20 vs 1/20 needs 20 x 0.00418 = 0.0836: no longer significant
+    crowded = compare_many([(9, 20, 1, 20)] + [(5, 20, 5, 20)] * 19)
+    assert crowded[0].p_adjusted == pytest.approx(20 * crowded[0].p_value) and not crowded[0].significant
+
+
+def test_the_smallest_p_the_margins_allow() -> None:
+    assert smallest_p(0, 12, 0, 12) == 1.0
+    # 7 violations on two sides of 12, all on A's: C(12, 7) / C(24, 7) = 792 / 346104
+    assert smallest_p(3, 12, 4, 12) == pytest.approx(792 / 346104)
+    # Tarone's k: the smallest k with at most k rows reaching 0.05 / k
+    assert tarone_family([1.0] * 10 + [0.001]) == 1
+    assert tarone_family([0.001, 0.001, 0.001, 0.02]) == 3  # k=1: 4 rows reach 0.05; k=2: 4 reach 0.025; k=3: 3 reach 0.0167
 
 
 def test_counts_out_of_range_are_refused() -> None:

@@ -7,7 +7,7 @@
 * **violation rates** per operator × severity × relation (and class, where the violations carry
   one; ``cls == ""`` is the frame-level row): violating / checked frames of each, the difference,
   the p-value of "A's rate is above B's" (:mod:`lidarfuzz.oracles.significance`: one-sided Fisher
-  exact test, Holm-corrected over the rows tested, α = 0.05) and whether it is significant;
+  exact test, corrected by Tarone's Bonferroni over the rows that could be significant, α = 0.05) and whether it is significant;
 * **objects lost** per operator × severity (relation ``objects_lost``): the labelled objects each
   system found on the original and lost on the mutant, counted per object and tested the same
   way. It assumes nothing harmless, so a degrading operator at any severity is compared too;
@@ -344,7 +344,7 @@ def _lost_table(side: _Side, labels: dict[tuple[str, int], tuple[str, str, int]]
 def comparison_rows(a: _Side, b: _Side, labels: dict[tuple[str, int], tuple[str, str, int]], *,
                     alpha: float = ALPHA) -> list[ComparisonRow]:
     """Every (label, relation, class) either side checked, and every mutant subtask's objects lost
-    (:func:`_lost_table`), with the Holm-corrected test."""
+    (:func:`_lost_table`), with the corrected test."""
     table_a = _rate_table(_records(a, labels)) | _lost_table(a, labels)
     table_b = _rate_table(_records(b, labels)) | _lost_table(b, labels)
     by_label = {label: (name, severity) for label, name, severity in labels.values()}

@@ -38,10 +38,11 @@ def print_comparison(result: "TaskComparison", *, show_all: bool = False) -> Non
     console.print(f"A = task {a.task} ({escape(a.model)}), B = task {b.task} ({escape(b.model)}): "
                   f"{escape(result.dataset)}, {result.frames} frame(s), {result.trials} trial(s), seed {result.seed}")
     rows = result.rows if show_all else [r for r in result.rows if r.violated_a or r.violated_b]
-    table = Table(title=f"violating / checked frames; {result.test}, {result.correction}, α = {result.alpha:g}")
+    table = Table(title=f"violating / checked frames (objects_lost: objects lost / found on the original); "
+                        f"{result.test}, {result.correction}, α = {result.alpha:g}")
     for header in ("subtask", "relation", "class"):
         table.add_column(header, no_wrap=True)
-    for header in ("A", "B", "A − B", "p", "p (Holm)", "A > B"):
+    for header in ("A", "B", "A − B", "p", "p (corr.)", "A > B"):
         table.add_column(header, justify="right")
     for r in rows:
         diff = "–" if r.difference != r.difference else f"{100 * r.difference:+.0f} pt"

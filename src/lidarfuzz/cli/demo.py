@@ -14,7 +14,6 @@ from typing import Annotated
 
 import typer
 
-from lidarfuzz.campaign.defaults import DEFAULT_OPERATORS, DEFAULT_SEVERITIES
 from lidarfuzz.cli.common import console
 from lidarfuzz.settings import settings
 
@@ -49,6 +48,7 @@ def demo(
     """
     from sqlalchemy import select
 
+    from lidarfuzz.campaign.defaults import DEFAULT_OPERATORS, DEFAULT_SEVERITIES
     from lidarfuzz.campaign.spec import parse_campaign
     from lidarfuzz.campaign.tasks import create_task
     from lidarfuzz.cli.campaign import execute

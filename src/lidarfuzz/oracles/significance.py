@@ -9,8 +9,13 @@ is not), and never significant when A's rate is not above B's. The threshold is
 :data:`ALPHA` = 0.05.
 
 A comparison tests many rows at once (operator × severity × relation × class), so
-:func:`compare_many` controls the family-wise error with **Holm's step-down correction** over
-the rows that were tested: a row is significant when its Holm-adjusted p-value is below α.
+:func:`compare_many` controls the family-wise error with **Tarone's modified Bonferroni
+correction** (Tarone 1990, for discrete tests): a row whose counts could not give a small
+p-value whatever their split between A and B (no violation on either side, or one) cannot be
+significant, so it does not count in the family. With ``k`` the smallest number such that at most
+``k`` rows could reach ``α / k``, a row is significant when ``k × p < α``. A campaign's many rows
+where neither system violates anything then cost a real finding nothing, where plain Bonferroni
+or Holm over every row would drown it. :func:`holm` is kept for callers that want it.
 
 Example:
     >>> row = compare_rates(9, 20, 1, 20)
@@ -31,7 +36,7 @@ ALPHA = 0.05
 #: The test, as reports name it.
 TEST_NAME = "one-sided Fisher exact test (A's rate > B's)"
 #: The multiple-comparison correction over a comparison's rows, as reports name it.
-CORRECTION_NAME = "Holm step-down over the rows tested"
+CORRECTION_NAME = "Tarone's Bonferroni over the rows that could be significant"
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ class RateComparison:
         violated_a, checked_a: A's violating and checked frames.
         violated_b, checked_b: B's.
         p_value: The one-sided Fisher exact p-value (NaN when either side checked nothing).
-        p_adjusted: After Holm's correction over a family of rows (``p_value`` when alone).
+        p_adjusted: After Tarone's correction over a family of rows (``p_value`` when alone).
         alpha: The threshold.
         significant: ``p_adjusted < alpha``.
     """
@@ -117,12 +122,32 @@ def holm(p_values: Sequence[float]) -> list[float]:
     return out
 
 
+def smallest_p(violated_a: int, checked_a: int, violated_b: int, checked_b: int) -> float:
+    """The smallest one-sided p-value these margins allow: every violation on A's side (NaN when a
+    side checked nothing). 0 of 12 against 0 of 12 can reach no less than 1; 7 violations among
+    two sides of 12 no less than C(12, 7) / C(24, 7) = 0.0023."""
+    total = violated_a + violated_b
+    most = min(total, checked_a)
+    return fisher_greater(most, checked_a, total - most, checked_b) if total - most <= checked_b else math.nan
+
+
+def tarone_family(smallest: Sequence[float], alpha: float = ALPHA) -> int:
+    """Tarone's ``k``: the smallest number of rows such that at most ``k`` of them can reach ``α / k``
+    (NaN rows never can). At least 1."""
+    reachable = sorted(p for p in smallest if not math.isnan(p))
+    for k in range(1, len(reachable) + 1):
+        if sum(p <= alpha / k for p in reachable) <= k:
+            return k
+    return max(len(reachable), 1)
+
+
 def compare_many(counts: Sequence[tuple[int, int, int, int]], *, alpha: float = ALPHA) -> list[RateComparison]:
-    """Rows of ``(violated_a, checked_a, violated_b, checked_b)``, Holm-corrected together."""
+    """Rows of ``(violated_a, checked_a, violated_b, checked_b)``, corrected together by Tarone's
+    modified Bonferroni: ``p_adjusted = min(1, k p)`` with ``k`` from :func:`tarone_family`."""
     rows = [compare_rates(*c, alpha=alpha) for c in counts]
-    adjusted = holm([r.p_value for r in rows])
-    return [replace(r, p_adjusted=p) for r, p in zip(rows, adjusted, strict=True)]
+    k = tarone_family([smallest_p(*c) for c in counts], alpha)
+    return [replace(r, p_adjusted=r.p_value if math.isnan(r.p_value) else min(1.0, k * r.p_value)) for r in rows]
 
 
 __all__ = ["ALPHA", "CORRECTION_NAME", "TEST_NAME", "RateComparison", "compare_many", "compare_rates",
-           "fisher_greater", "holm"]
+           "fisher_greater", "holm", "smallest_p", "tarone_family"]
