@@ -140,6 +140,10 @@ def rq1(args: argparse.Namespace) -> None:
             cars = (labels == "Car").mean()
             groups["Car" if cars >= 0.5 else "Pedestrian/Cyclist"].append(float(value))
     stat, p_w = mannwhitneyu(groups["Car"], groups["Pedestrian/Cyclist"]) if all(groups.values()) else (np.nan, np.nan)
+    # effect size of the rank-sum test: the rank-biserial correlation r = 2U / (n1 n2) - 1 (Cliff's
+    # delta of the two groups: +1 when every car input has the higher NC, -1 when every other does)
+    pairs = len(groups["Car"]) * len(groups["Pedestrian/Cyclist"])
+    rank_biserial = 2 * stat / pairs - 1 if pairs else np.nan
     body = f"""
 DeepTest's RQ1 asks whether neuron coverage tracks the diversity of the model's outputs. Here: for
 {len(frames)} val frames × {len(OPERATORS)} operators × severities 1, 3, 5 ({int(ok.sum())} mutants), each
@@ -157,7 +161,9 @@ Wilcoxon rank-sum (Mann–Whitney U) on per-input NC between inputs whose confid
 cars (n = {len(groups['Car'])}, median NC {np.median(groups['Car']) if groups['Car'] else float('nan'):.3f}) and
 mostly pedestrians/cyclists (n = {len(groups['Pedestrian/Cyclist'])}, median NC
 {np.median(groups['Pedestrian/Cyclist']) if groups['Pedestrian/Cyclist'] else float('nan'):.3f}): U = {stat},
-p = {p_w:.3g}.
+p = {p_w:.3g}; effect size (rank-biserial correlation, Cliff's δ) r = {rank_biserial:+.3f}
+(|r| < 0.11 negligible, < 0.28 small, < 0.43 medium, else large, by Vargha & Delaney's bands as
+Romano et al. translate them). The Spearman ρ above is its own effect size.
 
 Reading: a positive ρ means inputs that activate more neurons also change the output more — DeepTest's
 finding for steering models. The sign and size above are what this detector and world gave; with

@@ -7,7 +7,8 @@
 * **violation rates** per operator × severity × relation (and class, where the violations carry
   one; ``cls == ""`` is the frame-level row): violating / checked frames of each, the difference,
   the p-value of "A's rate is above B's" (:mod:`lidarfuzz.oracles.significance`: one-sided Fisher
-  exact test, corrected by Tarone's Bonferroni over the rows that could be significant, α = 0.05) and whether it is significant;
+  exact test, corrected by Tarone's Bonferroni over the rows that could be significant, α = 0.05)
+  and whether it is significant;
 * **objects lost** per operator × severity (relation ``objects_lost``): the labelled objects each
   system found on the original and lost on the mutant, counted per object and tested the same
   way. It assumes nothing harmless, so a degrading operator at any severity is compared too;

@@ -191,7 +191,8 @@ def run(
         if guide is not None:
             search["guide"] = guide
         spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind,
-                               "operators": "auto" if op == ["auto"] else [parse_op(o) for o in op or []], "search": search,
+                               "operators": "auto" if op == ["auto"] else [parse_op(o) for o in op or []],
+                               "search": search,
                                "relations": chosen, "seed": seed, "trials": trials, "frames": frames,
                                "frame_order": "random" if random_frames else "first",
                                "reference": reference or []},
