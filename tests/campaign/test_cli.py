@@ -58,18 +58,23 @@ def test_list_status_and_report_with_gates(workspace: Path, world: Path, tmp_pat
     assert isinstance(bad.exception, LidarfuzzError) and "ap_drop:3d>1" in str(bad.exception)
 
 
-def test_replay_of_a_finding(workspace: Path) -> None:
+def test_replay_of_a_finding(world: Path, tmp_path: Path) -> None:
     from sqlalchemy import select
 
     from lidarfuzz.store import Finding, Store
 
-    with Store(workspace).session() as s:
+    # the yaw-wrap variant (deterministic, stateless) breaks equivariance under a large turn; the
+    # correct pipeline above breaks nothing, so there would be nothing to replay
+    ws = tmp_path / "ws"
+    created = runner.invoke(app, ["run", "--dataset", str(world), "--sut", "classic-bug-yaw-wrap", "--op",
+                                  "rotate_z@5", "--trials", "3", "--inline", "--workspace", str(ws)])
+    assert created.exit_code == 0, created.output
+    with Store(ws).session() as s:
         finding = s.scalar(select(Finding.id).order_by(Finding.id))
-    if finding is None:
-        pytest.skip("this small campaign found nothing to replay")
-    result = runner.invoke(app, ["replay", str(finding), "--workspace", str(workspace)], env={"COLUMNS": "160"})
+    assert finding is not None, "yaw-wrap under rotate_z@5 should break equivariance on some of 9 mutants"
+    result = runner.invoke(app, ["replay", str(finding), "--workspace", str(ws)], env={"COLUMNS": "160"})
     assert result.exit_code == 0, result.output
-    # the classic pipeline is deterministic and unchanged: same system, same outputs, same verdict
+    # the variant is deterministic and unchanged: same system, same outputs, same verdict
     assert "system: the same" in result.output and "not reproduced" not in result.output
     assert "reproduced in" in result.output and "non-deterministic" not in result.output
 
