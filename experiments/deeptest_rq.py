@@ -76,7 +76,7 @@ def write(name: str, title: str, body: str, command: str, seconds: float) -> Non
 def nc_mask(values: dict[str, np.ndarray], threshold: float = 0.2) -> np.ndarray:
     from lidarfuzz.coverage import NeuronCoverage
 
-    return NeuronCoverage(threshold).items({k: v[None] for k, v in values.items()})[0]
+    return NeuronCoverage(threshold).hits([np.asarray(v, dtype=np.float64)[None] for v in values.values()])[0]
 
 
 def mutants(evaluator: Any, frames: list[str], severities: tuple[int, ...], seed: int = 0) -> list[dict[str, Any]]:
