@@ -142,8 +142,11 @@ def test_validity_counts_points_kept_per_object(world: Path) -> None:
 
 
 def test_search_spec_errors(world: Path) -> None:
-    with pytest.raises(DataFormatError, match="equivariant"):
-        parse_campaign({"dataset": str(world), "sut": "pillars", "kind": "guided", "operators": [{"name": "rotate_z"}]})
+    # a scene-moving operator is judged by equivariance: refused only when no listed relation could judge it
+    parse_campaign({"dataset": str(world), "sut": "pillars", "kind": "guided", "operators": [{"name": "rotate_z"}]})
+    with pytest.raises(DataFormatError, match="none of the listed relations judges a moved test"):
+        parse_campaign({"dataset": str(world), "sut": "pillars", "kind": "guided", "operators": [{"name": "rotate_z"}],
+                        "relations": ["preservation"]})
     with pytest.raises(DataFormatError, match="guide"):
         parse_campaign({"dataset": str(world), "sut": "pillars", "kind": "fuzz", "search": {"guide": "kmnc",
                                                                                              "criteria": ["nc"]}})

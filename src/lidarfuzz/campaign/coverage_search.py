@@ -28,6 +28,7 @@ from sqlalchemy import func, insert, select, update
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, relations_for_kind
 from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.operators.base import Relation
 from lidarfuzz.search.algorithms import SearchConfig, TestRecord, make_search
 from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import SearchProgress, SearchSummary, TaskSummary
@@ -36,6 +37,9 @@ from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask,
 from lidarfuzz.store.store import Store
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
     from lidarfuzz.campaign.spec import CampaignSpec
 
 #: Trials of minimised tests: MINIMISED × (1 + variant) + the test's number.
@@ -118,7 +122,8 @@ class _SearchRun:
         return {"dataset": task.dataset.path, "frame_id": e.frame_id, "trial": record.index, "seed": task.seed,
                 "op_index": 0, "operator": e.spec if e.chain else None, "params": e.params if e.chain else {},
                 "sut": task.model.spec, "options": task.model.options, "fingerprint": task.model.fingerprint,
-                "relation": relation, "operator_relation": "invariant" if e.valid and e.chain else None}
+                "relation": relation,
+                "operator_relation": e.operator_relation.value if e.valid and e.chain else None}
 
     def commit(self, records: list[TestRecord]) -> None:
         specs = {spec["name"]: spec for spec in self.sub.plan.relation_specs}
@@ -193,8 +198,38 @@ class _SearchRun:
         self.sut.close()
 
 
+class StoredChain:
+    """What :func:`~lidarfuzz.campaign.results.evaluate_subtask` reads of an operator, for a
+    search's stored tests, each row with its own chain in its params: the map the chain moved the
+    scene by (None when it moved nothing, and for a seed frame), so that AP does not score the
+    detections of a moved test where the seed frame had no labels.
+
+        >>> from lidarfuzz.search.evaluate import ChainStep, Evaluation
+        >>> from lidarfuzz.operators.registry import get
+        >>> e = Evaluation("000000", [ChainStep(get("rotate_z").at_severity(4).spec(), {"angle": 90.0})])
+        >>> StoredChain().transform({"operator": e.spec, "params": e.params}).round(6)[:2, :2].tolist()
+        [[0.0, -1.0], [1.0, 0.0]]
+        >>> StoredChain().transform({"role": "seed"}) is None
+        True
+    """
+
+    relation = Relation.EQUIVARIANT  # evaluate_subtask asks for a row's transform only then
+
+    def parse_params(self, stored: dict[str, Any]) -> dict[str, Any]:
+        return stored
+
+    def transform(self, stored: dict[str, Any]) -> NDArray[np.float64] | None:
+        from lidarfuzz.operators.registry import from_spec
+
+        if not stored.get("operator") or not stored.get("params"):
+            return None
+        chain = from_spec(stored["operator"])
+        return chain.transform(chain.parse_params(stored["params"]))
+
+
 def finish_subtasks(store: Store, task_id: int) -> None:
-    """Evaluate both subtasks (AP over the generated tests too) and mark them done."""
+    """Evaluate both subtasks (AP over the generated tests too, each moved test's detections only
+    where its seed frame had labels: :class:`StoredChain`) and mark them done."""
     from lidarfuzz.campaign.results import evaluate_subtask
     from lidarfuzz.store.inventory import open_registered
 
@@ -209,9 +244,10 @@ def finish_subtasks(store: Store, task_id: int) -> None:
         for sub in s.scalars(select(Subtask).where(Subtask.task_id == task_id)):
             rows = list(s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.ground_truth,
                                          FrameResult.failure, FrameResult.relations, FrameResult.seconds,
-                                         FrameResult.cached).where(
+                                         FrameResult.cached, FrameResult.params).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)))
-            figures = evaluate_subtask(rows, calibration, unlabelled=task.options.unlabelled_frames)
+            chains = StoredChain() if sub.name != ORIGINAL else None
+            figures = evaluate_subtask(rows, calibration, operator=chains, unlabelled=task.options.unlabelled_frames)
             sub.results = figures.model_copy(update={"search": sub.results.search})
             sub.total = sub.done = int(s.scalar(select(func.count()).select_from(FrameResult).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)) or 0)
@@ -235,8 +271,37 @@ def search_config(spec: CampaignSpec) -> SearchConfig:
     return SearchConfig.model_validate(values)
 
 
+def moving_operators(config: SearchConfig) -> list[str]:
+    """The operators of a search's pool that move the scene (equivariant ones)."""
+    from lidarfuzz.operators.registry import get
+
+    return [name for name in config.operators if get(name).relation == Relation.EQUIVARIANT]
+
+
+def search_relations(config: SearchConfig, choice: Any) -> list[dict[str, Any]]:
+    """The relation specs a search checks. Tests whose chain moves nothing preserve the seed's
+    labels: the relations for invariant operators ("auto": Zhou & Sun's MR1, ``preservation``).
+    When the pool holds a scene-moving operator, its tests carry the labels along: also the
+    relations for equivariant operators ("auto": ``equivariance``, default config, as campaigns
+    check rotate_z). The evaluator checks each test only against the relations for its kind."""
+    from lidarfuzz.oracles.relations.registry import from_spec as relation
+
+    specs = [relation("preservation").spec()] if choice == "auto" else relations_for_kind(Relation.INVARIANT, choice)
+    if moving_operators(config):
+        moved = ([relation("equivariance").spec()] if choice == "auto"
+                 else relations_for_kind(Relation.EQUIVARIANT, choice))
+        specs += [spec for spec in moved if spec not in specs]
+    return specs
+
+
 def check_spec(spec: CampaignSpec) -> None:
-    search_config(spec)  # fail early on a bad search section
+    """Fail early on a bad search section, and on listed relations none of which could judge the
+    tests a scene-moving operator of the pool makes."""
+    config = search_config(spec)
+    moving = moving_operators(config)
+    if moving and spec.relations != "auto" and not relations_for_kind(Relation.EQUIVARIANT, spec.relations):
+        raise ValueError(f"relations: operator(s) {moving} move the scene and none of the listed relations judges a "
+                         "moved test; add equivariance (or use auto)")
 
 
 def _check_searchable(model: Model) -> None:
@@ -251,17 +316,12 @@ def _check_searchable(model: Model) -> None:
 
 
 def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
-    """One subtask holds every generated test (the budget's worth). Valid tests preserve labels,
-    so the relations that apply to invariant operators are checked; "auto" means Zhou & Sun's
-    MR1 (an object found before is found after)."""
-    from lidarfuzz.operators.base import Relation
-    from lidarfuzz.oracles.relations.registry import from_spec as relation
-
+    """One subtask holds every generated test (the budget's worth). Valid tests keep the seed's
+    labels (moved with the scene by a scene-moving step): :func:`search_relations` says which
+    relations are checked."""
     search = search_config(spec)
     _check_searchable(model)
-    choice = spec.relations
-    relation_specs = ([relation("preservation").spec()] if choice == "auto"
-                      else relations_for_kind(Relation.INVARIANT, choice))
+    relation_specs = search_relations(search, spec.relations)
     options = search.model_dump(mode="json")
     return KindPlan([SubtaskPlan(search.kind, {"name": search.kind, "search": options}, search.budget,
                                  relations=relation_specs)], options)
@@ -276,5 +336,6 @@ def describe(task: Task) -> str:
     return f"{config.kind} search of {config.budget} tests from {len(task.options.frame_ids)} seed frames"
 
 
-__all__ = ["MINIMISED", "SearchSetupError", "build_criteria", "check_spec", "counted_below", "coverage_profile",
-           "describe", "plan", "profile_dirs", "search_config", "start", "torch_module"]
+__all__ = ["MINIMISED", "SearchSetupError", "StoredChain", "build_criteria", "check_spec", "counted_below",
+           "coverage_profile", "describe", "moving_operators", "plan", "profile_dirs", "search_config",
+           "search_relations", "start", "torch_module"]

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target
@@ -72,6 +73,31 @@ class _Composite(Operator[Any, _NoConfig, CompositeParams]):
             if step.params is not None:
                 sample = op.apply(sample, op.parse_params(step.params))
         return sample
+
+    def transform(self, params: CompositeParams) -> NDArray[np.float64] | None:
+        """The map from the input's frame to the output's: the transforms of the children that ran,
+        composed in the order they ran (a child that moves nothing counts as the identity). None when
+        no child moved the frame, or when one claims to (equivariant) but exposes no transform.
+
+            >>> from lidarfuzz.operators.lidar.geometric import RotateZ
+            >>> from lidarfuzz.operators.lidar.sensor import GaussianJitter
+            >>> chain = Compose([RotateZ(), GaussianJitter(), RotateZ()])
+            >>> steps = [Step(operator="rotate_z", params={"angle": 30.0}), Step(operator="gaussian_jitter",
+            ...          params=None), Step(operator="rotate_z", params={"angle": 60.0})]
+            >>> chain.transform(CompositeParams(steps=steps)).round(6)[:2, :2].tolist()  # 30° + 60° = 90°
+            [[0.0, -1.0], [1.0, 0.0]]
+        """
+        total: NDArray[np.float64] | None = None
+        for op, step in zip(self.operators, params.steps, strict=True):
+            if step.params is None:
+                continue
+            moved = op.transform(op.parse_params(step.params))
+            if moved is None:
+                if op.relation == Relation.EQUIVARIANT:
+                    return None  # the frame moved by an unknown map
+                continue
+            total = moved if total is None else moved @ total
+        return total
 
     @classmethod
     def from_children(cls, children: list[Operator[Any, Any, Any]], spec: dict[str, Any]) -> _Composite:

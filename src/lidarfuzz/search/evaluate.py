@@ -6,6 +6,12 @@ steps draw theirs from the generator the search hands in. The chain is stored as
 ``sequence`` operator spec and its concrete params, so every test replays exactly through
 the ordinary operator machinery (``lidarfuzz replay``).
 
+A chain may hold steps that move the whole scene (equivariant operators: rotate_z, height_shift,
+global_translate, global_flip, global_scale move points, boxes and map together). Such a test's
+label is the seed's carried by the chain's composed transform (the ``sequence`` operator's
+:meth:`~lidarfuzz.operators.compose.Compose.transform`, which a replay computes the same way), so
+its oracle is equivariance; a chain that moves nothing keeps the relations for invariant operators.
+
 One forward pass gives both the detections and the neuron values: the activation
 recorder's hooks are on while the SUT runs ``detect_batch``, so coverage costs no second
 pass. Nothing here assumes LiDAR except the validity check, which asks a
@@ -55,6 +61,9 @@ class Evaluation:
     valid: bool = True
     validity: str = ""
     seconds: float = 0.0
+    #: invariant, or equivariant when a step moved the scene (``transform`` then maps seed → test)
+    operator_relation: Relation = Relation.INVARIANT
+    transform: NDArray[np.float64] | None = None
 
     @property
     def spec(self) -> dict[str, Any]:
@@ -72,7 +81,8 @@ class Evaluation:
 
 def points_kept(source: Any, follow: Any, min_points: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Points inside each labelled object of ``source`` before and after a mutation (objects
-    with fewer than ``min_points`` at first are left out)."""
+    with fewer than ``min_points`` at first are left out). The follow-up's boxes are the same
+    objects after the mutation: a step that moves the scene moves them with their points."""
     from lidarfuzz.scene.geometry import points_in_boxes
 
     boxes = source.boxes
@@ -105,6 +115,20 @@ class SearchEvaluator:
         self._scenes: OrderedDict[str, Any] = OrderedDict()  # exact chains → mutated scene
         self._operators: dict[str, Operator[Any, Any, Any]] = {}
         self._cache = cache
+
+    def motion(self, evaluation: Evaluation) -> None:
+        """Mark a test whose chain moves the scene as equivariant, with the chain's composed
+        transform (seed frame → test frame); such a test is invalid when a moving step exposes no
+        transform (nothing could judge it)."""
+        moving = [s.name for s in evaluation.chain if self.operator(s.spec).relation == Relation.EQUIVARIANT]
+        if not moving:
+            return
+        chain = self.operator(evaluation.spec)
+        evaluation.operator_relation = Relation.EQUIVARIANT
+        evaluation.transform = chain.transform(chain.parse_params(evaluation.params))
+        if evaluation.transform is None:
+            evaluation.valid = False
+            evaluation.validity = f"{sorted(set(moving))} moved the scene and exposed no transform to judge it by"
 
     def operator(self, spec: dict[str, Any]) -> Operator[Any, Any, Any]:
         import json
@@ -183,6 +207,7 @@ class SearchEvaluator:
             try:
                 scene, done = self._apply(frame_id, chain, rng)
                 evaluation = Evaluation(frame_id, done, scene)
+                self.motion(evaluation)
             except Exception as exc:  # an operator failing on this frame is a finding, not a crash
                 evaluation = Evaluation(frame_id, list(chain), None, valid=False, validity="operator error",
                                         failure=FailureRecord(kind="operator_error",
@@ -198,16 +223,17 @@ class SearchEvaluator:
         for evaluation in runnable:
             before, after = points_kept(source.scene, evaluation.scene, self.min_points)
             lost = after < self.keep_share * before
-            if lost.any():
+            if lost.any() and evaluation.valid:
                 evaluation.valid = False
                 evaluation.validity = (f"{int(lost.sum())} object(s) kept less than {self.keep_share:.0%} "
                                        "of their points")
             if evaluation.output is None or source.output is None or not evaluation.valid:
                 continue
             # a valid test kept every object's points: its label is the seed's (the search's premise,
-            # as DeepHunter's validity constraint), so the invariant relations are its oracle
+            # as DeepHunter's validity constraint), moved by the chain's transform when a step moved
+            # the scene; so the relations for invariant operators are its oracle, or equivariance's
             pair = Pair(source.scene, evaluation.scene, source.output, evaluation.output,
-                        operator_relation=Relation.INVARIANT, transform=None)
+                        operator_relation=evaluation.operator_relation, transform=evaluation.transform)
             for relation in self.relations:
                 if pair.operator_relation in relation.applies_to:
                     evaluation.relations.append(OutcomeRecord.of(relation(pair)))
