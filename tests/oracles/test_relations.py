@@ -117,6 +117,25 @@ def test_a_score_wobbling_across_the_threshold_is_not_a_lost_or_a_new_object() -
                                 Relation.EQUIVARIANT, transform=t)).holds
 
 
+def test_an_overlap_wobbling_across_min_iou_is_not_a_lost_object() -> None:
+    # two 4 x 1.8 m cars offset along x by d overlap (4 - d) * 1.8 of 2 * 7.2 - (4 - d) * 1.8, so
+    # BEV IoU = (4 - d) / (4 + d): d = 1.36 gives 2.64 / 5.36 = 0.4925 (under min_iou 0.5, above
+    # 0.45 = min_iou - iou_margin); d = 1.6 gives 2.4 / 5.6 = 0.4286 (under both)
+    src = boxes([(10, 0)], scores=[0.9])
+    assert Preservation()(pair(src, boxes([(11.36, 0)], scores=[0.9]))).holds
+    assert not Preservation(iou_margin=0.0)(pair(src, boxes([(11.36, 0)], scores=[0.9]))).holds
+    assert not Preservation()(pair(src, boxes([(11.6, 0)], scores=[0.9]))).holds
+    # ground-truth recall: the source must match its object at 0.5 itself, the follow-up from 0.45
+    gt = boxes([(10, 0)], track_ids=[1])
+    judged = dict(source=scene(gt), follow=scene(gt))
+    assert GroundTruthRecall(evidence=False)(pair(src, boxes([(11.36, 0)], scores=[0.9]), **judged)).holds
+    out = GroundTruthRecall(evidence=False, iou_margin=0.0)(pair(src, boxes([(11.36, 0)], scores=[0.9]), **judged))
+    assert not out.holds
+    # a source detection credited at IoU 0.4925 only is not counted as found, so nothing is checked
+    out = GroundTruthRecall(evidence=False)(pair(boxes([(11.36, 0)], scores=[0.9]), Boxes3D.empty(), **judged))
+    assert out.holds
+
+
 # -- equivariance -----------------------------------------------------------------------------
 def rotation(angle: float, shift: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
@@ -240,6 +259,23 @@ def test_deeptest_tolerance_on_box_centres() -> None:
     )
     assert len(strict.violations) == 2
     assert DeepTestTolerance(**{"lambda": 10}).config.lambda_ == 10
+
+
+def test_deeptest_new_only_leaves_out_errors_already_there_on_the_original() -> None:
+    # MSE_orig 0.02, λ 5: limit 0.1. The first object is 0.4 m off on the original too (0.16 > 0.1):
+    # DeepTest flags it on every mutant; new_only does not. The second goes 0.1 -> 0.4 m (0.01 -> 0.16):
+    # the transformation's doing, flagged by both. Track ids pair the labels; the third object
+    # (x = 40) is not found on the original, so its follow-up error (0.25) is not known to be new.
+    gt = boxes([(10, 0), (20, 0), (40, 0)], track_ids=[1, 2, 3])
+    src = boxes([(10.4, 0), (20.1, 0)], scores=[0.9, 0.9])
+    fol = boxes([(10.4, 0), (20.4, 0), (40.5, 0)], scores=[0.9, 0.9, 0.9])
+    judged = dict(source=scene(gt), follow=scene(gt), reference={"mse_orig": 0.02})
+    paper = DeepTestTolerance()(pair(src, fol, **judged))
+    assert sorted(v.gt_index for v in paper.violations) == [0, 1, 2]
+    new = DeepTestTolerance(new_only=True)(pair(src, fol, **judged))
+    assert [v.gt_index for v in new.violations] == [1]
+    assert new.violations[0].magnitude == pytest.approx(0.16)
+    assert new.stats["already_over_on_source"] == 2
 
 
 def test_deeptest_tolerance_when_the_follow_up_finds_nothing() -> None:

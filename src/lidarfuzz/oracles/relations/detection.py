@@ -56,6 +56,12 @@ class MatchConfig(EvidenceConfig):
                     "and a follow-up detection scoring down to min_score - margin still counts as found, so a score "
                     "wobbling across the threshold is not a lost or a new object",
     )
+    iou_margin: float = Field(
+        default=0.05, ge=0.0,
+        description="hysteresis about min_iou: a follow-up box still matches its object from min_iou - margin, so "
+                    "an overlap wobbling across the threshold (0.50 before, 0.49 after a harmless move) is not a "
+                    "lost object; the source side (a detection matched to ground truth) needs min_iou itself",
+    )
     roi_only: bool = Field(default=True, description="check only objects inside the frame's drivable-area ROI")
     max_truncation: float | None = Field(
         default=None, ge=0.0, le=1.0,
@@ -108,8 +114,18 @@ def _in_roi(sample: Any, boxes: Boxes3D, index: NDArray[np.int64], roi_only: boo
     return index[roi.contains_xy(boxes.centers[index, :2])]
 
 
-def _match(a: Boxes3D, b: Boxes3D, cfg: MatchConfig) -> Matching:
-    return match_boxes(a, b, metric=cfg.metric, min_iou=cfg.min_iou, method=cfg.method)
+def _lenient(min_iou: float | dict[str, float], margin: float) -> float | dict[str, float]:
+    """``min_iou`` lowered by the hysteresis margin (never below zero)."""
+    if isinstance(min_iou, dict):
+        return {cls: max(float(v) - margin, 0.0) for cls, v in min_iou.items()}
+    return max(float(min_iou) - margin, 0.0)
+
+
+def _match(a: Boxes3D, b: Boxes3D, cfg: MatchConfig, *, lenient: bool = True) -> Matching:
+    """Match ``a`` to ``b``: a follow-up side matches from ``min_iou - iou_margin`` (``lenient``),
+    a detection to the ground truth it is credited with from ``min_iou``."""
+    min_iou = _lenient(cfg.min_iou, cfg.iou_margin) if lenient else cfg.min_iou
+    return match_boxes(a, b, metric=cfg.metric, min_iou=min_iou, method=cfg.method)
 
 
 def _best_iou(a: Boxes3D, b: Boxes3D, metric: str) -> NDArray[np.float64]:
@@ -411,13 +427,15 @@ def gt_correspondence(source_gt: Boxes3D, follow_gt: Boxes3D) -> NDArray[np.int6
     return None
 
 
-def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig, min_score: float | None = None) -> NDArray[np.int64]:
+def _gt_matches(dets: Boxes3D, gt: Boxes3D, cfg: MatchConfig, min_score: float | None = None, *,
+                lenient: bool = False) -> NDArray[np.int64]:
     """For each ground-truth box, the detection (score >= ``min_score``, the config's by default)
-    matched to it, or -1."""
+    matched to it, or -1; ``lenient``: from ``min_iou - iou_margin`` (a follow-up finding an
+    object again)."""
     idx = _detected(dets, cfg.min_score if min_score is None else min_score)
     if len(idx) == 0:  # nothing detected: every object unmatched
         return np.full(len(gt), -1, dtype=np.int64)
-    m = _match(dets.select(idx), gt, cfg)
+    m = _match(dets.select(idx), gt, cfg, lenient=lenient)
     partner = m.partner_of_b(len(gt))
     return np.where(partner >= 0, idx[np.maximum(partner, 0)], -1)
 
@@ -441,7 +459,8 @@ def objects_lost(source_gt: Boxes3D, source_output: Boxes3D, follow_gt: Boxes3D,
     if corr is None:
         return None
     found = (_gt_matches(source_output, source_gt, cfg) >= 0) & (corr >= 0)
-    lost = found & (_gt_matches(follow_output, follow_gt, cfg)[np.maximum(corr, 0)] < 0) if len(follow_gt) else found
+    again = _gt_matches(follow_output, follow_gt, cfg, lenient=True)
+    lost = found & (again[np.maximum(corr, 0)] < 0) if len(follow_gt) else found
     return int(np.count_nonzero(lost)), int(np.count_nonzero(found))
 
 
@@ -468,7 +487,8 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
         corr = gt_correspondence(src_gt, fol_gt)
         assert corr is not None
         found_src = _gt_matches(pair.source_output, src_gt, cfg, cfg.min_score + cfg.score_margin)
-        found_fol = _gt_matches(pair.follow_output, fol_gt, cfg, max(cfg.min_score - cfg.score_margin, 0.0))
+        found_fol = _gt_matches(pair.follow_output, fol_gt, cfg, max(cfg.min_score - cfg.score_margin, 0.0),
+                                lenient=True)
         in_roi = _in_roi(pair.source, src_gt, np.arange(len(src_gt)), cfg.roi_only)
         in_roi = _not_truncated(pair.source, src_gt, in_roi, cfg.max_truncation, labelled=True)
         considered = np.zeros(len(src_gt), dtype=bool)
@@ -529,6 +549,12 @@ class DeepTestConfig(MatchConfig):
     mse_orig: float | None = Field(
         default=None, ge=0.0, description="MSE_orig of the original data set (a campaign sets it from its originals)"
     )
+    new_only: bool = Field(
+        default=False,
+        description="flag only errors the transformation brought: objects whose error on the original was within "
+                    "λ·MSE_orig (DeepTest flags every object over the limit, also those already over it on the "
+                    "original, which then count against every transformation)",
+    )
 
     model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
 
@@ -536,21 +562,26 @@ class DeepTestConfig(MatchConfig):
 def centre_squared_errors(truth: Boxes3D, output: Boxes3D, cfg: MatchConfig) -> NDArray[np.float64]:
     """Squared centre error (m²) of each ground-truth object ``output`` found (matched as
     :func:`deeptest_tolerance <DeepTestTolerance>` matches them); objects not found are left out."""
-    gt = truth.select(truth.has_geometry)
+    errors = _object_errors(truth.select(truth.has_geometry), output, cfg)
+    return errors[np.isfinite(errors)]
+
+
+def _object_errors(gt: Boxes3D, output: Boxes3D, cfg: MatchConfig) -> NDArray[np.float64]:
+    """Squared centre error of each object of ``gt`` against its matched detection; NaN when not found."""
     found = _gt_matches(output, gt, cfg)
+    errors = np.full(len(gt), np.nan)
     ok = found >= 0
-    return np.sum((output.centers[found[ok]] - gt.centers[ok]) ** 2, axis=1).astype(np.float64)
+    errors[ok] = np.sum((output.centers[found[ok]] - gt.centers[ok]) ** 2, axis=1)
+    return errors
 
 
-def _regression(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Labels and predictions of one sample: GT centres and matched detection centres for
-    boxes (unmatched objects are left out: losing them is ``gt_recall``'s business), the
-    sample's ``label`` for scalar outputs."""
+def _squared_errors(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Squared error of each label of one sample and the label's index: for boxes each
+    ground-truth object's centre against its matched detection's (NaN for an object not found:
+    losing it is ``gt_recall``'s business), for scalar outputs the sample's ``label``."""
     if isinstance(output, Boxes3D):
-        gt = sample.boxes.select(sample.boxes.has_geometry)
-        found = _gt_matches(output, gt, cfg)
-        ok = found >= 0
-        return gt.centers[ok], output.centers[found[ok]]
+        index = np.flatnonzero(sample.boxes.has_geometry)
+        return _object_errors(sample.boxes.select(index), output, cfg), index
     label = getattr(sample, "label", None)
     if label is None:
         label = getattr(sample, "metadata", {}).get("label")
@@ -558,7 +589,23 @@ def _regression(sample: Any, output: Any, cfg: MatchConfig) -> tuple[NDArray[np.
         raise ValueError(
             "deeptest_tolerance on scalar outputs needs the sample's label (sample.label or metadata['label'])"
         )
-    return np.atleast_2d(np.asarray(label, dtype=np.float64)), np.atleast_2d(np.asarray(output, dtype=np.float64))
+    y = np.atleast_2d(np.asarray(label, dtype=np.float64))
+    return np.sum((np.atleast_2d(np.asarray(output, dtype=np.float64)) - y) ** 2, axis=1), np.arange(len(y))
+
+
+def _source_errors(pair: Pair[Any, Any], src_err: NDArray[np.float64], fol_index: NDArray[np.int64],
+                   cfg: MatchConfig) -> NDArray[np.float64] | None:
+    """The source's error of each follow-up label (NaN where the source did not find it); None
+    when the two samples' labels cannot be paired up."""
+    if not isinstance(pair.follow_output, Boxes3D):
+        return src_err if len(src_err) == len(fol_index) else None
+    corr = gt_correspondence(pair.follow.boxes, pair.source.boxes)  # follow label -> source label
+    if corr is None:
+        return None
+    by_label = np.full(len(pair.source.boxes), np.nan)
+    by_label[np.flatnonzero(pair.source.boxes.has_geometry)] = src_err
+    mapped = corr[fol_index]
+    return np.where(mapped >= 0, by_label[np.maximum(mapped, 0)], np.nan)
 
 
 class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
@@ -585,10 +632,10 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
 
     def check(self, pair: Pair[Any, Any]) -> RelationOutcome:
         cfg = self.config
-        src_y, src_pred = _regression(pair.source, pair.source_output, cfg)
-        fol_y, fol_pred = _regression(pair.follow, pair.follow_output, cfg)
-        src_sq = np.sum((src_pred - src_y) ** 2, axis=1)
-        fol_sq = np.sum((fol_pred - fol_y) ** 2, axis=1)
+        src_err, _ = _squared_errors(pair.source, pair.source_output, cfg)
+        fol_err, fol_index = _squared_errors(pair.follow, pair.follow_output, cfg)
+        src_sq, fol_found = src_err[np.isfinite(src_err)], np.isfinite(fol_err)
+        fol_sq = fol_err[fol_found]
         if "mse_orig" in pair.reference:
             mse_orig, origin = float(pair.reference["mse_orig"]), "data set"
         elif cfg.mse_orig is not None:
@@ -596,21 +643,31 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
         else:
             mse_orig, origin = (float(src_sq.mean()) if src_sq.size else float("nan")), "frame"
         limit = cfg.lambda_ * mse_orig
+        over = fol_found & (np.nan_to_num(fol_err) > limit) if np.isfinite(limit) else np.zeros(len(fol_err), bool)
+        stats: dict[str, Any] = {}
+        if over.any():  # how many were over the limit (or not found) on the original already
+            before = _source_errors(pair, src_err, fol_index, cfg)
+            if before is None:
+                stats["already_over_on_source"] = None  # the labels could not be paired: not known
+            else:
+                already = over & ~(before <= limit)
+                stats["already_over_on_source"] = int(np.count_nonzero(already))
+                if cfg.new_only:
+                    over &= ~already
         violations = []
-        if np.isfinite(limit):
-            for k in np.flatnonzero(fol_sq > limit).tolist():
-                violations.append(
-                    Violation(
-                        relation=self.name,
-                        kind="regression",
-                        magnitude=float(fol_sq[k]),
-                        measure="squared error",
-                        gt_index=k,
-                        message=f"squared error {fol_sq[k]:.3g} exceeds λ·MSE_orig = {cfg.lambda_:g} × "
-                        f"{mse_orig:.3g} = {limit:.3g}" + (" (MSE_orig of this frame alone)" if origin == "frame"
-                                                           else ""),
-                    )
+        for k in np.flatnonzero(over).tolist():
+            violations.append(
+                Violation(
+                    relation=self.name,
+                    kind="regression",
+                    magnitude=float(fol_err[k]),
+                    measure="squared error",
+                    gt_index=int(fol_index[k]),
+                    message=f"squared error {fol_err[k]:.3g} exceeds λ·MSE_orig = {cfg.lambda_:g} × "
+                    f"{mse_orig:.3g} = {limit:.3g}" + (" (MSE_orig of this frame alone)" if origin == "frame"
+                                                       else ""),
                 )
+            )
         return RelationOutcome(
             self.name,
             holds=not violations,
@@ -625,6 +682,7 @@ class DeepTestTolerance(MetamorphicRelation[Any, Any, DeepTestConfig]):
                 "n": int(fol_sq.size),
                 "squared_errors": [float(e) for e in fol_sq],
                 "source_squared_errors": [float(e) for e in src_sq],
+                **stats,
             },
         )
 
