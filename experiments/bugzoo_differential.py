@@ -1,6 +1,6 @@
 """Does the default campaign show each bug-zoo variant against the correct pipeline?
 
-Usage: ``.venv/bin/python experiments/bugzoo_differential.py [--frames 12] [--workers 2] [--out DIR]``
+Usage: ``.venv/bin/python experiments/bugzoo_differential.py [--frames 12] [--workers 2] [--out DIR] [--suts ...]``
 
 For each variant of the classic pipeline (``lidarfuzz suts``) and for ``classic`` itself, one
 campaign of the default operator set (``operators: auto``) with ``reference: classic``, on the
@@ -33,12 +33,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("bench-out/bugzoo-differential"))
+    parser.add_argument("--suts", nargs="+", metavar="SUT", help="only these systems (default: every variant and "
+                                                                 "classic)")
     args = parser.parse_args()
 
     world, _ = build_world(args.out / "world", args.frames, 0)
     store = Store(args.out / f"ws-{int(time.time())}")
     print(f"default campaign with reference classic, {args.frames} simulator frames")
-    for name in [bug.name for bug in BUGS] + ["classic"]:
+    for name in args.suts or [bug.name for bug in BUGS] + ["classic"]:
         start = time.perf_counter()
         task_id = create_task(store, parse_campaign({"dataset": str(world), "sut": name, "operators": "auto",
                                                      "reference": "classic"}))

@@ -83,3 +83,14 @@ class RandomBoxes(ClassicPipeline):
         rows[:, 0] += shift * np.cos(rows[:, 6])
         rows[:, 1] += shift * np.sin(rows[:, 6])
         return Boxes3D.from_array(rows, found.labels, scores=found.scores)
+
+
+class FixedBox(ClassicPipeline):
+    """Blind: one car at (10, 1.5) whatever the input, so a mirrored frame (y -> -y) always breaks
+    equivariance (the moved source box lies at (10, -1.5), 3 m from it: no overlap for 1.8 m
+    wide boxes), while a change that moves nothing never breaks a relation."""
+
+    name = "fixed-box"
+
+    def detect(self, sample: Scene) -> Boxes3D:
+        return Boxes3D.create([[10.0, 1.5, -0.9]], [[4.0, 1.8, 1.5]], [0.0], ["Car"], scores=[0.9])

@@ -339,7 +339,7 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> Tas
                     created_at=task.created_at.isoformat() if task.created_at else None,
                     started_at=task.started_at.isoformat() if task.started_at else None,
                     finished_at=task.finished_at.isoformat() if task.finished_at else None,
-                    done=task.done, total=task.total, baseline=baseline)
+                    done=task.done, total=task.total, baseline=baseline, pilot=options.pilot)
     return TaskSummary(task=info, classes=list(CLASSES), subtasks=subtasks, delta_ap=delta_rows,
                        ap_warnings=ap_warnings(subtasks), robustness=robustness, violations=violation,
                        deeptest=deeptest_table(subtasks[1:]),

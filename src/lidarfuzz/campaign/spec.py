@@ -18,6 +18,8 @@ Example (``campaign.yaml``)::
     frames: 50                  # the first 50 frames (all when left out)
     frame_order: first          # or random: 50 frames drawn with the seed (kept in data-set order)
     reference: classic-v1       # optional: a system (or a list) run on the same mutants, compared in the report
+    pilot: 5                    # optional: a 5-frame pilot first; settings whose floor leaves no room are
+                                #   lowered or dropped (lidarfuzz.campaign.pilot)
 """
 
 from __future__ import annotations
@@ -109,6 +111,10 @@ class CampaignSpec(_Model):
     seed: int = 0
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only N frames (see frame_order)")
+    pilot: int | None = Field(
+        default=None, ge=1, description="first a pilot on N frames (on the reference when there is one): "
+                                         "operator settings whose floor leaves no room at the campaign's frame "
+                                         "count are lowered or dropped (lidarfuzz.campaign.pilot)")
     frame_order: Literal["first", "random"] = Field(
         default="first", description="with frames: the first N, or N drawn at random with the seed")
     reference: list[str] = Field(

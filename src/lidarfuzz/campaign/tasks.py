@@ -31,7 +31,7 @@ from lidarfuzz.campaign.lifecycle import (
 from lidarfuzz.campaign.plan import ORIGINAL, SubtaskPlan, operator_key, relations_for, select_frames, subtask_label
 from lidarfuzz.campaign.spec import CampaignSpec
 from lidarfuzz.io.options import DatasetOptions
-from lidarfuzz.store.contracts import SubtaskInputs, TaskOptions
+from lidarfuzz.store.contracts import PilotNote, SubtaskInputs, TaskOptions
 from lidarfuzz.store.errors import ConflictError, StoreError
 from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
@@ -123,13 +123,14 @@ def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
 
 def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None = None,
                 isolate: bool = False, timeout: float = 60.0, save_mutants: str | None = None,
-                dataset_options: DatasetOptions | None = None) -> int:
+                dataset_options: DatasetOptions | None = None, pilot: PilotNote | None = None) -> int:
     """Plan ``spec`` as a new pending task; returns its id. A campaign naming ``reference``
     systems also gets one pending task per reference (listed in the task's
     ``options.references``; run them too, then the task's report compares).
 
     ``dataset_options`` (the CLI's ``--layout``, ``--allow-unlabelled``) register a data set given
     by path; ``allow_unlabelled`` also lets a registered one run with frames that have no labels.
+    ``pilot``: what a pilot changed in ``spec`` (:mod:`lidarfuzz.campaign.pilot`), kept with the task.
     """
     from lidarfuzz.store.inventory import dataset_options as stored_options
     from lidarfuzz.store.inventory import open_registered
@@ -142,15 +143,26 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
         unlabelled = unlabelled_frames(opened, frame_ids, allow, dataset.path)
         options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
-                              timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled)
+                              timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
+                              pilot=pilot)
         task = _add_task(s, spec, spec.name, dataset, model, options)
+        as_reference = options.model_copy(update={"reference_of": task.id, "pilot": None})
         references = [_add_task(s, spec, f"{spec.name or 'campaign'}: reference {ref}", dataset,
-                                _model_row(s, ref, {}), options.model_copy(update={"reference_of": task.id}))
+                                _model_row(s, ref, {}), as_reference)
                       for ref in spec.reference]
         if references:
             task.options = task.options.model_copy(update={"references": [r.id for r in references]})
         s.flush()
         return task.id
+
+
+def campaign_frames(store: Store, spec: CampaignSpec, dataset_options: DatasetOptions | None = None) -> int:
+    """How many frames ``spec`` would test (registers its data set when given by path)."""
+    from lidarfuzz.store.inventory import open_registered
+
+    with store.session() as s:
+        opened = open_registered(_dataset_row(s, spec.dataset, dataset_options))
+        return len(select_frames(opened.frame_ids(), spec.frames, spec.frame_order, spec.seed))
 
 
 def _add_task(s: Any, spec: CampaignSpec, name: str, dataset: Dataset, model: Model, options: TaskOptions) -> Task:
@@ -215,6 +227,6 @@ def delete_task(store: Store, task_id: int) -> None:
         s.delete(task)
 
 
-__all__ = ["ORIGINAL", "STALE_AFTER", "cancel_task", "count_tasks", "create_task", "delete_task", "get_task",
-           "heartbeat_age", "list_tasks", "looks_alive", "operator_key", "relations_for", "subtask_label",
+__all__ = ["ORIGINAL", "STALE_AFTER", "campaign_frames", "cancel_task", "count_tasks", "create_task", "delete_task",
+           "get_task", "heartbeat_age", "list_tasks", "looks_alive", "operator_key", "relations_for", "subtask_label",
            "unlabelled_frames"]

@@ -109,6 +109,31 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
     return code
 
 
+def _pilot(store: Any, workspace: str, spec: Any, sut_options: dict[str, Any], dataset_options: Any, *,
+           workers: int | None, inline: bool) -> tuple[Any, Any]:
+    """Run ``spec``'s pilot as a task of its own; the trimmed spec and what changed."""
+    from lidarfuzz.campaign.pilot import floors, pilot_campaign, trim
+    from lidarfuzz.campaign.tasks import campaign_frames, create_task
+
+    if spec.kind != DEFAULT_KIND:
+        raise LidarfuzzError(f"pilot: only a {DEFAULT_KIND} campaign has operator settings to trim, not {spec.kind}")
+    pilot_spec = pilot_campaign(spec)
+    pilot_id = create_task(store, pilot_spec, sut_options=sut_options, dataset_options=dataset_options)
+    console.print(f"pilot: task {pilot_id}, {pilot_spec.sut} on {spec.pilot} frames, every severity")
+    code = execute(workspace, pilot_id, workers=workers, inline=inline, report=False, show_progress=False)
+    if code:
+        console.print(f"the pilot (task {pilot_id}) did not finish: the campaign was not created")
+        raise typer.Exit(code)
+    trimmed, note = trim(spec, floors(store, pilot_id), campaign_frames(store, spec, dataset_options),
+                         pilot_task=pilot_id, system=pilot_spec.sut)
+    for line in [*note.lowered, *note.dropped] or ["every operator setting has room"]:
+        console.print(f"pilot: {line}")
+    if not trimmed.operators:
+        raise LidarfuzzError("pilot: no operator setting has room at this frame count; give more frames "
+                             "(--frames) or other operators")
+    return trimmed, note
+
+
 def run(
     campaign: Annotated[Path | None, typer.Argument(help="A campaign file (YAML/JSON); or use the flags.")] = None,
     dataset: Annotated[str | None, typer.Option(help="Registered data set name, or a path.")] = None,
@@ -151,6 +176,9 @@ def run(
     reference: Annotated[list[str] | None, typer.Option(
         help="Differential testing: a reference system (registered model or SUT spec) run on the same mutants; "
              "the report compares the two (repeatable).")] = None,
+    pilot: Annotated[int | None, typer.Option(
+        min=1, help="First a pilot on N frames (on the reference, if any): operator severities whose false-alarm "
+                    "floor leaves no room at the campaign's frame count are lowered or dropped.")] = None,
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
     """Create a campaign task and run it: originals and mutants through the SUT, AP, relations, report.
@@ -197,10 +225,18 @@ def run(
                                "frame_order": "random" if random_frames else "first",
                                "reference": reference or []},
                               "command line")
+    if pilot is not None:
+        spec = spec.model_copy(update={"pilot": pilot})
     store = open_store(workspace)
-    task_id = create_task(store, spec, sut_options=parse_assignments(option or []), isolate=isolate,
+    sut_options = parse_assignments(option or [])
+    dataset_options = options_from_flags(layout, allow_unlabelled)
+    note = None
+    if spec.pilot is not None:
+        spec, note = _pilot(store, workspace, spec, sut_options if not spec.reference else {}, dataset_options,
+                            workers=workers, inline=inline)
+    task_id = create_task(store, spec, sut_options=sut_options, isolate=isolate,
                           timeout=timeout, save_mutants=str(save_mutants.resolve()) if save_mutants else None,
-                          dataset_options=options_from_flags(layout, allow_unlabelled))
+                          dataset_options=dataset_options, pilot=note)
     references = get_task(store, task_id).options.references
     if detach:
         console.print(f"created task {task_id}; run it with: lidarfuzz resume {task_id}"

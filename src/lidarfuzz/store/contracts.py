@@ -164,6 +164,19 @@ class FindingReplay(Contract):
 
 
 # -- what a task is told --------------------------------------------------------------------
+class PilotNote(Contract):
+    """What a campaign's pilot (:mod:`lidarfuzz.campaign.pilot`) changed: the pilot's task, the
+    system it ran (the reference, or the system itself), its frames and the campaign's, and the
+    operator settings dropped or lowered, each with the floor that left it no room."""
+
+    task_id: int
+    system: str
+    frames: int
+    campaign_frames: int
+    dropped: list[str] = Field(default_factory=list)
+    lowered: list[str] = Field(default_factory=list)
+
+
 class TaskOptions(Contract):
     """How a task runs, fixed when it is created.
 
@@ -179,6 +192,7 @@ class TaskOptions(Contract):
         references: Tasks of reference systems a campaign created beside this one, on the same
             frames, operators and seed (``reference:`` in the campaign; compared in its report).
         reference_of: On such a reference task: the task it is the reference of.
+        pilot: What the campaign's pilot dropped or lowered (None: no pilot ran).
     """
 
     kind: str = "mutation"
@@ -191,6 +205,7 @@ class TaskOptions(Contract):
     kind_options: dict[str, Any] = Field(default_factory=dict)
     references: list[int] = Field(default_factory=list)
     reference_of: int | None = None
+    pilot: PilotNote | None = None
 
 
 class SubtaskInputs(Contract):
@@ -462,6 +477,7 @@ class TaskInfo(Contract):
     done: int = 0
     total: int = 0
     baseline: int | None = None
+    pilot: PilotNote | None = None
 
 
 class RunTimings(Contract):
@@ -509,8 +525,7 @@ def summary_schema() -> dict[str, Any]:
 
 
 __all__ = ["APExcluded", "APRecord", "APTable", "Contract", "DatasetRef", "DeepTestErrors", "DeepTestRow",
-           "DeepTestTable", "DeltaRow", "FailureRecord", "FindingReplay",
-           "FindingsSummary", "ModelRef", "Number", "OperatorRobustnessRow", "OutcomeRecord", "RateRow",
-           "RobustnessRecord", "RunTimings", "SearchProgress", "SearchSummary", "StatusName", "SubtaskInputs",
-           "SubtaskResults", "SubtaskSummary", "TaskInfo", "TaskOptions", "TaskSummary", "TopFinding",
-           "ViolationRecord", "ViolationTables", "summary_schema"]
+    "DeepTestTable", "DeltaRow", "FailureRecord", "FindingReplay", "FindingsSummary", "ModelRef", "Number",
+    "OperatorRobustnessRow", "OutcomeRecord", "PilotNote", "RateRow", "RobustnessRecord", "RunTimings",
+    "SearchProgress", "SearchSummary", "StatusName", "SubtaskInputs", "SubtaskResults", "SubtaskSummary", "TaskInfo",
+    "TaskOptions", "TaskSummary", "TopFinding", "ViolationRecord", "ViolationTables", "summary_schema"]
