@@ -51,8 +51,36 @@ def test_interleave_builds_the_logs_neves_et_al_use(sample_scenes):
     assert [s.timestamp for s in averaged] == sorted(s.timestamp for s in averaged)
 
 
-def test_average_needs_rings(sample_scenes):
+def test_cells_need_rings(sample_scenes):
     frame = sample_scenes[0]
-    bare = frame.replace(points=frame.points.without_channels(["ring"]))
+    bare = frame.points.without_channels(["ring"])
     with pytest.raises(ValueError, match="ring"):
-        FrameAverage().apply(bare, bare)
+        FrameAverage().cells(bare, 10)
+
+
+def test_average_without_rings_pairs_mutual_nearest_neighbours():
+    from lidarfuzz.scene.points import PointCloud
+    from lidarfuzz.scene.scene import Scene
+
+    # First frame: (0,0,0) (10,0,0) (20,0,0); second: (0.2,0,0) (10,0,0.4) (30,0,0), intensity 0.
+    # Mutual nearest within 0.5 m: (0,0,0)~(0.2,0,0) at 0.2 m and (10,0,0)~(10,0,0.4) at 0.4 m, averaged to
+    # (0.1,0,0) and (10,0,0.2); (20,0,0) and (30,0,0) have no partner within 0.5 m and are kept as they are.
+    a = Scene(PointCloud(np.array([[0, 0, 0, 0], [10, 0, 0, 0], [20, 0, 0, 0]], np.float32)), frame_id="a",
+              timestamp=0.0)
+    b = Scene(PointCloud(np.array([[0.2, 0, 0, 0], [10, 0, 0.4, 0], [30, 0, 0, 0]], np.float32)), frame_id="b",
+              timestamp=0.1)
+    combined = FrameAverage().apply(a, b)
+    rows = sorted(map(tuple, np.round(combined.points.xyz.astype(np.float64), 4).tolist()))
+    assert rows == [(0.1, 0.0, 0.0), (10.0, 0.0, 0.2), (20.0, 0.0, 0.0), (30.0, 0.0, 0.0)]
+    assert combined.metadata["frame_average_correspondence"] == "nearest"
+    assert combined.timestamp == pytest.approx(0.05)
+    # A tighter radius pairs only the first two points (0.2 m apart).
+    assert len(FrameAverage(radius=0.3).apply(a, b).points) == 5
+
+
+def test_average_of_real_frames_without_rings(sample_scenes):
+    a, b = (s.replace(points=s.points.without_channels(["ring"])) for s in sample_scenes[:2])
+    combined = FrameAverage().apply(a, b)
+    pairs = len(a.points) + len(b.points) - len(combined.points)
+    assert 0 < pairs <= min(len(a.points), len(b.points))
+    assert combined.metadata["frame_average_correspondence"] == "nearest"

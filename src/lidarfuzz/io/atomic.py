@@ -77,3 +77,41 @@ def write_text(path: str | PathLike[str], text: str, *, overwrite: bool = False,
     with atomic_path(path, overwrite=overwrite, durable=durable) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | PathLike[str], *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a new temporary folder next to ``path``; on success it is renamed onto ``path``.
+
+    A failure (an exception inside the block) removes the temporary folder, so a reader never
+    sees a half-written data set and nothing is left behind. An existing ``path`` is refused
+    unless ``overwrite`` (an empty folder counts as absent); with it, the old folder is replaced
+    only once the new one is complete.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "log"
+        >>> with atomic_folder(out) as tmp:
+        ...     _ = (tmp / "a.txt").write_text("hello")
+        >>> sorted(p.name for p in out.iterdir())
+        ['a.txt']
+    """
+    import shutil
+
+    target = Path(path)
+    if target.exists() and not (target.is_dir() and not any(target.iterdir())) and not overwrite:
+        raise OutputExistsError(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        yield tmp
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+            os.replace(target, old / target.name)
+            os.replace(tmp, target)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -19,8 +19,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from lidarfuzz.errors import LidarfuzzError
-from lidarfuzz.io.atomic import write_text
-from lidarfuzz.io.convert import ConvertResult, convert, destination_kind, write_scenes
+from lidarfuzz.io.atomic import atomic_folder, write_text
+from lidarfuzz.io.convert import FOLDER_TARGETS, ConvertResult, convert, destination_kind, write_scenes
 from lidarfuzz.io.open import open_dataset
 from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.operators.base import Operator, generator
@@ -125,5 +125,9 @@ def mutate_log(src: str | PathLike[str], dst: str | PathLike[str], operator: Ope
     dataset = open_dataset(src_path, options=options)
     if not dataset.ordered:
         raise LidarfuzzError(f"{src_path}: not a log (no timestamps): --interleave needs ordered frames")
-    return write_scenes(interleave(iter(dataset), operator, seed=seed), dst_path, destination_kind(dst_path, to),
-                        overwrite=overwrite)
+    kind = destination_kind(dst_path, to)
+    if kind not in FOLDER_TARGETS:
+        return write_scenes(interleave(iter(dataset), operator, seed=seed), dst_path, kind, overwrite=overwrite)
+    with atomic_folder(dst_path, overwrite=overwrite) as tmp:  # a failure mid-log leaves no partial folder
+        written = write_scenes(interleave(iter(dataset), operator, seed=seed), tmp, kind, overwrite=True)
+    return ConvertResult(dst_path, written.target, written.frames)

@@ -8,6 +8,12 @@
   only keeps that frame's point. Boxes with the same track id are averaged (centre,
   size, heading on the circle); others are kept from the first frame. The combined
   frame's timestamp and pose are the two frames' midpoint.
+  Without a ``ring`` channel in either frame (a folder of PCD files, a log converted without
+  it) the correspondence is *mutual nearest neighbours* within ``radius`` metres (0.5 m by
+  default; scipy's cKDTree): a point of the first frame and one of the second are a pair when
+  each is the other's nearest point and they lie within the radius; pairs are averaged as
+  matched cells are, every other point is kept from its frame. The combined frame's metadata
+  says which correspondence was used (``frame_average_correspondence``: ``ring`` or ``nearest``).
 * :func:`interleave` writes a new log: for a single-frame operator (e.g. HGT) each
   mutated frame right after its source; for AVG each combined frame between its two
   sources — the shapes of log Neves et al. feed to the system under test.
@@ -34,9 +40,11 @@ class FrameAverage:
     Attributes:
         columns: Azimuth columns per turn; ``None`` estimates it from the data as the
             largest number of points in one ring (a full ring of returns).
+        radius: Without rings, the farthest apart (metres) two points may be to pair.
     """
 
     columns: int | None = None
+    radius: float = 0.5
     name = "frame_average"
     aliases = ("AVG",)
     family = "log"
@@ -57,8 +65,8 @@ class FrameAverage:
         counts = [np.bincount(c.channel("ring").astype(np.int64)).max() for c in clouds if len(c) and c.has("ring")]
         return int(max(counts, default=1))
 
-    def apply(self, first: Scene, second: Scene) -> Scene:
-        a, b = first.points, second.points.conform(first.points.channels)
+    def _cell_pairs(self, a: PointCloud, b: PointCloud) -> tuple[NDArray[np.intp], NDArray[np.intp],
+                                                                  NDArray[np.bool_], NDArray[np.bool_]]:
         columns = self.column_count(a, b)
         cell_a, cell_b = self.cells(a, columns), self.cells(b, columns)
         # One point per cell and frame (the first in firing order), then match cells.
@@ -66,8 +74,6 @@ class FrameAverage:
         ub, ib = np.unique(cell_b, return_index=True)
         common, ja, jb = np.intersect1d(ua, ub, assume_unique=True, return_indices=True)
         both_a, both_b = ia[ja], ib[jb]
-        averaged = a.data[both_a].copy()
-        averaged[:, :4] = (a.data[both_a, :4].astype(np.float64) + b.data[both_b, :4]) / 2
         only_a = np.ones(len(a), bool)
         only_a[both_a] = False
         only_b = np.ones(len(b), bool)
@@ -75,12 +81,41 @@ class FrameAverage:
         # Points sharing a cell with a matched one (duplicates in a cell) are dropped with it.
         only_a &= ~np.isin(cell_a, common)
         only_b &= ~np.isin(cell_b, common)
+        return both_a, both_b, only_a, only_b
+
+    def nearest_pairs(self, a: PointCloud, b: PointCloud) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Indices (into ``a``, into ``b``) of mutual nearest neighbours within :attr:`radius`."""
+        if not len(a) or not len(b):
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        from scipy.spatial import cKDTree
+
+        distance, to_b = cKDTree(b.xyz).query(a.xyz, distance_upper_bound=self.radius)
+        _, to_a = cKDTree(a.xyz).query(b.xyz, distance_upper_bound=self.radius)
+        near = np.flatnonzero(np.isfinite(distance))
+        mutual = near[to_a[to_b[near]] == near]
+        return mutual.astype(np.intp), to_b[mutual].astype(np.intp)
+
+    def apply(self, first: Scene, second: Scene) -> Scene:
+        a, b = first.points, second.points.conform(first.points.channels)
+        if first.points.has("ring") and second.points.has("ring"):
+            both_a, both_b, only_a, only_b = self._cell_pairs(a, b)
+            correspondence = "ring"
+        else:
+            both_a, both_b = self.nearest_pairs(a, b)
+            only_a = np.ones(len(a), bool)
+            only_a[both_a] = False
+            only_b = np.ones(len(b), bool)
+            only_b[both_b] = False
+            correspondence = "nearest"
+        averaged = a.data[both_a].copy()
+        averaged[:, :4] = (a.data[both_a, :4].astype(np.float64) + b.data[both_b, :4]) / 2
         data = np.concatenate([averaged, a.data[only_a], b.data[only_b]])
         points = PointCloud(data, a.channels)
         return first.replace(points=points, boxes=self._boxes(first, second), timestamp=_mid(first.timestamp,
                              second.timestamp), pose=_mid_pose(first.pose, second.pose),
                              frame_id=f"{first.frame_id}+{second.frame_id}",
-                             metadata={**first.metadata, "frame_average": [first.frame_id, second.frame_id]})
+                             metadata={**first.metadata, "frame_average": [first.frame_id, second.frame_id],
+                                       "frame_average_correspondence": correspondence})
 
     @staticmethod
     def _boxes(first: Scene, second: Scene) -> Any:
