@@ -1,0 +1,77 @@
+"""Logs: data sets with order, and one-line refusals for those without."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lidarfuzz.io.atomic import write_text
+from lidarfuzz.io.frames import write_frame
+from lidarfuzz.io.kitti import KittiWriter
+from lidarfuzz.scene.points import PointCloud
+from lidarfuzz.scene.scene import Scene
+from lidarfuzz.structural.logs import NotALogError, open_log
+
+
+def _scene(frame_id: str, timestamp: float | None = None, pose: bool = False) -> Scene:
+    return Scene(PointCloud(np.full((4, 4), 1.0 + int(frame_id), np.float32)), frame_id=frame_id,
+                 timestamp=timestamp, pose=np.eye(4) if pose else None)
+
+
+def _kitti(root: Path, stamps: list[float | None], pose: bool = False) -> Path:
+    with KittiWriter(root) as writer:
+        for i, t in enumerate(stamps):
+            writer.add(_scene(f"{i:06d}", t, pose))
+    return root
+
+
+def test_a_kitti_log_is_ordered_by_its_timestamps(tmp_path):
+    # stamps 0.3, 0.1, 0.2 for frames 0, 1, 2: replay order 1, 2, 0
+    log = open_log(_kitti(tmp_path / "log", [0.3, 0.1, 0.2]))
+    assert log.frame_ids == ("000001", "000002", "000000") and log.order == "timestamps"
+    assert log.timestamps is not None and log.timestamps.tolist() == [0.1, 0.2, 0.3]
+    assert len(log) == 3 and [s.frame_id for s in log] == ["000001", "000002", "000000"]
+    assert log.frame(0).timestamp == 0.1
+
+
+def test_a_kitti_folder_with_poses_only_is_a_sequence_in_frame_id_order(tmp_path):
+    log = open_log(_kitti(tmp_path / "log", [None, None, None], pose=True))
+    assert log.order == "frame_ids" and log.timestamps is None
+    assert log.frame_ids == ("000000", "000001", "000002")
+
+
+def test_a_bag_keeps_its_container_order(tmp_path):
+    from lidarfuzz.io.logs import write_log
+
+    out = tmp_path / "drive.mcap"
+    write_log(out, [_scene("0", 5.0), _scene("1", 5.1)])
+    log = open_log(out)
+    assert log.order == "container" and log.frame_ids == ("000000", "000001")
+    assert log.timestamps is not None and log.timestamps.tolist() == [5.0, 5.1]
+
+
+def test_a_kitti_folder_without_timestamps_or_poses_is_refused_naming_what_is_missing(tmp_path):
+    root = _kitti(tmp_path / "plain", [None, None])
+    with pytest.raises(NotALogError) as caught:
+        open_log(root)
+    message = str(caught.value)
+    assert str(root) in message and "timestamps.txt" in message and "\n" not in message
+
+
+def test_a_folder_of_frames_is_refused(tmp_path):
+    folder = tmp_path / "frames"
+    for i in range(2):
+        write_frame(folder / f"{i:06d}.pcd", _scene(f"{i}"))
+    with pytest.raises(NotALogError, match=r"frames.*not a log: a folder of frame files has no timestamps"):
+        open_log(folder)
+    with pytest.raises(NotALogError, match="one frame file"):
+        open_log(folder / "000000.pcd")
+
+
+def test_a_malformed_timestamps_file_is_a_data_error(tmp_path):
+    root = _kitti(tmp_path / "log", [0.1, 0.2])
+    write_text(root / "timestamps.txt", "000000 0.1\n000001 soon\n", overwrite=True)
+    with pytest.raises(Exception, match=r"timestamps.txt:2: not a number"):
+        open_log(root)
