@@ -85,6 +85,7 @@ class FunctionGraph:
         blocks: Its basic blocks in source order.
         edges: ``(source leader or -first, target leader or -first)``, sorted.
         handlers: ``{except clause's first line: leader of its try statement's block}``.
+        last_line: The definition's last line (with ``first``, the span of its source).
     """
 
     function: str
@@ -93,6 +94,7 @@ class FunctionGraph:
     blocks: tuple[Block, ...]
     edges: tuple[Arc, ...]
     handlers: dict[int, int] = field(default_factory=dict, compare=False, hash=False)
+    last_line: int = 0
 
     @property
     def block_of(self) -> dict[int, Block]:
@@ -170,9 +172,10 @@ def function_graph(function: SourceFunction) -> FunctionGraph:
     """The control-flow graph of one function (the rule is in the module docstring)."""
     definition = _definition(function.filename, function.start)
     first = min([definition.lineno, *(d.lineno for d in definition.decorator_list)])
+    end = definition.end_lineno or definition.lineno
     lines = function.statements
     if not lines:
-        return FunctionGraph(function.name, function.filename, first, (), ())
+        return FunctionGraph(function.name, function.filename, first, (), (), last_line=end)
     parser = file_reporter(function.filename).parser
     entry = min(lines)
     arcs = {(a, b) for a, b in _file_arcs(function.filename) if a in lines and (b in lines or b == -first)}
@@ -202,7 +205,8 @@ def function_graph(function: SourceFunction) -> FunctionGraph:
     edges = {(-first, entry)} | {(b.leader, after) for b in blocks for after in successors[b.last]}
     handlers = {h: block_of[t].leader for t, h in clauses}
     edges |= {(source, h) for h, source in handlers.items()}
-    return FunctionGraph(function.name, function.filename, first, tuple(blocks), tuple(sorted(edges)), handlers)
+    return FunctionGraph(function.name, function.filename, first, tuple(blocks), tuple(sorted(edges)), handlers,
+                         end)
 
 
 @dataclass(frozen=True)
