@@ -8,6 +8,10 @@ truth) are stored compactly as float32 arrays with their labels, read and writte
 (:class:`lidarfuzz.store.boxes.StoredBoxes`). ``sut_outputs`` caches what a system (by fingerprint)
 said about an input (by content
 digest), so unchanged inputs are never run twice.
+
+Structural testing adds Neves et al.'s meta-model: logs (field-test or generated, with parent,
+heuristic and strategy), their segments, and coverage records per log or segment and system
+fingerprint (:mod:`lidarfuzz.store.log_contracts`, recorded by :mod:`lidarfuzz.structural.stored`).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any, ClassVar
 from sqlalchemy import (
     JSON,
     Boolean,
+    CheckConstraint,
     DateTime,
     Enum,
     Float,
@@ -42,6 +47,7 @@ from lidarfuzz.store.contracts import (
     TaskOptions,
     TaskSummary,
 )
+from lidarfuzz.store.log_contracts import CoveredLabels, GenerationRecord
 from lidarfuzz.store.types import ContractJSON, SafeJSON
 
 
@@ -209,3 +215,73 @@ class SutOutput(Base):
     labels: Mapped[list[Any]] = mapped_column(default=list)
     output: Mapped[StoredBoxes] = composite(StoredBoxes, "boxes", "labels")
     seconds: Mapped[float] = mapped_column(Float, default=0.0)
+
+
+# -- Neves et al.'s meta-model: logs, their segments, and code coverage ----------------------
+class LogKind(enum.StrEnum):
+    FIELD_TEST = "field_test"
+    GENERATED = "generated"
+
+
+class Log(Base):
+    """A log: recorded in a field test, or generated from a parent log by a heuristic and a strategy."""
+
+    __tablename__ = "logs"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), unique=True)
+    kind: Mapped[LogKind] = mapped_column(Enum(LogKind, name="log_kind", native_enum=False, length=16,
+                                               values_callable=lambda e: [m.value for m in e]))
+    dataset_id: Mapped[int | None] = mapped_column(ForeignKey("datasets.id", ondelete="SET NULL"), nullable=True)
+    path: Mapped[str] = mapped_column(Text)
+    format: Mapped[str] = mapped_column(String(40))
+    frame_count: Mapped[int] = mapped_column(Integer)
+    parent_id: Mapped[int | None] = mapped_column(ForeignKey("logs.id", ondelete="RESTRICT"), nullable=True,
+                                                  index=True)
+    heuristic: Mapped[str] = mapped_column(String(40), default="")  # which chose its segments ("" by hand)
+    strategy: Mapped[str] = mapped_column(String(100), default="")  # HGT, AVG, an operator, none
+    generation: Mapped[GenerationRecord | None] = mapped_column(ContractJSON(GenerationRecord, none_as_null=True),
+                                                                nullable=True)  # SQL NULL for a field-test log
+    added_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+    parent: Mapped[Log | None] = relationship(remote_side=[id])
+    segments: Mapped[list[Segment]] = relationship(back_populates="log", cascade="all, delete-orphan",
+                                                   order_by="(Segment.size, Segment.index)")
+
+
+class Segment(Base):
+    """Frames ``first_frame``..``last_frame`` (positions in replay order) of a log cut into ``size``-frame segments."""
+
+    __tablename__ = "log_segments"
+    __table_args__ = (UniqueConstraint("log_id", "size", "index"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    log_id: Mapped[int] = mapped_column(ForeignKey("logs.id", ondelete="CASCADE"), index=True)
+    size: Mapped[int] = mapped_column(Integer)
+    index: Mapped[int] = mapped_column(Integer)
+    first_frame: Mapped[int] = mapped_column(Integer)
+    last_frame: Mapped[int] = mapped_column(Integer)
+    first_frame_id: Mapped[str] = mapped_column(String(200))
+    last_frame_id: Mapped[str] = mapped_column(String(200))
+
+    log: Mapped[Log] = relationship(back_populates="segments")
+
+
+class CoverageRecord(Base):
+    """What a log or one segment of it covered of a target (module, class or function) under a
+    criterion, for one version of the system (its fingerprint)."""
+
+    __tablename__ = "coverage_records"
+    __table_args__ = (CheckConstraint("(log_id IS NULL) <> (segment_id IS NULL)", name="ck_coverage_log_or_segment"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    log_id: Mapped[int | None] = mapped_column(ForeignKey("logs.id", ondelete="CASCADE"), nullable=True, index=True)
+    segment_id: Mapped[int | None] = mapped_column(ForeignKey("log_segments.id", ondelete="CASCADE"), nullable=True,
+                                                   index=True)
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    criterion: Mapped[str] = mapped_column(String(16))  # node or edge
+    target: Mapped[str] = mapped_column(String(500))
+    covered: Mapped[CoveredLabels] = mapped_column(ContractJSON(CoveredLabels), default=dict)
+    covered_count: Mapped[int] = mapped_column(Integer)
+    total_count: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
