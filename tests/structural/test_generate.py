@@ -158,3 +158,30 @@ def test_a_parent_without_a_clock_gives_a_log_timed_at_10_hz(tmp_path):
     generated = open_log(tmp_path / "base")
     assert generated.timestamps is not None
     np.testing.assert_allclose(generated.timestamps, [0.0, 0.1, 0.2])
+
+
+def test_the_generate_command_writes_the_chosen_segments(five_frame_log, tmp_path):
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+    from lidarfuzz.store.store import Store
+    from lidarfuzz.structural.stored import get_log
+
+    runner = CliRunner()
+    out = tmp_path / "hgt"
+    # segments of 2: s000000 = frames 0-1, s000002 = frame 4; HGT doubles each: 4 + 2 frames
+    result = runner.invoke(app, ["logs", "generate", str(five_frame_log), "--strategy", "HGT", "--size", "2",
+                                 "--segments", "s000002,0", "--heuristic", "budget", "--out", str(out),
+                                 "--record", "hgt", "--workspace", str(tmp_path / "ws")])
+    assert result.exit_code == 0, result.output
+    made = GeneratedLog.read(out)
+    assert made.segments == (0, 2) and len(made.frames) == 6 and made.heuristic == "budget"
+    store = Store(tmp_path / "ws")
+    with store.session() as s:
+        child = get_log(s, "hgt")
+        assert child.parent is not None and child.parent.name == "parent" and child.frame_count == 6
+    store.close()
+    bad = runner.invoke(app, ["logs", "generate", str(five_frame_log), "--strategy", "HGT", "--segments", "9",
+                              "--out", str(tmp_path / "bad")])
+    assert bad.exit_code != 0 and "is not a segment of this log" in bad.output
+    assert not (tmp_path / "bad").exists()

@@ -46,3 +46,39 @@ def test_segment_coverage_is_the_union_of_its_frames():
     assert segment_coverage(segments, per_frame) == [frozenset({n[0], e}), frozenset({n[1]}), frozenset({n[2]})]
     with pytest.raises(ValueError, match=r"per_frame: expected one coverage set per frame of the log \(5\), got 4"):
         segment_coverage(segments, per_frame[:4])
+
+
+def test_the_partition_command_lists_and_records_segments(tmp_path):
+    import json
+
+    import numpy as np
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+    from lidarfuzz.io.kitti import KittiWriter
+    from lidarfuzz.scene.points import PointCloud
+    from lidarfuzz.scene.scene import Scene
+    from lidarfuzz.store.store import Store
+    from lidarfuzz.structural.stored import get_log
+
+    root = tmp_path / "drive"
+    with KittiWriter(root) as writer:
+        for i in range(7):  # 7 frames at 10 Hz; size 3 -> frames 0-2, 3-5, 6
+            xyz = np.random.default_rng(i).uniform(-20, 20, (40, 3))
+            writer.add(Scene(PointCloud(np.column_stack([xyz, np.full(40, 0.2)]).astype(np.float32)),
+                             frame_id=f"{i:06d}", timestamp=0.1 * i))
+    runner = CliRunner()
+    result = runner.invoke(app, ["logs", "partition", str(root), "--size", "3", "--json", "--record", "drive",
+                                 "--workspace", str(tmp_path / "ws")])
+    assert result.exit_code == 0, result.output
+    listed = json.loads(result.output)
+    assert [(s["id"], s["first"], s["last"], s["frames"]) for s in listed] == [
+        ("s000000", 0, 2, 3), ("s000001", 3, 5, 3), ("s000002", 6, 6, 1)]
+    assert listed[1]["start_s"] == pytest.approx(0.3) and listed[1]["end_s"] == pytest.approx(0.5)
+    store = Store(tmp_path / "ws")
+    with store.session() as s:
+        assert [(g.size, g.index, g.first_frame_id) for g in get_log(s, "drive").segments] == [
+            (3, 0, "000000"), (3, 1, "000003"), (3, 2, "000006")]
+    store.close()
+    refused = runner.invoke(app, ["logs", "partition", str(root / "velodyne")])
+    assert refused.exit_code != 0

@@ -26,6 +26,7 @@ from lidarfuzz.cli import (
     evaluate,
     gen,
     info,
+    logs,
     operators,
     relations,
     replay,
@@ -99,6 +100,12 @@ models.command("add")(catalog.models_add)
 models.command("list")(catalog.models_list)
 models.command("remove")(catalog.models_remove)
 app.add_typer(models, name="models")
+
+log_commands = typer.Typer(help="Structural testing with logs (Neves et al.): partition a log into segments, "
+                                "generate new logs from them.", no_args_is_help=True)
+log_commands.command("partition")(logs.partition_command)
+log_commands.command("generate")(logs.generate_command)
+app.add_typer(log_commands, name="logs")
 
 
 _python_show_warning = warnings.showwarning
