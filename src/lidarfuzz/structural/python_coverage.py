@@ -45,7 +45,7 @@ import ast
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property, partial
 from typing import Any, TypeVar
 
 from coverage.control import Coverage
@@ -111,26 +111,56 @@ class FunctionGraph:
         """Every node and edge: what all-nodes and all-edges ask for."""
         return self.nodes() | self.edge_requirements()
 
+    @cached_property
+    def index(self) -> ArcIndex:
+        """Which executed line or arc covers which requirement (built once; measurement only looks up)."""
+        index = ArcIndex()
+        requirement = partial(Requirement, self.function)
+        index.nodes.update({b.leader: requirement("node", b.leader) for b in self.blocks})
+        last_of = {b.leader: b.last for b in self.blocks}
+        for a, b in self.edges:
+            # the entry edge is the arc (-first, first line); any other edge the arc from its source's last line
+            index.edges[(last_of.get(a, a), b)] = requirement("edge", a, b)
+        index.handlers.update({h: requirement("edge", source, h) for h, source in self.handlers.items()})
+        return index
+
     def covered(self, arcs: Iterable[Arc]) -> Covered:
         """The requirements that executed ``arcs`` (coverage.py's, translated to first lines) cover."""
-        block_of = self.block_of
-        edges = set(self.edges)
+        return self.index.covered(arcs)
+
+
+@dataclass
+class ArcIndex:
+    """Executed lines and arcs → requirements, for one function or every function of a file.
+
+    Attributes:
+        nodes: A block's first line → its node.
+        edges: The arc from a block's last line (or ``-first``, the entry) → its edge.
+        handlers: An except clause's first line → its exception edge (entered from any line).
+    """
+
+    nodes: dict[int, Requirement] = field(default_factory=dict)
+    edges: dict[Arc, Requirement] = field(default_factory=dict)
+    handlers: dict[int, Requirement] = field(default_factory=dict)
+
+    def merge(self, other: ArcIndex) -> None:
+        self.nodes.update(other.nodes)
+        self.edges.update(other.edges)
+        self.handlers.update(other.handlers)
+
+    def covered(self, arcs: Iterable[Arc]) -> Covered:
+        """The requirements ``arcs`` cover (the rule in the module docstring)."""
+        nodes, edges, handlers = self.nodes, self.edges, self.handlers
         out: set[Requirement] = set()
-        for a, b in arcs:
-            for line in (a, b):
-                block = block_of.get(line)
-                if block is not None and block.leader == line:
-                    out.add(Requirement(self.function, "node", line))
-            if a == -self.first:
-                edge = (a, b)
-            elif a in block_of and block_of[a].last == a and (block_of[a].leader, b) in edges:
-                edge = (block_of[a].leader, b)
-            elif b in self.handlers:
-                edge = (self.handlers[b], b)
-            else:
-                continue
-            if edge in edges:
-                out.add(Requirement(self.function, "edge", *edge))
+        for arc in arcs:
+            a, b = arc
+            if a in nodes:
+                out.add(nodes[a])
+            if b in nodes:
+                out.add(nodes[b])
+            edge = edges.get(arc) or handlers.get(b)
+            if edge is not None:
+                out.add(edge)
         return frozenset(out)
 
 
@@ -235,9 +265,16 @@ class CodeModel:
         """All nodes and edges of the targets (``nT`` and ``eT``)."""
         return union(*(g.requirements() for g in self.graphs))
 
+    @cached_property
+    def _indexes(self) -> dict[str, ArcIndex]:
+        out: dict[str, ArcIndex] = {}
+        for graph in self.graphs:
+            out.setdefault(graph.filename, ArcIndex()).merge(graph.index)
+        return out
+
     def covered(self, arcs_by_file: dict[str, set[Arc]]) -> Covered:
         """What executed arcs per file (translated to first lines) cover."""
-        return union(*(g.covered(arcs_by_file.get(g.filename, ())) for g in self.graphs))
+        return union(*(index.covered(arcs_by_file.get(f, ())) for f, index in self._indexes.items()))
 
 
 def requirements_of(targets: Iterable[str]) -> Covered:
