@@ -3,5 +3,9 @@ test replayed over ordered logs of frames, segments, discriminatory-segment heur
 generated logs.
 
 Modules: :mod:`~lidarfuzz.structural.requirements` (the requirements every coverage producer
-reports and the paper's coverage formulas).
+reports and the paper's coverage formulas); code coverage: :mod:`~lidarfuzz.structural.targets`
+(what to cover), :mod:`~lidarfuzz.structural.python_coverage` (control-flow graphs from
+coverage.py's arcs, measured per call), :mod:`~lidarfuzz.structural.gcov` (compiled programs,
+gcov data via gcovr) and :mod:`~lidarfuzz.structural.views` (tables, annotated source, graphs,
+comparisons).
 """
