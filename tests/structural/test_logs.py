@@ -75,3 +75,70 @@ def test_a_malformed_timestamps_file_is_a_data_error(tmp_path):
     write_text(root / "timestamps.txt", "000000 0.1\n000001 soon\n", overwrite=True)
     with pytest.raises(Exception, match=r"timestamps.txt:2: not a number"):
         open_log(root)
+
+
+def test_replaying_a_log_gives_coverage_per_frame_and_keeps_going_after_a_failure():
+    from types import SimpleNamespace
+
+    from lidarfuzz.structural.log_coverage import frame_coverage
+    from lidarfuzz.structural.requirements import Requirement
+
+    class Recorder:
+        """Covers node <frame number>; frame 2 raises after covering node 99."""
+
+        last: frozenset = frozenset()
+
+        def record(self, function, *args):
+            frame = args[0]
+            self.last = frozenset({Requirement("m:f", "node", int(frame.frame_id))})
+            if frame.frame_id == "2":
+                self.last = frozenset({Requirement("m:f", "node", 99)})
+            return function(*args), self.last
+
+    def step(frame):
+        if frame.frame_id == "2":
+            raise RuntimeError("lost the ground\nsecond line")
+        return SimpleNamespace(steering=0.0, speed=1.0, emergency_stop=False)
+
+    resets = []
+    frames = [_scene(str(i), 0.1 * i) for i in range(4)]
+    replay = frame_coverage(frames, step, Recorder(), reset=lambda: resets.append(1))
+    assert resets == [1]
+    assert [sorted(r.source for r in c) for c in replay.covered] == [[0], [1], [99], [3]]
+    assert replay.failures == {2: "RuntimeError: lost the ground"} and replay.outputs[2] is None
+
+
+def test_a_real_recorder_sees_which_branches_each_frame_takes():
+    from types import SimpleNamespace
+
+    from lidarfuzz.structural.log_coverage import decision_signature, frame_coverage
+    from lidarfuzz.structural.python_coverage import CoverageRecorder
+
+    recorder = CoverageRecorder(["lidarfuzz.structural.log_coverage:decision_signature"])
+    # frames 0, 1: cruising straight; 2: an emergency stop; 3: cruising straight again
+    decisions = {"0": (0.0, 8.0, False), "1": (0.0, 9.0, False), "2": (0.0, 8.0, True), "3": (0.01, 7.0, False)}
+
+    def step(frame):
+        steering, speed, stop = decisions[frame.frame_id]
+        return decision_signature(SimpleNamespace(steering=steering, speed=speed, emergency_stop=stop))
+
+    replay = frame_coverage([_scene(str(i), 0.1 * i) for i in range(4)], step, recorder)
+    assert replay.outputs == [("cruise", 0), ("cruise", 0), ("stop", 0), ("cruise", 0)]
+    assert replay.covered[0] == replay.covered[1] == replay.covered[3] != replay.covered[2]
+    assert replay.covered[0] and replay.covered[2]
+
+
+def test_two_logs_compared_as_the_paper_does():
+    from lidarfuzz.structural.log_coverage import compare_logs
+    from lidarfuzz.structural.requirements import Requirement
+
+    n = [Requirement("m:f", "node", i) for i in range(1, 5)]
+    e = [Requirement("m:f", "edge", i, i + 1) for i in range(1, 6)]
+    total = frozenset(n + e)
+    # base L': nodes 1, 2 and edge 1; generated L'' (per frame): nodes 2, 3 and edges 1, 2, 3.
+    # nodes: 2/4 and 2/4, together 3/4, aggregated |{3}| / 4; edges: 1/5 and 3/5, together 3/5, aggregated 2/5
+    nodes, edges = compare_logs(frozenset({n[0], n[1], e[0]}), [frozenset({n[1], e[0]}), frozenset({n[2], e[1], e[2]})],
+                                total)
+    assert (nodes.total, nodes.base, nodes.generated, nodes.together, nodes.aggregated) == (4, 0.5, 0.5, 0.75, 0.25)
+    assert nodes.new == frozenset({n[2]})
+    assert (edges.total, edges.base, edges.generated, edges.together, edges.aggregated) == (5, 0.2, 0.6, 0.6, 0.4)
