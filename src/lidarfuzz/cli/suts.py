@@ -9,20 +9,25 @@ from lidarfuzz.cli.common import Column, JsonOption, LayoutOption, PlainOption, 
 
 
 def suts_command(as_json: JsonOption = False, plain: PlainOption = False) -> None:
-    """List the built-in and plugin systems under test and the spec forms that name others."""
-    from lidarfuzz.suts.registry import available
+    """List the built-in and plugin systems under test and the spec forms that name others: systems
+    that detect frame by frame, and systems that consume logs in order (controllers)."""
+    from lidarfuzz.suts.registry import available, available_sequences
 
     rows: list[list[str]] = []
     records: list[dict[str, Any]] = []
-    for name, cls in sorted(available().items()):
-        doc = (cls.__doc__ or "").strip().splitlines()
-        rows.append([name, doc[0] if doc else "", cls.version])
-        records.append({"spec": name, "system": doc[0] if doc else "", "version": cls.version})
-    print_listing([Column("spec", name=True), Column("system"), Column("version")], rows, records,
+    kinds: list[tuple[str, dict[str, Any]]] = [("frames", available()), ("logs", available_sequences())]
+    for kind, systems in kinds:
+        for name, cls in sorted(systems.items()):
+            doc = (cls.__doc__ or "").strip().splitlines()
+            rows.append([name, doc[0] if doc else "", cls.version, kind])
+            records.append({"spec": name, "system": doc[0] if doc else "", "version": cls.version, "consumes": kind})
+    print_listing([Column("spec", name=True), Column("system"), Column("version"), Column("consumes")], rows, records,
                   as_json=as_json, plain=plain, footer=(
                       "Other systems: [cyan]package.module:callable[/] (a detector function or SUT class), "
                       "[cyan]subprocess:'COMMAND {points} {output}'[/], [cyan]worker:COMMAND[/], "
-                      "[cyan]onnx:PATH[/]; options as [cyan]NAME?key=value&…[/]. Protocol: docs/suts.md"))
+                      "[cyan]onnx:PATH[/]; options as [cyan]NAME?key=value&…[/]. Protocol: docs/suts.md. Systems that "
+                      "consume logs: a registered name, [cyan]module:callable[/] or [cyan]worker:COMMAND[/] "
+                      "answering resets (docs/structural.md)"))
 
 
 def detect_command(

@@ -26,6 +26,16 @@ stdout: the same JSON as the one-shot output file, ``{"kitti": ["Car 0 0 …", �
 exits is a ``crash``; one that does not answer within ``timeout`` is killed (``timeout``)
 and restarted for the next frame.
 
+**Worker for a system that consumes logs in order** (a sequence system,
+:mod:`lidarfuzz.suts.sequence`): the same program and requests, with two additions. Before
+each log lidarfuzz writes ``{"reset": true}``; the program clears its state (speed, histories,
+filters) and answers ``{"ok": true}``. Each frame request also carries ``"index"``, the frame's
+position in the log, ``"timestamp"`` (seconds or null) and the frame's ``"metadata"`` (e.g. a
+``goal_direction``), and the answer is a decision — ``{"steering": 0.05, "speed": 7.5,
+"emergency_stop": false}``, optionally with ``"obstacles"`` (a ``detections`` list as above)
+and ``"path"`` (``[[x, y], ...]``) — or ``{"error": "message"}``. A detection worker never
+receives a reset, so existing programs are unaffected.
+
 Both are fingerprinted by their code too: the program's executable (a command name resolved
 on ``PATH``) and every file an argument names, such as the script of ``python3 detector.py``
 (:func:`lidarfuzz.suts.code.program_code`).
@@ -262,17 +272,48 @@ class WorkerSut(SystemUnderTest[Scene, Boxes3D]):
         if restart:
             self.restarts += 1
 
-    def detect(self, sample: Scene) -> Boxes3D:
+    @property
+    def running(self) -> bool:
+        """Whether the program is running (it has not exited nor been killed since it started)."""
+        return self._process is not None and self._process.poll() is None
+
+    def frame_request(self, sample: Scene) -> dict[str, Any]:
+        """Write the frame's input files and return the request line's JSON for it."""
         self.load()
-        assert self._process is not None and self._process.stdin is not None and self._tmp is not None
+        assert self._tmp is not None
         points, calib = _write_inputs(sample, Path(self._tmp.name), self.points_format)
-        request = {
+        return {
             "frame_id": sample.frame_id,
             "points": str(points),
             "format": self.points_format,
             "channels": list(sample.points.channels) if self.points_format == "pcd" else ["x", "y", "z", "intensity"],
             "calib": str(calib),
         }
+
+    def reset_state(self) -> None:
+        """Ask the program to clear its state (``{"reset": true}``, answered ``{"ok": true}``).
+
+        Raises:
+            SutError: ``crash``, ``timeout`` or ``invalid_output`` as for a frame.
+        """
+        answer = self.exchange({"reset": True})
+        if isinstance(answer, dict) and "error" in answer:
+            raise SutError(FailureKind.CRASH, f"{self.name}: the reset failed: {answer['error']}")
+        if answer != {"ok": True}:
+            text = json.dumps(answer)[:200]
+            expected = '{"ok": true}'
+            raise SutError(FailureKind.INVALID_OUTPUT, f"{self.name} answered {text} to a reset; expected {expected}")
+
+    def exchange(self, request: dict[str, Any]) -> Any:
+        """Send one request line and return the program's answer line, parsed as JSON.
+
+        Raises:
+            SutError: ``crash`` when the program exited (it is restarted on the next request),
+                ``timeout`` when it did not answer within ``timeout`` (killed, restarted next time),
+                ``invalid_output`` when the answer is not JSON.
+        """
+        self.load()
+        assert self._process is not None and self._process.stdin is not None
         try:
             self._process.stdin.write(json.dumps(request) + "\n")
             self._process.stdin.flush()
@@ -291,9 +332,12 @@ class WorkerSut(SystemUnderTest[Scene, Boxes3D]):
             how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
             raise SutError(FailureKind.CRASH, f"{self.name} exited ({how}); restarted", "".join(self._stderr))
         try:
-            data = json.loads(line)
+            return json.loads(line)
         except json.JSONDecodeError as exc:
             raise SutError(FailureKind.INVALID_OUTPUT, f"{self.name} answered a line that is not JSON: {exc}") from None
+
+    def detect(self, sample: Scene) -> Boxes3D:
+        data = self.exchange(self.frame_request(sample))
         return parse_response(data, sample.calib or KittiCalibration.default(), f"{self.name} answer")
 
     def close(self) -> None:
