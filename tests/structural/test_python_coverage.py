@@ -43,14 +43,28 @@ PARSE = nodes("parse", 48, 50, 52) | edges("parse", (-47, 48), (48, 52), (48, 50
 AREA = nodes("Rectangle.area", 61, 62, 63) | edges(
     "Rectangle.area", (-60, 61), (61, 62), (61, 63), (62, -60), (63, -60))
 IS_SQUARE = nodes("Rectangle.is_square", 67) | edges("Rectangle.is_square", (-66, 67), (67, -66))
+COUNTDOWN = nodes("countdown", 119, 122, 123, 125) | edges(
+    "countdown", (-117, 119), (119, 122), (122, 123), (122, 125), (123, 122), (125, -117))
+HALVE = nodes("countdown.halve", 120) | edges("countdown.halve", (-119, 120), (120, -119))
 
 
 @pytest.mark.parametrize("function, expected", [
     ("straight", STRAIGHT), ("sign", SIGN), ("first_negative", FIRST_NEGATIVE), ("parse", PARSE),
-    ("Rectangle.area", AREA), ("Rectangle.is_square", IS_SQUARE),
+    ("Rectangle.area", AREA), ("Rectangle.is_square", IS_SQUARE), ("countdown.halve", HALVE),
 ])
 def test_static_requirements_are_the_hand_counted_graphs(function, expected):
     assert requirements_of([f"{M}:{function}"]) == expected
+
+
+def test_a_decorated_function_with_a_nested_one():
+    # the function target includes the nested function; each has its own graph
+    assert requirements_of([f"{M}:countdown"]) == COUNTDOWN | HALVE
+    recorder = RecorderConfig((f"{M}:countdown",)).build()
+    # n = 1: one pass through the loop (halve called once), then 122 -> 125
+    assert recorder.record(sample_code.countdown, 1) == ([0], COUNTDOWN | HALVE)
+    # n = 0: the loop body never runs, nor halve
+    assert recorder.record(sample_code.countdown, 0)[1] == nodes("countdown", 119, 122, 125) | edges(
+        "countdown", (-117, 119), (119, 122), (122, 125), (125, -117))
 
 
 def test_blocks_group_straight_lines():
@@ -157,7 +171,7 @@ def test_targets_parse_and_resolve():
     assert str(CodeTarget.parse(f"{M}:Rectangle.area")) == f"{M}:Rectangle.area"
     names = [f.qualname for f in CodeTarget.parse(M).functions()]
     assert names == ["straight", "sign", "first_negative", "parse", "Rectangle.area", "Rectangle.is_square",
-                     "ground_height", "steer"]
+                     "ground_height", "steer", "tagged", "countdown", "countdown.halve"]
     # a package: every module in it
     package = {f.module for f in CodeTarget.parse("tests.structural").functions()}
     assert M in package

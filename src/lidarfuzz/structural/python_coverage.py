@@ -189,12 +189,12 @@ def _own_nodes(node: ast.AST) -> Iterator[ast.AST]:
             yield from _own_nodes(child)
 
 
-def _try_clauses(definition: ast.FunctionDef | ast.AsyncFunctionDef) -> list[tuple[int, int]]:
-    """``(try statement's line, except clause's line)`` of every try in the function."""
+def _try_clauses(definition: ast.FunctionDef | ast.AsyncFunctionDef) -> list[tuple[int, int, int]]:
+    """``(try statement's line, its body's first line, except clause's line)`` of every try in the function."""
     out = []
     for node in _own_nodes(definition):
         if isinstance(node, ast.Try | ast.TryStar):
-            out += [(node.lineno, handler.lineno) for handler in node.handlers]
+            out += [(node.lineno, node.body[0].lineno, handler.lineno) for handler in node.handlers]
     return out
 
 
@@ -215,8 +215,13 @@ def function_graph(function: SourceFunction) -> FunctionGraph:
     for a, b in arcs:
         successors[a].add(b)
         predecessors[b].add(a)
-    clauses = [(parser.first_line(t), parser.first_line(h)) for t, h in _try_clauses(definition)]
-    clauses = [(t, h) for t, h in clauses if t in lines and h in lines]
+    clauses = []
+    for try_line, body_line, handler_line in _try_clauses(definition):
+        # the try's own line where it is a statement (Python 3.11), else its body's first line
+        anchor, handler = parser.first_line(try_line), parser.first_line(handler_line)
+        anchor = anchor if anchor in lines else parser.first_line(body_line)
+        if anchor in lines and handler in lines:
+            clauses.append((anchor, handler))
     leaders = {entry} | {h for _, h in clauses}
     for line in lines:
         before = predecessors[line]
