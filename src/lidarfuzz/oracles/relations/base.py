@@ -154,10 +154,14 @@ class MetamorphicRelation(ABC, Generic[S, O, CfgT]):
         assumes_harmless: The relation expects the mutation to be harmless, so a campaign checks
             it only where the operator is meant to be (:meth:`Operator.harmless`).
         assumption: What the relation assumes, in one sentence (listings and reports show it).
+        output: What outputs it reads: ``detections`` (:class:`~lidarfuzz.scene.boxes.Boxes3D`) or
+            ``decisions`` (a sequence system's steering and speed); campaigns choose relations by
+            default among those reading their system's kind of output.
     """
 
     name: ClassVar[str]
     description: ClassVar[str] = ""
+    output: ClassVar[str] = "detections"
     assumes_harmless: ClassVar[bool] = False
     assumption: ClassVar[str] = ""
     ConfigModel: ClassVar[type[RelationConfig]]

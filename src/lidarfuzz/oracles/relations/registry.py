@@ -31,6 +31,7 @@ def from_spec(spec: str | dict[str, Any]) -> MetamorphicRelation[Any, Any, Any]:
     return get(name)(**spec.get("config", {}))
 
 
-def for_operator(relation: Any) -> list[MetamorphicRelation[Any, Any, Any]]:
-    """Default-configured built-in and plugin relations that apply to an operator's relation kind."""
-    return [cls() for cls in available().values() if relation in cls.applies_to]
+def for_operator(relation: Any, output: str = "detections") -> list[MetamorphicRelation[Any, Any, Any]]:
+    """Default-configured built-in and plugin relations that apply to an operator's relation kind,
+    among those reading ``output`` (``detections`` or ``decisions``)."""
+    return [cls() for cls in available().values() if relation in cls.applies_to and cls.output == output]
