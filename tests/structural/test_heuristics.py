@@ -146,3 +146,34 @@ def test_closeness_compares_the_reduced_log_with_the_full_one():
     # without a total, ratios are of what the full log covers: nodes 2/3, edges 3/4
     relative = closeness(chosen, matrix, segments)
     assert relative.nodes == pytest.approx(2 / 3) and relative.edges == 0.75 and relative.log_edges == 1.0
+
+
+def test_the_select_and_compare_commands_replay_the_controller(kitti_log, tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+
+    runner = CliRunner()
+    target = "lidarfuzz.suts.controller.vfh"
+    result = runner.invoke(app, ["logs", "select", str(kitti_log), "--sut", "controller", "--target", target,
+                                 "--size", "1", "--json", "--out", str(tmp_path / "base")])
+    assert result.exit_code == 0, result.output
+    chosen = json.loads(result.output[result.output.index("{"):])
+    assert chosen["log_segments"] == 3 and chosen["log_frames"] == 3
+    assert chosen["frames"] == len(chosen["steps"]) >= 1  # one frame a segment
+    assert chosen["edges"] == chosen["log_edges"] > 0  # greedy on edges keeps every edge the log covers
+    assert [s["added_edges"] for s in chosen["steps"]] == sorted((s["added_edges"] for s in chosen["steps"]),
+                                                                 reverse=True)
+    # the base log against itself: nothing new, together = either
+    compared = runner.invoke(app, ["logs", "compare", str(tmp_path / "base"), str(tmp_path / "base"), "--sut",
+                                   "controller", "--target", target, "--json"])
+    assert compared.exit_code == 0, compared.output
+    rows = json.loads(compared.output[compared.output.index("["):])
+    assert [r["criterion"] for r in rows] == ["all-nodes", "all-edges"]
+    assert all(r["aggregated"] == 0 and r["new"] == [] and r["base"] == r["generated"] == r["together"] for r in rows)
+    assert rows[1]["base"] == pytest.approx(chosen["edges"])
+    refused = runner.invoke(app, ["logs", "select", str(kitti_log), "--sut", "controller", "--target", target,
+                                  "--heuristic", "budget"])
+    assert refused.exit_code != 0 and "frame budget" in refused.output

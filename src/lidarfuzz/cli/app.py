@@ -102,9 +102,12 @@ models.command("remove")(catalog.models_remove)
 app.add_typer(models, name="models")
 
 log_commands = typer.Typer(help="Structural testing with logs (Neves et al.): partition a log into segments, "
-                                "generate new logs from them.", no_args_is_help=True)
+                                "select discriminatory ones, generate new logs, compare coverage.",
+                           no_args_is_help=True)
 log_commands.command("partition")(logs.partition_command)
+log_commands.command("select")(logs.select_command)
 log_commands.command("generate")(logs.generate_command)
+log_commands.command("compare")(logs.compare_command)
 app.add_typer(log_commands, name="logs")
 
 

@@ -163,4 +163,115 @@ def generate_command(
                   f"(strategy {made.strategy}) to {out}" + (f"; recorded as log {record!r}" if record else ""))
 
 
-__all__ = ["generate_command", "parse_segments", "partition_command"]
+
+
+SutOption = Annotated[str, typer.Option("--sut", help="The system that consumes the log in order: a registered "
+                                        "sequence system (controller, …) or module:callable; its code is measured "
+                                        "in this process (a worker: system's is not).")]
+TargetOption = Annotated[list[str], typer.Option("--target", help="Code to cover: pkg.module, pkg.module:Class or "
+                                                 "pkg.module:function; repeatable.")]
+
+
+def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any]:
+    """(the log's frame coverage, the recorder) for ``sut`` on ``log``."""
+    from lidarfuzz.structural.log_coverage import frame_coverage
+    from lidarfuzz.structural.python_coverage import CoverageRecorder
+    from lidarfuzz.suts.registry import create_sequence
+
+    recorder = CoverageRecorder(targets)
+    with create_sequence(sut) as system:
+        replay = frame_coverage(log, system.step, recorder, reset=system.reset)
+    if replay.failures:
+        first = min(replay.failures)
+        console.print(f"[yellow]{len(replay.failures)} frame(s) failed[/] (first: position {first}, "
+                      f"{replay.failures[first]}); what they covered before failing counts")
+    return replay, recorder
+
+
+def _percent(value: float) -> str:
+    return f"{100 * value:.1f} %"
+
+
+def select_command(
+    log: LogArgument,
+    sut: SutOption,
+    target: TargetOption,
+    heuristic: Annotated[str, typer.Option(help="greedy_edges, greedy_nodes, budget, decision_change or random.")]
+    = "greedy_edges",
+    size: SizeOption = 5,
+    frames: Annotated[int | None, typer.Option("--frames", min=1, help="budget's frame budget.")] = None,
+    seed: Annotated[int, typer.Option(help="random's seed.")] = 0,
+    reference: Annotated[str, typer.Option(help="The heuristic whose selection size random matches.")]
+    = "greedy_edges",
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Also write the reduced base log (the selected "
+                                             "segments, in the log's order) to this new folder.")] = None,
+    topic: TopicOption = None,
+    layout: LayoutOption = None,
+    as_json: JsonOption = False,
+) -> None:
+    """Replay a log through a system under coverage and select its discriminatory segments."""
+    from lidarfuzz.structural.generate import strategy, write_generated_log
+    from lidarfuzz.structural.heuristics import closeness, select
+    from lidarfuzz.structural.log_coverage import decision_signature
+    from lidarfuzz.structural.requirements import of_kind
+    from lidarfuzz.structural.segments import partition, segment_coverage
+
+    if heuristic == "budget" and frames is None:
+        raise typer.BadParameter("the budget heuristic needs a frame budget", param_hint="--frames")
+    opened = _open(log, layout, topic)
+    replay, recorder = _replay(opened, sut, target)
+    segments = partition(opened.frame_ids, size)
+    per_segment = segment_coverage(segments, replay.covered)
+    try:
+        chosen = select(heuristic, segments, per_segment, frames=frames,
+                        signatures=[decision_signature(o) for o in replay.outputs], seed=seed, reference=reference)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--heuristic") from None
+    near = closeness(chosen, per_segment, segments, recorder.requirements())
+    if out is not None:
+        write_generated_log(opened, [segments[i] for i in chosen.segments], strategy("none"), out,
+                            heuristic=heuristic, segment_size=size)
+    rows = [[segments[s.segment].id, str(len(segments[s.segment])), str(len(of_kind(s.added, "node"))),
+             str(len(of_kind(s.added, "edge"))), str(s.score)] for s in chosen.steps]
+    summary = {"heuristic": heuristic, "segments": near.segments, "frames": near.frames,
+               "log_segments": near.log_segments, "log_frames": near.log_frames, "nodes": near.nodes,
+               "edges": near.edges, "log_nodes": near.log_nodes, "log_edges": near.log_edges,
+               "steps": [{"segment": segments[s.segment].id, "index": s.segment, "frames": s.frames,
+                          "added_nodes": len(of_kind(s.added, "node")), "added_edges": len(of_kind(s.added, "edge")),
+                          "score": s.score} for s in chosen.steps]}
+    footer = (f"{heuristic}: {near.segments} of {near.log_segments} segments, {near.frames} of {near.log_frames} "
+              f"frames: nodes {_percent(near.nodes)}, edges {_percent(near.edges)} (the full log: nodes "
+              f"{_percent(near.log_nodes)}, edges {_percent(near.log_edges)})"
+              + (f"; base log written to {out}" if out is not None else ""))
+    columns = [Column("segment", name=True), Column("frames", justify="right"), Column("+nodes", justify="right"),
+               Column("+edges", justify="right"), Column("score", justify="right")]
+    print_listing(columns, rows, summary, as_json=as_json, footer=footer)
+
+
+def compare_command(
+    base: Annotated[Path, typer.Argument(help="The base log L'.")],
+    generated: Annotated[Path, typer.Argument(help="The generated log L''.")],
+    sut: SutOption,
+    target: TargetOption,
+    layout: LayoutOption = None,
+    as_json: JsonOption = False,
+) -> None:
+    """Coverage of two logs side by side, and the aggregated coverage: what L'' reached that L' did not."""
+    from lidarfuzz.structural.log_coverage import compare_logs
+
+    first, first_recorder = _replay(_open(base, layout, None), sut, target)
+    second, _ = _replay(_open(generated, layout, None), sut, target)
+    rows, records = [], []
+    for c in compare_logs(first.covered, second.covered, first_recorder.requirements()):
+        name = "all-nodes" if c.kind == "node" else "all-edges"
+        rows.append([name, str(c.total), _percent(c.base), _percent(c.generated), _percent(c.together),
+                     _percent(c.aggregated), str(len(c.new))])
+        records.append({"criterion": name, "total": c.total, "base": c.base, "generated": c.generated,
+                        "together": c.together, "aggregated": c.aggregated, "new": sorted(r.label() for r in c.new)})
+    columns = [Column("criterion", name=True), Column("total", justify="right"), Column("L'", justify="right"),
+               Column("L''", justify="right"), Column("together", justify="right"),
+               Column("aggregated", justify="right"), Column("new", justify="right")]
+    print_listing(columns, rows, records, as_json=as_json)
+
+
+__all__ = ["compare_command", "generate_command", "parse_segments", "partition_command", "select_command"]
