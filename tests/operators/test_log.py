@@ -84,3 +84,28 @@ def test_average_of_real_frames_without_rings(sample_scenes):
     pairs = len(a.points) + len(b.points) - len(combined.points)
     assert 0 < pairs <= min(len(a.points), len(b.points))
     assert combined.metadata["frame_average_correspondence"] == "nearest"
+
+
+def test_an_interleaved_log_that_fails_midway_leaves_no_folder(kitti_log, tmp_path):
+    from lidarfuzz.operators.mutate import mutate_log
+
+    hgt = get("HGT").at_severity(3)
+    calls = []
+
+    def fails_on_the_second(sample, params):
+        calls.append(sample.frame_id)
+        if len(calls) == 2:
+            raise RuntimeError("disk gone")
+        return sample
+
+    hgt.apply = fails_on_the_second
+    with pytest.raises(RuntimeError, match="disk gone"):
+        mutate_log(kitti_log, tmp_path / "out", hgt)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    # without rings AVG now writes the whole log: 3 frames and the 2 averages between them
+    bare = tmp_path / "bare"
+    from lidarfuzz.io import open_dataset, write_kitti
+
+    write_kitti(bare, [s.replace(points=s.points.without_channels(["ring"])) for s in open_dataset(kitti_log)])
+    result = mutate_log(bare, tmp_path / "avg", FrameAverage())
+    assert result.frames == 5
