@@ -7,5 +7,9 @@ reports and the paper's coverage formulas); code coverage: :mod:`~lidarfuzz.stru
 (what to cover), :mod:`~lidarfuzz.structural.python_coverage` (control-flow graphs from
 coverage.py's arcs, measured per call), :mod:`~lidarfuzz.structural.gcov` (compiled programs,
 gcov data via gcovr) and :mod:`~lidarfuzz.structural.views` (tables, annotated source, graphs,
-comparisons).
+comparisons); logs: :mod:`~lidarfuzz.structural.logs` (data sets in replay order),
+:mod:`~lidarfuzz.structural.segments`, :mod:`~lidarfuzz.structural.heuristics` (discriminatory
+segments), :mod:`~lidarfuzz.structural.log_coverage` (a log replayed under coverage, two logs
+compared), :mod:`~lidarfuzz.structural.generate` (generated logs) and
+:mod:`~lidarfuzz.structural.stored` (the meta-model in the store).
 """
