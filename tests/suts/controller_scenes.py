@@ -1,6 +1,6 @@
 """Hand-made frames for the controller's tests: a flat road 1.73 m under the sensor and boxes of points on it.
 
-The road is a 0.5 m grid of points from 1 m to 29.5 m ahead and 10 m to either side (2,360 points
+The road is a 0.5 m grid of points from 1 m to 29.5 m ahead and 10 m to either side (2,320 points
 at z = -1.73); an obstacle is a block of points 0.1 m apart from 0.2 m to ``height`` above the road.
 """
 

@@ -192,3 +192,32 @@ def test_goal_from_the_frame_turns_the_car() -> None:
     # free road, goal 17.2° (sector 21) well inside the valley: straight at it; steering limited to 0.06
     assert controller.last is not None and controller.last.vfh is not None
     assert controller.last.vfh.direction == pytest.approx(0.3) and controller.steering == pytest.approx(0.06)
+
+
+def test_speed_states_have_hysteresis() -> None:
+    # a post in the corridor at 17, 14, 17, 21, 17 m (its nearest cell [x, x + 0.5) is x ahead): slow below
+    # slow_enter 15 m, cruise again only beyond slow_exit 20 m; in between the state is kept
+    controller = ObstacleAvoidance(initial_speed=8.0)
+    modes, speeds = [], []
+    for x in (17.0, 14.0, 17.0, 21.0, 17.0):
+        speeds.append(controller.step(frame((x, x + 0.2, -0.3, 0.3))).speed)
+        assert controller.last is not None and controller.last.nearest == pytest.approx(x)
+        modes.append(controller.last.mode)
+    assert modes == [Mode.CRUISE, Mode.SLOW, Mode.SLOW, Mode.CRUISE, Mode.CRUISE]
+    # slowing at 4 m/s² × 0.1 s towards 3 m/s: 7.6, 7.2; cruising again at 1.5 × 0.1: 7.35, 7.5
+    assert speeds == pytest.approx([8.0, 7.6, 7.2, 7.35, 7.5])
+
+
+def test_too_little_road_falls_back_to_the_last_trusted_ground() -> None:
+    sparse = frame().points.select(np.arange(0, 2320, 80))  # 29 road points: not blind (≥ 20), but < 50 inliers
+    controller = ObstacleAvoidance()
+    controller.step(frame())
+    assert controller.last is not None and controller.last.ground_trusted
+    trusted = controller.plane
+    controller.step(Scene(sparse, frame_id="sparse"))
+    assert controller.last is not None and not controller.last.ground_trusted and not controller.last.blind
+    assert controller.plane is trusted and len(controller.last.obstacles) == 0
+    # without a plane seen before, the fallback is the road sensor_height (1.73 m) under the sensor
+    fresh = ObstacleAvoidance()
+    fresh.step(Scene(sparse, frame_id="sparse"))
+    assert fresh.last is not None and not fresh.last.ground_trusted and len(fresh.last.obstacles) == 0
