@@ -158,9 +158,28 @@ def test_the_select_and_compare_commands_replay_the_controller(kitti_log, tmp_pa
     runner = CliRunner()
     target = "lidarfuzz.suts.controller.vfh"
     result = runner.invoke(app, ["logs", "select", str(kitti_log), "--sut", "controller", "--target", target,
-                                 "--size", "1", "--json", "--out", str(tmp_path / "base")])
+                                 "--size", "1", "--json", "--out", str(tmp_path / "base"), "--record", "sample",
+                                 "--workspace", str(tmp_path / "ws")])
     assert result.exit_code == 0, result.output
     chosen = json.loads(result.output[result.output.index("{"):])
+    from sqlalchemy import select as query
+
+    from lidarfuzz.store.models import CoverageRecord
+    from lidarfuzz.store.store import Store
+    from lidarfuzz.structural.stored import coverage_summary
+
+    store = Store(tmp_path / "ws")
+    with store.session() as s:
+        records = [coverage_summary(r) for r in s.scalars(query(CoverageRecord).order_by(CoverageRecord.id))]
+    store.close()
+    # per criterion: the log's row, then one per segment (3 segments of 1 frame): 2 x (1 + 3) rows
+    assert [(r.criterion, r.log_id is not None) for r in records] == [
+        ("node", True), ("node", False), ("node", False), ("node", False),
+        ("edge", True), ("edge", False), ("edge", False), ("edge", False)]
+    assert records[4].ratio == pytest.approx(chosen["log_edges"]) and records[0].target == target
+    # the log covers the union of its segments': at least each one's, at most their sum
+    segment_counts = [r.covered_count for r in records[5:]]
+    assert max(segment_counts) <= records[4].covered_count <= sum(segment_counts)
     assert chosen["log_segments"] == 3 and chosen["log_frames"] == 3
     assert chosen["frames"] == len(chosen["steps"]) >= 1  # one frame a segment
     assert chosen["edges"] == chosen["log_edges"] > 0  # greedy on edges keeps every edge the log covers

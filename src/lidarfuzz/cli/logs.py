@@ -172,8 +172,8 @@ TargetOption = Annotated[list[str], typer.Option("--target", help="Code to cover
                                                  "pkg.module:function; repeatable.")]
 
 
-def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any]:
-    """(the log's frame coverage, the recorder) for ``sut`` on ``log``."""
+def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any, str]:
+    """(the log's frame coverage, the recorder, the system's fingerprint) for ``sut`` on ``log``."""
     from lidarfuzz.structural.log_coverage import frame_coverage
     from lidarfuzz.structural.python_coverage import CoverageRecorder
     from lidarfuzz.suts.registry import create_sequence
@@ -181,11 +181,36 @@ def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any]:
     recorder = CoverageRecorder(targets)
     with create_sequence(sut) as system:
         replay = frame_coverage(log, system.step, recorder, reset=system.reset)
+        fingerprint = system.fingerprint()
     if replay.failures:
         first = min(replay.failures)
         console.print(f"[yellow]{len(replay.failures)} frame(s) failed[/] (first: position {first}, "
                       f"{replay.failures[first]}); what they covered before failing counts")
-    return replay, recorder
+    return replay, recorder, fingerprint
+
+
+def _record_coverage(workspace: str, name: str, log: OrderedLog, segments: list[Segment], per_segment: list[Any],
+                     fingerprint: str, target: str, total: Any) -> None:
+    """The log (recorded when new), its partition, and its and every segment's coverage per criterion."""
+    from lidarfuzz.store.errors import NotFoundError
+    from lidarfuzz.store.log_contracts import Criterion
+    from lidarfuzz.structural.requirements import union
+    from lidarfuzz.structural.stored import get_log, record_coverage, record_log, record_segments
+
+    with open_store(workspace).session() as session:
+        try:
+            row = get_log(session, name)
+        except NotFoundError:
+            row = record_log(session, log, name)
+        rows = record_segments(session, row, segments)
+        whole = union(*per_segment)
+        criteria: tuple[Criterion, ...] = ("node", "edge")
+        for criterion in criteria:
+            record_coverage(session, log=row, fingerprint=fingerprint, criterion=criterion, target=target,
+                            covered=whole, total=total)
+            for segment_row, covered in zip(rows, per_segment, strict=True):
+                record_coverage(session, segment=segment_row, fingerprint=fingerprint, criterion=criterion,
+                                target=target, covered=covered, total=total)
 
 
 def _percent(value: float) -> str:
@@ -207,6 +232,10 @@ def select_command(
                                              "segments, in the log's order) to this new folder.")] = None,
     topic: TopicOption = None,
     layout: LayoutOption = None,
+    record: Annotated[str | None, typer.Option("--record", help="Record the log, its segments and the coverage "
+                                               "of the log and of every segment (per criterion, with the "
+                                               "system's fingerprint) in the store under this name.")] = None,
+    workspace: WorkspaceOption = WORKSPACE,
     as_json: JsonOption = False,
 ) -> None:
     """Replay a log through a system under coverage and select its discriminatory segments."""
@@ -219,9 +248,12 @@ def select_command(
     if heuristic == "budget" and frames is None:
         raise typer.BadParameter("the budget heuristic needs a frame budget", param_hint="--frames")
     opened = _open(log, layout, topic)
-    replay, recorder = _replay(opened, sut, target)
+    replay, recorder, fingerprint = _replay(opened, sut, target)
     segments = partition(opened.frame_ids, size)
     per_segment = segment_coverage(segments, replay.covered)
+    if record is not None:
+        _record_coverage(workspace, record, opened, segments, per_segment, fingerprint, ",".join(target),
+                         recorder.requirements())
     try:
         chosen = select(heuristic, segments, per_segment, frames=frames,
                         signatures=[decision_signature(o) for o in replay.outputs], seed=seed, reference=reference)
@@ -259,8 +291,8 @@ def compare_command(
     """Coverage of two logs side by side, and the aggregated coverage: what L'' reached that L' did not."""
     from lidarfuzz.structural.log_coverage import compare_logs
 
-    first, first_recorder = _replay(_open(base, layout, None), sut, target)
-    second, _ = _replay(_open(generated, layout, None), sut, target)
+    first, first_recorder, _ = _replay(_open(base, layout, None), sut, target)
+    second, _, _ = _replay(_open(generated, layout, None), sut, target)
     rows, records = [], []
     for c in compare_logs(first.covered, second.covered, first_recorder.requirements()):
         name = "all-nodes" if c.kind == "node" else "all-edges"
