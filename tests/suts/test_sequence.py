@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from lidarfuzz.suts.sequence import (
     replay,
     validate_decision,
 )
+from lidarfuzz.suts.sequence_guard import IsolatedSequence
 from tests.suts.controller_scenes import log
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -165,18 +167,42 @@ def test_worker_protocol_end_to_end_with_a_reset_per_log() -> None:
 
 
 def test_worker_failures_error_goes_on_death_ends_the_log() -> None:
-    frames = empty_frames(4)
-    with WorkerSequence(f"{WORKER} --fail-on 1:error --fail-on 2:garbage", timeout=30) as worker:
+    frames = empty_frames(5)
+    with WorkerSequence(f"{WORKER} --fail-on 1:error --fail-on 2:garbage --fail-on 3:crash", timeout=30) as worker:
         results = replay(worker, frames)
-    # an error answer is a crash of that step, garbage an invalid output; the program lives on
-    assert [r.failure.kind if r.failure else None for r in results] == [
-        None, FailureKind.CRASH, FailureKind.INVALID_OUTPUT, None]
-    with WorkerSequence(f"{WORKER} --fail-on 1:crash", timeout=30) as worker:
-        results = replay(worker, frames)
+        # an error answer is a crash of that step, garbage an invalid output; the program lives on to step 3,
+        # where it exits: step 4 is not stepped, with the failure that ended the log
+        assert [r.failure.kind if r.failure else None for r in results] == [
+            None, FailureKind.CRASH, FailureKind.INVALID_OUTPUT, FailureKind.CRASH, FailureKind.CRASH]
+        assert [r.stepped for r in results] == [True, True, True, True, False]
+        assert results[4].failure is not None and "died at step 3" in results[4].failure.message
         assert not worker.alive
-        # the program died at step 1: steps 2 and 3 are not stepped, with the failure that ended the log
-        assert [r.stepped for r in results] == [True, True, False, False]
-        assert results[1].failure is not None and results[1].failure.kind is FailureKind.CRASH
-        assert results[3].failure is not None and "died at step 1" in results[3].failure.message
         # the next log starts the program again
         assert [r.ok for r in replay(worker, frames[:1])] == [True]
+
+
+class Stalling(SequenceSystem):
+    """Hangs on frame 000001; otherwise counts frames as its speed."""
+
+    name = "stalling"
+
+    def reset(self) -> None:
+        self.seen = 0
+
+    def step(self, frame: Scene) -> Decision:
+        self.seen += 1
+        if frame.frame_id == "000001":
+            time.sleep(60)
+        return Decision(0.0, float(self.seen))
+
+
+def test_an_isolated_python_system_is_cut_off_at_the_timeout() -> None:
+    with IsolatedSequence("tests.suts.test_sequence:Stalling") as system:
+        assert system.name == "stalling" and len(system.fingerprint()) == 16
+        start = time.perf_counter()
+        results = replay(system, empty_frames(3), timeout=1.0)
+        assert time.perf_counter() - start < 10
+        # step 1 hangs: killed after 1 s (timeout), the process and its state are gone: step 2 is not stepped
+        assert results[0].ok and results[0].decision is not None and results[0].decision.speed == 1.0
+        assert results[1].failure is not None and results[1].failure.kind is FailureKind.TIMEOUT
+        assert not results[2].stepped and not system.alive

@@ -257,7 +257,8 @@ class StepResult:
         return self.failure is None
 
 
-def _failure_of(exc: BaseException) -> Failure:
+def failure_of(exc: BaseException) -> Failure:
+    """The failure an exception of the system stands for (a :class:`SutError` keeps its kind)."""
     if isinstance(exc, SutError):
         return exc.failure()
     message = f"{type(exc).__name__}: {exc}".splitlines()[0][:500]
@@ -273,7 +274,7 @@ def step_guarded(system: SequenceSystem, frame: Scene, index: int = 0, timeout: 
     try:
         decision = system.step(frame)
     except Exception as exc:  # the system under test's failure is a result
-        return StepResult(index, frame.frame_id, None, _failure_of(exc), time.perf_counter() - start)
+        return StepResult(index, frame.frame_id, None, failure_of(exc), time.perf_counter() - start)
     elapsed = time.perf_counter() - start
     if timeout is not None and elapsed > timeout:
         failure = Failure(FailureKind.TIMEOUT, f"step took {elapsed:.3g} s, over the limit of {timeout:g} s")
@@ -302,8 +303,10 @@ def replay(system: SequenceSystem, frames: Iterable[Scene], *, timeout: float | 
     * a reset that fails leaves every frame unstepped with the reset's failure.
 
     ``timeout`` is passed to systems in another process (:meth:`SequenceSystem.set_timeout`, which
-    kill a hung program); in-process systems cannot be interrupted, so a step that returns late is
-    a ``timeout`` with its decision discarded (a decision that comes too late is no decision).
+    kill a hung program: :class:`WorkerSequence`, and any system hosted by
+    :class:`~lidarfuzz.suts.sequence_guard.IsolatedSequence`); in-process systems cannot be
+    interrupted, so a step that returns late is a ``timeout`` with its decision discarded (a
+    decision that comes too late is no decision).
     """
     if timeout is not None:
         system.set_timeout(timeout)
@@ -312,7 +315,7 @@ def replay(system: SequenceSystem, frames: Iterable[Scene], *, timeout: float | 
     try:
         system.reset()
     except Exception as exc:  # a reset that fails is the system's failure too
-        failure = _failure_of(exc)
+        failure = failure_of(exc)
         ended = Failure(failure.kind, f"not stepped: the reset failed: {failure.message}", failure.detail)
     for index, frame in enumerate(frames):
         if ended is not None:
