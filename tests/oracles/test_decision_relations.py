@@ -128,6 +128,14 @@ def test_safety_tells_the_linear_stopping_distance_variant_from_the_controller()
         assert len(outcomes) == 1 and outcomes[0].holds is holds, system.name
     assert [r.decision.speed for r in replay(LinearStoppingDistance(initial_speed=2.5), frames)
             if r.decision] == pytest.approx([2.65, 2.8])
+    # unlabelled, with the obstacles the controller reports: its cell [2.5, 3.0) is the nearest, 2.5 m ahead
+    unlabelled = [frame(index=0), frame(POST, index=1)]
+    for system, holds in ((ObstacleAvoidance(initial_speed=2.5, report_obstacles=True), True),
+                          (LinearStoppingDistance(initial_speed=2.5, report_obstacles=True), False)):
+        decided = [r.decision for r in replay(system, unlabelled)]
+        outcome = Safety()(consecutive_pairs(unlabelled, decided)[0])
+        assert outcome.holds is holds and outcome.stats["obstacles_from"] == "reported by the system"
+        assert outcome.stats["nearest"] == pytest.approx(2.5)
 
 
 def test_steering_tolerance_under_global_flip_tells_the_left_sector_variant_from_the_controller() -> None:
