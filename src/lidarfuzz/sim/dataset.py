@@ -6,7 +6,8 @@ Two kinds of data set:
   scene, seeded by ``(seed, i)`` — the KITTI object benchmark's shape;
 * **a sequence** (``sequence=True``, or a user's scene file): one scene, the ego
   vehicle driving through it at 10 Hz, written as an ordered log with
-  ``timestamps.txt`` and ``poses.txt``, for log-based testing.
+  ``timestamps.txt``, ``poses.txt`` and ``ego.txt`` (the ego vehicle's speed, yaw rate,
+  curvature and steering angle per frame), for log-based testing.
 
 Besides the KITTI files, every frame's scene description is saved under ``scenes/``
 (render it again with ``lidarfuzz gen --scene``), and ``lidarfuzz_sim.json`` records
@@ -37,6 +38,7 @@ import numpy as np
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.io.atomic import write_text
 from lidarfuzz.io.kitti import KittiWriter, write_kitti_frame
+from lidarfuzz.io.kitti.dataset import EGO_COLUMNS, EGO_FILE
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.generate import SCENE_KINDS, generate_scene
 from lidarfuzz.sim.labels import LabelConfig
@@ -44,7 +46,8 @@ from lidarfuzz.sim.realism import RealismConfig
 from lidarfuzz.sim.render import Renderer
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, load_sensor
 from lidarfuzz.sim.spec import SceneSpec
-from lidarfuzz.sim.world import compile_world
+from lidarfuzz.sim.terrain import WHEELBASE
+from lidarfuzz.sim.world import compile_world, ego_labels, trajectory_of
 
 SUMMARY_FILE = "lidarfuzz_sim.json"
 
@@ -141,6 +144,19 @@ def sequence_scene(config: GenerationConfig) -> SceneSpec:
     spec = generate_scene(config.seed, kind=config.kind, duration=duration,  # type: ignore[arg-type]
                           realism=config.realism)
     return _with_sensor(config, spec, config.seed)
+
+
+def ego_file_text(spec: SceneSpec, frames: int) -> str:
+    """``ego.txt`` of a sequence: per frame (at its reference time, one sweep apart) the ego
+    vehicle's speed, yaw rate, curvature and steering angle (:func:`~lidarfuzz.sim.world.ego_labels`)."""
+    ids = [frame_id_of(i) for i in range(frames)]
+    times = np.arange(frames, dtype=np.float64) * float(load_sensor(spec.sensor).period)
+    rows = ego_labels(trajectory_of(spec.ego, spec.ego.speed), times)
+    header = (f"# frame_id {' '.join(EGO_COLUMNS)}: m/s, rad/s, 1/m, rad (left positive; steering = "
+              f"atan(wheelbase * curvature), wheelbase {WHEELBASE} m)")
+    lines = [f"{frame_id} " + " ".join(f"{round(float(v), 6) + 0.0:.6f}" for v in row)  # no "-0.000000"
+             for frame_id, row in zip(ids, rows, strict=True)]
+    return "\n".join([header, *lines]) + "\n"
 
 
 def _frame_scene(config: GenerationConfig, index: int) -> SceneSpec:
@@ -271,7 +287,9 @@ def generate_dataset(
     root.mkdir(parents=True, exist_ok=True)
     write_text(summary_path, json.dumps(record, indent=1), overwrite=True)
     if config.is_sequence:
-        write_text(root / "scene.yaml", sequence_scene(config).to_yaml(), overwrite=True)
+        spec = sequence_scene(config)
+        write_text(root / "scene.yaml", spec.to_yaml(), overwrite=True)
+        write_text(root / EGO_FILE, ego_file_text(spec, config.frames), overwrite=True)
 
     workers = max(1, min(workers or os.cpu_count() or 1, config.frames))
     results: dict[str, FrameResult] = {}

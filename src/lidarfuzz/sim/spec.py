@@ -20,13 +20,23 @@ no roads is open ground.
 
 from __future__ import annotations
 
+import itertools
 import json
 from os import PathLike
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from lidarfuzz.errors import DataFormatError, validation_error
 from lidarfuzz.sim.actors import ACTOR_CLASSES
@@ -140,6 +150,51 @@ class Sign(_Model):
 StaticObject = Annotated[Building | Wall | Tree | Bush | Pole | Sign | Crosswalk, Field(discriminator="kind")]
 
 
+class Stop(_Model):
+    """A stop on a road user's way: it brakes to stand at ``at`` metres along its route (or heading
+    line), stands ``duration`` seconds, then drives on (a stop at 0 starts from rest)."""
+
+    at: float = Field(ge=0.0, description="metres along the route from its start")
+    duration: float = Field(default=0.0, ge=0.0, le=3600.0, description="seconds standing")
+
+
+#: The motion fields of :class:`Ego` and :class:`Actor` (:mod:`lidarfuzz.sim.motion`). All default
+#: to None and are left out of dumps when None, so scenes without them keep their bytes.
+MOTION_FIELDS = ("speeds", "stops", "corner_radius", "accel", "decel", "lateral_accel")
+LegSpeeds = list[Annotated[float, Field(gt=0.0, le=60.0)]]
+
+
+def _omit_absent_motion(self: BaseModel, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    data: dict[str, Any] = handler(self)
+    for key in MOTION_FIELDS:
+        if key in data and data[key] is None:
+            del data[key]
+    return data
+
+
+def _route_length(route: list[Point2] | None) -> float:
+    if route is None:
+        return 1.0e4  # the heading line a road user without a route follows
+    points = [complex(*p) for p in route]
+    return sum(abs(b - a) for a, b in itertools.pairwise(points))
+
+
+def _check_motion(entry: Ego | Actor, moving: bool) -> None:
+    """One-line errors naming the motion field that does not fit the rest of the entry."""
+    if entry.speeds is not None:
+        if entry.route is None:
+            raise ValueError("speeds: one speed per leg of the route; give a route")
+        if len(entry.speeds) != len(entry.route) - 1:
+            raise ValueError(f"speeds: expected one per leg of the route ({len(entry.route) - 1}), "
+                             f"got {len(entry.speeds)}")
+    if entry.stops and not moving:
+        raise ValueError("stops: a road user that does not move cannot stop; give a speed or speeds")
+    length = _route_length(entry.route)
+    for k, stop in enumerate(entry.stops or []):
+        if stop.at > length + 1e-6:
+            raise ValueError(f"stops[{k}].at: {stop.at} m is beyond the route's end ({length:.1f} m)")
+
+
 class Actor(_Model):
     """A road user. Without ``speed`` it stands still; with it, it moves along its heading or its ``route``."""
 
@@ -154,6 +209,14 @@ class Actor(_Model):
     parked: bool = False
     reflectivity: float | None = Field(default=None, ge=0.0, le=1.0, description="paint or clothing")
     id: int | None = Field(default=None, ge=0, description="track id; the actor's index when omitted")
+    speeds: LegSpeeds | None = Field(default=None, description="m/s on each leg of the route (one per leg)")
+    stops: list[Stop] | None = None
+    corner_radius: float | None = Field(default=None, gt=0.0, le=1000.0,
+                                        description="round the route's corners with arcs of this radius (m)")
+    accel: float | None = Field(default=None, gt=0.0, le=10.0, description="m/s²; 2 when omitted")
+    decel: float | None = Field(default=None, gt=0.0, le=10.0, description="m/s²; 3 when omitted")
+    lateral_accel: float | None = Field(default=None, gt=0.0, le=10.0,
+                                        description="m/s² in rounded corners (caps the speed there); 2 when omitted")
 
     @field_validator("size")
     @classmethod
@@ -166,16 +229,60 @@ class Actor(_Model):
     def _parked_is_still(self) -> Actor:
         if self.parked and self.speed:
             raise ValueError("a parked actor cannot have a speed")
+        if self.parked and self.has_motion_profile:
+            raise ValueError("a parked actor cannot have motion fields (speeds, stops, corner_radius, …)")
+        _check_motion(self, self.speed > 0 or self.speeds is not None)
         return self
+
+    _serialize = model_serializer(mode="wrap")(_omit_absent_motion)
+
+    @property
+    def has_motion_profile(self) -> bool:
+        """Whether any motion field is given: it then moves as :mod:`lidarfuzz.sim.motion` describes."""
+        return any(getattr(self, key) is not None for key in MOTION_FIELDS)
+
+    def acceleration_limits(self) -> dict[str, float]:
+        """``accel`` and ``decel`` where given (the rest take :mod:`lidarfuzz.sim.motion`'s defaults)."""
+        return {key: value for key in ("accel", "decel") if (value := getattr(self, key)) is not None}
 
 
 class Ego(_Model):
-    """The vehicle carrying the sensor: from ``position``/``yaw`` along its heading, or along ``route``."""
+    """The vehicle carrying the sensor: from ``position``/``yaw`` along its heading, or along ``route``.
+
+    Without motion fields it drives at ``speed`` with sharp corners and stands at the route's
+    end; with any of them (``speeds``, ``stops``, ``corner_radius``, ``accel``, ``decel``,
+    ``lateral_accel``) it drives as :mod:`lidarfuzz.sim.motion` describes: rounded corners,
+    bounded acceleration, stops, and a stop at the route's end.
+    """
 
     position: Point2 = (0.0, 0.0)
     yaw: float = 0.0
     speed: float = Field(default=0.0, ge=0.0, le=60.0)
     route: list[Point2] | None = Field(default=None, min_length=2)
+    speeds: LegSpeeds | None = Field(default=None, description="m/s on each leg of the route (one per leg)")
+    stops: list[Stop] | None = None
+    corner_radius: float | None = Field(default=None, gt=0.0, le=1000.0,
+                                        description="round the route's corners with arcs of this radius (m)")
+    accel: float | None = Field(default=None, gt=0.0, le=10.0, description="m/s²; 2 when omitted")
+    decel: float | None = Field(default=None, gt=0.0, le=10.0, description="m/s²; 3 when omitted")
+    lateral_accel: float | None = Field(default=None, gt=0.0, le=10.0,
+                                        description="m/s² in rounded corners (caps the speed there); 2 when omitted")
+
+    @model_validator(mode="after")
+    def _motion_fits(self) -> Ego:
+        _check_motion(self, self.speed > 0 or self.speeds is not None)
+        return self
+
+    _serialize = model_serializer(mode="wrap")(_omit_absent_motion)
+
+    @property
+    def has_motion_profile(self) -> bool:
+        """Whether any motion field is given: it then moves as :mod:`lidarfuzz.sim.motion` describes."""
+        return any(getattr(self, key) is not None for key in MOTION_FIELDS)
+
+    def acceleration_limits(self) -> dict[str, float]:
+        """``accel`` and ``decel`` where given (the rest take :mod:`lidarfuzz.sim.motion`'s defaults)."""
+        return {key: value for key in ("accel", "decel") if (value := getattr(self, key)) is not None}
 
 
 class Ramp(_Model):
@@ -265,6 +372,6 @@ def load_scene(path: str | PathLike[str]) -> SceneSpec:
 
 
 __all__ = [
-    "ACTOR_CLASSES", "Actor", "Building", "Bush", "Crosswalk", "Ego", "Pole", "Ramp", "Road", "SceneSpec", "Sign",
-    "StaticObject", "Terrain", "Tree", "Wall", "load_scene", "parse_scene",
+    "ACTOR_CLASSES", "MOTION_FIELDS", "Actor", "Building", "Bush", "Crosswalk", "Ego", "Pole", "Ramp", "Road",
+    "SceneSpec", "Sign", "StaticObject", "Stop", "Terrain", "Tree", "Wall", "load_scene", "parse_scene",
 ]

@@ -23,8 +23,9 @@ from lidarfuzz.sim.actors import actor_mesh, mean_size
 from lidarfuzz.sim.materials import OBJECT_SEMANTIC, PAINT_GLOSS, material, sample_paint
 from lidarfuzz.sim.meshes import Mesh, cylinder, ellipsoid, extruded, polygons_of
 from lidarfuzz.sim.meshes import box as box_mesh
+from lidarfuzz.sim.motion import LATERAL_ACCEL, RoundedPath, SpeedProfile, steering_angle
 from lidarfuzz.sim.sensor import LidarSensor, load_sensor
-from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Pole, Road, SceneSpec, Sign, Tree, Wall
+from lidarfuzz.sim.spec import Actor, Building, Bush, Crosswalk, Ego, Pole, Road, SceneSpec, Sign, Tree, Wall
 from lidarfuzz.sim.terrain import VERGE_CELLS, Ground, frame_from_slopes, ramp_edges
 
 #: Road users that rest on four wheels tilt with the ground; people and riders stay upright.
@@ -82,6 +83,70 @@ class Trajectory:
         seg = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(unit) - 1)
         xy = _segment_starts(self.waypoints)[seg] + (s - cum[seg])[:, None] * unit[seg]
         return xy[:, 0], xy[:, 1], heading[seg]
+
+    def kinematics(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(speed in m/s, curvature in 1/m) at time(s) ``t``: the constant speed until the route's end,
+        then 0; a polyline's curvature is 0 (its corners turn in an instant)."""
+        s = np.atleast_1d(self.distance(t))
+        end = self._arc[0][-1]
+        moving = (s < end) if len(self._arc[0]) > 1 else np.zeros(len(s), bool)
+        return np.where(moving, self.speed, 0.0), np.zeros(len(s))
+
+
+@dataclass(frozen=True)
+class ProfiledTrajectory(Trajectory):
+    """Motion along a :class:`~lidarfuzz.sim.motion.RoundedPath` with a
+    :class:`~lidarfuzz.sim.motion.SpeedProfile` (:mod:`lidarfuzz.sim.motion`); ``speed`` is its top speed."""
+
+    path: RoundedPath
+    profile: SpeedProfile
+
+    @staticmethod
+    def of_entry(entry: Ego | Actor, speed: float) -> ProfiledTrajectory:
+        """The motion of a scene entry that has motion fields (``speed`` 0 for a parked actor)."""
+        if entry.route is not None:
+            waypoints = np.asarray(entry.route, np.float64)
+        else:
+            heading = np.deg2rad(entry.yaw)
+            start = np.asarray(entry.position, np.float64)
+            waypoints = np.stack([start, start + 1.0e4 * np.array([np.cos(heading), np.sin(heading)])])
+        path = RoundedPath.of(waypoints, entry.corner_radius)
+        marks = path.waypoint_offsets
+        leg_speeds = entry.speeds if entry.speeds is not None else [speed] * (len(waypoints) - 1)
+        limits = [(float(marks[k]), float(marks[k + 1]), float(v)) for k, v in enumerate(leg_speeds)]
+        lateral = entry.lateral_accel if entry.lateral_accel is not None else LATERAL_ACCEL
+        for k, kappa in enumerate(path.curvatures):
+            if kappa:  # the corner's speed: lateral acceleration v²·|κ| at most `lateral`
+                limits.append((float(path.offsets[k]), float(path.offsets[k + 1]),
+                               float(np.sqrt(lateral / abs(kappa)))))
+        stops = [(stop.at, stop.duration) for stop in entry.stops or []]
+        profile = SpeedProfile.plan(path.length, limits, stops=stops, **entry.acceleration_limits())
+        return ProfiledTrajectory(waypoints, profile.top_speed, path, profile)
+
+    def distance(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        return self.profile.distance(t).reshape(np.shape(t))  # a scalar time gives a 0-d array, as the base's
+
+    def at(self, t: NDArray[np.float64] | float
+           ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        return self.path.pose(self.profile.distance(t))
+
+    def kinematics(self, t: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return self.profile.speed(t), self.path.curvature(self.profile.distance(t))
+
+
+def trajectory_of(entry: Ego | Actor, speed: float) -> Trajectory:
+    """An entry's motion: a :class:`ProfiledTrajectory` when it has motion fields, else the plain
+    constant-speed :class:`Trajectory` (unchanged, so scenes without those fields render as before)."""
+    if entry.has_motion_profile and (speed > 0 or entry.speeds is not None):
+        return ProfiledTrajectory.of_entry(entry, speed)
+    return Trajectory.of(entry.position, entry.yaw, speed, entry.route)
+
+
+def ego_labels(trajectory: Trajectory, times: NDArray[np.float64]) -> NDArray[np.float64]:
+    """N×4 rows of the ego vehicle's speed (m/s), yaw rate (rad/s, left positive), curvature (1/m)
+    and steering angle (rad, bicycle model with :data:`~lidarfuzz.sim.terrain.WHEELBASE`) at ``times``."""
+    speed, curvature = trajectory.kinematics(np.asarray(times, np.float64))
+    return np.stack([speed, speed * curvature, curvature, steering_angle(curvature)], axis=1)
 
 
 def _segment_starts(waypoints: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -150,7 +215,8 @@ def poses_on_ground(actors: tuple[PlacedActor, ...], xy_yaw: NDArray[np.float64]
 def positions_at(actors: tuple[PlacedActor, ...], times: NDArray[np.float64]) -> NDArray[np.float64]:
     """(x, y, yaw) of every actor at its own time, N×3; straight-line motion is vectorised."""
     out = np.empty((len(actors), 3))
-    straight = [i for i, a in enumerate(actors) if len(a.trajectory.waypoints) == 2]
+    straight = [i for i, a in enumerate(actors)
+                if len(a.trajectory.waypoints) == 2 and type(a.trajectory) is Trajectory]
     if straight:
         index = np.asarray(straight)
         start = np.array([actors[i].trajectory.waypoints[0] for i in straight])
@@ -163,7 +229,7 @@ def positions_at(actors: tuple[PlacedActor, ...], times: NDArray[np.float64]) ->
         out[index, :2] = start + s[:, None] * unit
         out[index, 2] = np.where(length > 1e-9, np.arctan2(seg[:, 1], seg[:, 0]), 0.0)
     for i, actor in enumerate(actors):
-        if len(actor.trajectory.waypoints) != 2:
+        if len(actor.trajectory.waypoints) != 2 or type(actor.trajectory) is not Trajectory:
             out[i] = [float(v[0]) for v in actor.trajectory.at(times[i])]
     return out
 
@@ -184,7 +250,7 @@ class World:
 def compile_world(spec: SceneSpec) -> World:
     """Build the geometry of ``spec``."""
     sensor = load_sensor(spec.sensor)
-    ego = Trajectory.of(spec.ego.position, spec.ego.yaw, spec.ego.speed, spec.ego.route)
+    ego = trajectory_of(spec.ego, spec.ego.speed)
     parts, ground = _ground_and_roads(spec, ego)
     parts += _on_ground([_static_object(obj) for obj in spec.objects], list(spec.objects), ground)
     actors = []
@@ -203,7 +269,7 @@ def _place_actor(index: int, actor: Actor, seed: int) -> PlacedActor:
     else:
         refl = sample_paint(rng)
     speed = 0.0 if actor.parked else actor.speed
-    trajectory = Trajectory.of(actor.position, actor.yaw, speed, actor.route)
+    trajectory = trajectory_of(actor, speed)
     track_id = actor.id if actor.id is not None else index
     return PlacedActor(index, track_id, actor.cls, tuple(size), refl, trajectory,  # type: ignore[arg-type]
                        float(rng.uniform(0, 2 * np.pi)))
@@ -441,4 +507,5 @@ def footprint_of(obj: object) -> Polygon:
     raise TypeError(f"unknown scene object {obj!r}")
 
 
-__all__ = ["PlacedActor", "Trajectory", "World", "compile_world", "footprint_of", "material"]
+__all__ = ["PlacedActor", "ProfiledTrajectory", "Trajectory", "World", "compile_world", "ego_labels", "footprint_of",
+           "material", "trajectory_of"]

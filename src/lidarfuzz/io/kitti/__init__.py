@@ -16,6 +16,8 @@ lidarfuzz adds side files that plain KITTI tools ignore:
                                     {"num_points": [...], ...}}, one entry per label line)
     root/timestamps.txt             "<frame_id> <seconds>" per line: the data set is a log
     root/poses.txt                  "<frame_id> <12 numbers>" per line: 3×4 LiDAR → world
+    root/ego.txt                    "<frame_id> speed yaw_rate curvature steering" per line (simulator
+                                    logs; "#" lines are comments): in each frame's metadata under those names
 
 One module per job: :mod:`~lidarfuzz.io.kitti.labels` reads and writes label lines (their
 format is described there), :mod:`~lidarfuzz.io.kitti.dataset` opens a folder as a data set

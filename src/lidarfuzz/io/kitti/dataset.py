@@ -37,12 +37,19 @@ def png_size(path: Path) -> tuple[int, int] | None:
     return height, width
 
 
+#: ``ego.txt`` (a simulator log's ego-vehicle labels): ``<frame_id>`` then these columns, each
+#: attached to the frame's metadata under its name — speed (m/s), yaw rate (rad/s, left positive),
+#: path curvature (1/m, left positive), steering angle (rad, left positive; bicycle model).
+EGO_FILE = "ego.txt"
+EGO_COLUMNS: tuple[str, ...] = ("speed", "yaw_rate", "curvature", "steering")
+
+
 def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
-    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt)."""
+    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt, ego.txt); ``#`` starts a comment line."""
     out: dict[str, NDArray[np.float64]] = {}
     for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         tokens = raw.split()
-        if not tokens:
+        if not tokens or tokens[0].startswith("#"):
             continue
         if len(tokens) != width + 1:
             raise DataFormatError(path, f"expected a frame id and {width} number(s), found {len(tokens)} fields",
@@ -189,7 +196,9 @@ class KittiDataset(Dataset[Scene]):
 
         self._timestamps: dict[str, NDArray[np.float64]] | None = None
         self._poses: dict[str, NDArray[np.float64]] | None = None
-        for name, width, attr in (("timestamps.txt", 1, "_timestamps"), ("poses.txt", 12, "_poses")):
+        self._ego: dict[str, NDArray[np.float64]] | None = None
+        for name, width, attr in (("timestamps.txt", 1, "_timestamps"), ("poses.txt", 12, "_poses"),
+                                  (EGO_FILE, len(EGO_COLUMNS), "_ego")):
             side = root / name
             if side.is_file() and self.layout.point_labels:
                 # SemanticKITTI's poses.txt: one camera-frame pose per line, no frame ids
@@ -309,6 +318,8 @@ class KittiDataset(Dataset[Scene]):
             meta["roi_source"] = "frame_map"
         if objects:
             meta["objects"] = objects
+        if self._ego and frame_id in self._ego:
+            meta.update(zip(EGO_COLUMNS, (float(v) for v in self._ego[frame_id]), strict=True))
         return self._finish(Scene(scan.cloud, boxes, calib, frame_id=frame_id, timestamp=timestamp, pose=pose,
                                   roi=roi, metadata=meta))
 
