@@ -24,6 +24,10 @@ def gen_command(
     sequence: Annotated[bool, typer.Option(help="One generated scene driven through at 10 Hz, written as a "
                                            "log with timestamps and poses (default: independent scenes).")]
     = False,
+    drive: Annotated[bool, typer.Option(help="A drive log (implies --sequence): the generated ego vehicle "
+                                        "stops at a junction (for a crossing pedestrian or behind a car), turns "
+                                        "left or right and drives on; ego.txt holds its speed and steering.")]
+    = False,
     kind: Annotated[str | None, typer.Option(help="Scene kind: urban or suburban (default: a mix).")] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="Worker processes (default: CPU cores).")] = None,
     val_fraction: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of frames in ImageSets/val.txt "
@@ -37,7 +41,8 @@ def gen_command(
     Writes velodyne/, velodyne_extra/ (ring, time, semantic label, instance), label_2/ (with
     truncation, occlusion and DontCare), label_2_extra/ (track ids, points per object), calib/,
     roi/ (drivable area), ImageSets/ (train/val), scenes/ (each frame's scene description) and,
-    for a sequence, timestamps.txt and poses.txt.
+    for a sequence, timestamps.txt, poses.txt and ego.txt (the ego vehicle's speed, yaw rate,
+    curvature and steering angle per frame).
     """
     from rich.progress import (
         BarColumn,
@@ -56,9 +61,11 @@ def gen_command(
         raise typer.BadParameter(f"{kind!r} is not one of urban, suburban", param_hint="--kind")
     if overwrite and resume:
         raise typer.BadParameter("choose one of --overwrite and --resume", param_hint="--resume")
+    if drive and scene is not None:
+        raise typer.BadParameter("a drive log is generated; leave out --scene (or --drive)", param_hint="--drive")
     spec = load_scene(scene) if scene is not None else None
     config = GenerationConfig(frames=frames, seed=seed, scene=spec, sensor=sensor, sequence=sequence, kind=kind,
-                              val_fraction=val_fraction)
+                              val_fraction=val_fraction, drive=drive)
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
                TimeElapsedColumn(), TimeRemainingColumn())
     try:

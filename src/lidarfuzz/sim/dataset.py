@@ -62,6 +62,8 @@ class GenerationConfig:
         scene: A user's scene; its frames form a sequence (time advances by one sweep per frame).
         sensor: Sensor preset or file overriding the scene's (default HDL-64E).
         sequence: One generated scene driven through, instead of independent scenes.
+        drive: A generated drive log (implies ``sequence``): the ego vehicle stops, turns at a
+            junction and drives on, with road users timed against it (:mod:`lidarfuzz.sim.drive`).
         kind: ``"urban"`` or ``"suburban"``; mixed when ``None``.
         val_fraction: Share of frames (the last ones) listed in ``ImageSets/val.txt``.
         labels: Which objects are labelled and which become DontCare.
@@ -76,6 +78,7 @@ class GenerationConfig:
     sensor: str | None = None
     sequence: bool = False
     kind: str | None = None
+    drive: bool = False
     val_fraction: float = 0.5
     labels: LabelConfig = field(default_factory=LabelConfig)
     realism: RealismConfig = field(default_factory=RealismConfig)
@@ -89,18 +92,23 @@ class GenerationConfig:
             raise ValueError(f"unknown scene kind {self.kind!r}; choose one of {', '.join(SCENE_KINDS)}")
         if self.sensor is not None:
             load_sensor(self.sensor)  # fail early on a bad name or file
+        if self.drive and self.scene is not None:
+            raise ValueError("drive: a drive log is generated; it cannot render a scene file")
 
     @property
     def is_sequence(self) -> bool:
-        return self.sequence or self.scene is not None
+        return self.sequence or self.drive or self.scene is not None
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             "frames": self.frames, "seed": self.seed, "sequence": self.is_sequence, "kind": self.kind,
             "sensor": self.sensor, "val_fraction": self.val_fraction, "labels": asdict(self.labels),
             "scene": json.loads(self.scene.model_dump_json(by_alias=True)) if self.scene is not None else None,
             "realism": self.realism.model_dump(mode="json"),
         }
+        if self.drive:  # only then: the configurations of earlier data sets stay as they were (resume)
+            out["drive"] = True
+        return out
 
 
 @dataclass(frozen=True)
@@ -142,7 +150,7 @@ def sequence_scene(config: GenerationConfig) -> SceneSpec:
         return spec
     duration = config.frames * load_sensor(config.sensor or DEFAULT_SENSOR).period
     spec = generate_scene(config.seed, kind=config.kind, duration=duration,  # type: ignore[arg-type]
-                          realism=config.realism)
+                          realism=config.realism, drive=config.drive)
     return _with_sensor(config, spec, config.seed)
 
 

@@ -30,9 +30,10 @@ from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry import box as shapely_box
 
 from lidarfuzz.sim.actors import sample_size
+from lidarfuzz.sim.drive import DrivePlan, clear_of, drive_route, plan_actors, plan_drive
 from lidarfuzz.sim.realism import RealismConfig
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor
-from lidarfuzz.sim.spec import Crosswalk, Road, SceneSpec
+from lidarfuzz.sim.spec import Actor, Crosswalk, Road, SceneSpec
 from lidarfuzz.sim.world import footprint_of
 
 SceneKind = Literal["urban", "suburban"]
@@ -112,6 +113,7 @@ def generate_scene(
     duration: float = 0.0,
     name: str | None = None,
     realism: RealismConfig | None = None,
+    drive: bool = False,
 ) -> SceneSpec:
     """Sample a scene.
 
@@ -125,6 +127,10 @@ def generate_scene(
         name: Scene name (default ``"<kind>-<seed>"``).
         realism: The ranges the terrain is drawn from (default :class:`RealismConfig`'s);
             ``RealismConfig.off()`` gives flat ground.
+        drive: A drive log's scene (:mod:`lidarfuzz.sim.drive`): a crossroads ahead, the ego
+            vehicle stopping before it, turning left or right and driving on along the
+            crossing street for ``duration`` seconds, with road users timed against it. Its
+            speed (when not given) is drawn from 7–12 m/s; the name is ``"<kind>-drive-<seed>"``.
 
     Example:
         >>> spec = generate_scene(3)
@@ -149,9 +155,19 @@ def generate_scene(
     sidewalk = _r(rng.uniform(2.5, 4.5) if urban else rng.uniform(1.5, 2.5))
     half = lanes * lane_width / 2
     ego_y = -half + lane_width / 2
+    plan: DrivePlan | None = None
+    drive_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5CE7E, 4]))  # drives only
+    if drive:
+        if ego_speed is None:
+            ego_speed = float(drive_rng.uniform(7.0, 12.0))
+        if ego_speed <= 0:
+            raise ValueError("ego_speed: a drive needs a speed above 0")
+        plan = plan_drive(drive_rng, speed=ego_speed, duration=duration, lanes=lanes, lane_width=lane_width,
+                          urban=urban)
+        ego_y = plan.ego_y
     if ego_speed is None:
         ego_speed = drawn_speed
-    travel = ego_speed * max(duration, 0.0)
+    travel = ego_speed * max(duration, 0.0) if plan is None else plan.junction_x
     x_lo, x_hi = -HALF_SPAN, HALF_SPAN + travel
     main = Road(centerline=[(x_lo - 40, 0.0), (x_hi + 40, 0.0)], lanes=lanes, lane_width=lane_width,
                 parking_width=parking, sidewalk_width=sidewalk)
@@ -161,7 +177,17 @@ def generate_scene(
     layout.take(shapely_box(-4.0, ego_y - 1.5, 8.0, ego_y + 1.5))
 
     junction_x: float | None = None
-    if rng.random() < (0.65 if urban else 0.4):
+    if plan is not None:  # a crossroads, the crossing street long enough on the side it turns to
+        junction_x = plan.junction_x
+        arms = {plan.side: plan.arm, -plan.side: HALF_SPAN + 40}
+        roads.append(Road(centerline=[(junction_x, -arms[-1.0]), (junction_x, arms[1.0])], lanes=2,
+                          lane_width=lane_width, sidewalk_width=sidewalk))
+        if urban:
+            offset = roads[1].half_width + sidewalk + 1.5
+            _crosswalk(layout, main, junction_x - offset)  # the one it stops at
+            if rng.random() < 0.7:
+                _crosswalk(layout, main, junction_x + offset)
+    elif rng.random() < (0.65 if urban else 0.4):
         junction_x = float(rng.uniform(18.0, 70.0) if rng.random() < 0.75 else rng.uniform(-60.0, -20.0))
         cross_lanes = 2
         cross = Road(centerline=[(junction_x, -HALF_SPAN - 40), (junction_x, HALF_SPAN + 40)] if urban or
@@ -172,25 +198,36 @@ def generate_scene(
             offset = cross.half_width + sidewalk + 1.5
             for x in (junction_x - offset, junction_x + offset):
                 if rng.random() < 0.7:
-                    layout.objects.append({"kind": "crosswalk", "position": [_r(x), 0.0], "yaw": 0.0,
-                                           "length": _r(2 * main.half_width), "width": 3.0})
-                    for side in (-1.0, 1.0):  # kerb ramps at both ends of the crossing
-                        layout.ramps.append({"position": [_r(x), _r(side * main.half_width)],
-                                             "yaw": 90.0 * side, "width": 3.0, "depth": 1.0})
+                    _crosswalk(layout, main, x)
     layout.drivable = shapely.union_all([LineString(r.centerline).buffer(r.half_width, cap_style="flat")
                                          for r in roads])
 
     kerb_line = main.half_width + sidewalk
     layout.sidewalk_width = sidewalk
-    _buildings(layout, kerb_line, x_lo, x_hi, urban, junction_x, roads)
+    ego: dict[str, Any] = {"position": [0.0, _r(ego_y)], "yaw": 0.0, "speed": _r(ego_speed)}
+    timed: list[dict[str, Any]] = []
+    reach: dict[float, float] | None = None
+    if plan is not None:
+        route, radius = drive_route(plan, main, roads[1])
+        ego.update(route=route, corner_radius=radius)
+        near = junction_x - (roads[1].half_width + sidewalk + 1.5) if urban and junction_x is not None else None
+        ego, timed = plan_actors(plan, ego, main, roads[1], near, drive_rng, duration)
+        for entry in timed:
+            layout.take(footprint_of(Actor.model_validate(entry)))
+        reach = {plan.side: plan.arm - 10.0, -plan.side: HALF_SPAN}
+    _buildings(layout, kerb_line, x_lo, x_hi, urban, junction_x, roads, reach)
     _street_furniture(layout, main, x_lo, x_hi, urban, junction_x)
-    _road_users(layout, main, roads, ego_y, ego_speed, x_lo, x_hi, urban, junction_x)
+    _road_users(layout, main, roads, ego_y, ego_speed, x_lo, x_hi, urban, junction_x,
+                skip_lane=ego_y if plan is not None else None)
+    if plan is not None:  # no generated road user meets the ego vehicle or the timed ones on their way
+        layout.actors = timed + clear_of(layout.actors, [a for a in timed if a["class"] != "Pedestrian"], ego,
+                                         duration + 2.0)
     terrain = realism.sample_terrain(terrain_rng)
     if terrain and realism.ramps:
         terrain["ramps"] = layout.ramps
 
     return SceneSpec.model_validate({
-        "name": name or f"{kind}-{seed}",
+        "name": name or (f"{kind}-drive-{seed}" if drive else f"{kind}-{seed}"),
         "seed": seed,
         "ground": "paving" if urban and rng.random() < 0.3 else "grass",
         "extent": 125.0,
@@ -198,13 +235,24 @@ def generate_scene(
         "roads": [r.model_dump() for r in roads],
         "objects": layout.objects,
         "actors": layout.actors,
-        "ego": {"position": [0.0, _r(ego_y)], "yaw": 0.0, "speed": _r(ego_speed)},
+        "ego": ego,
         "sensor": sensor if isinstance(sensor, str) else sensor.model_dump(),
     })
 
 
+def _crosswalk(layout: _Layout, main: Road, x: float) -> None:
+    """A zebra crossing over the main road at ``x``, with kerb ramps at both ends."""
+    layout.objects.append({"kind": "crosswalk", "position": [_r(x), 0.0], "yaw": 0.0,
+                           "length": _r(2 * main.half_width), "width": 3.0})
+    for side in (-1.0, 1.0):
+        layout.ramps.append({"position": [_r(x), _r(side * main.half_width)],
+                             "yaw": 90.0 * side, "width": 3.0, "depth": 1.0})
+
+
 def _buildings(layout: _Layout, kerb: float, x_lo: float, x_hi: float, urban: bool, junction_x: float | None,
-               roads: list[Road]) -> None:
+               roads: list[Road], cross_reach: dict[float, float] | None = None) -> None:
+    """Rows of buildings along the main road, and along the crossing street out to ``cross_reach``
+    metres on each side (``HALF_SPAN`` by default)."""
     rng = layout.rng
     for side in (-1.0, 1.0):
         x = x_lo + rng.uniform(0, 10)
@@ -228,9 +276,10 @@ def _buildings(layout: _Layout, kerb: float, x_lo: float, x_hi: float, urban: bo
             # Buildings along the crossing street, both sides of it.
             cross = roads[1]
             ckerb = cross.half_width + cross.sidewalk_width
+            reach = HALF_SPAN if cross_reach is None else cross_reach[side]
             for cside in (-1.0, 1.0):
                 y = side * (kerb + 2.0)
-                while abs(y) < HALF_SPAN:
+                while abs(y) < reach:
                     frontage = rng.uniform(10, 25)
                     depth = rng.uniform(10, 18)
                     xa = junction_x + cside * (ckerb + rng.uniform(0, 2))
@@ -301,13 +350,17 @@ def _street_furniture(layout: _Layout, main: Road, x_lo: float, x_hi: float, urb
 
 
 def _road_users(layout: _Layout, main: Road, roads: list[Road], ego_y: float, ego_speed: float, x_lo: float,
-                x_hi: float, urban: bool, junction_x: float | None) -> None:
+                x_hi: float, urban: bool, junction_x: float | None, skip_lane: float | None = None) -> None:
+    """Traffic, parked vehicles, pedestrians and cyclists; no moving traffic in the lane at
+    ``skip_lane`` (a drive's: its own stops and turn would meet it)."""
     rng = layout.rng
     half = main.carriageway_half_width
     lane_centres = [-half + (k + 0.5) * main.lane_width for k in range(main.lanes)]
     span_lo, span_hi = -45.0, x_hi - 15.0  # mostly ahead, where the camera looks
     # Moving traffic: vehicles in one lane share the lane's speed.
     for y in lane_centres:
+        if skip_lane is not None and abs(y - skip_lane) < 1e-6:
+            continue
         forward = y < 0
         speed = ego_speed if abs(y - ego_y) < 1e-6 else float(rng.uniform(5.0, 14.0))
         count = int(rng.poisson(3.0 if urban else 1.5))
