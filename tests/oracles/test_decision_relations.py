@@ -27,7 +27,7 @@ from tests.suts.controller_scenes import frame, log
 
 FLIP = np.diag([1.0, -1.0, 1.0, 1.0])
 POST = (2.6, 2.8, -0.3, 0.3)  # a post 2.6 m ahead in the corridor
-LEFT_BLOCK = (8.0, 9.0, 1.3, 3.0)
+LEFT_BLOCK = (6.0, 7.0, 1.3, 3.0)
 
 
 def pair(source: Decision, follow: Decision, **fields: object) -> Pair:
@@ -139,12 +139,12 @@ def test_safety_tells_the_linear_stopping_distance_variant_from_the_controller()
 
 
 def test_steering_tolerance_under_global_flip_tells_the_left_sector_variant_from_the_controller() -> None:
-    # the block on the left for nine frames, and the same log mirrored by global_flip (block on the right):
-    # the controller settles at -27.5° and +27.5° (holds: the mirrored steering is expected); the variant at
-    # -22.5° and +27.5°: (27.5° − 22.5°)² = 0.0873² = 0.0076 rad² > the tolerance² 0.0025
+    # the block on the left for five frames, and the same log mirrored by global_flip (block on the right):
+    # the controller settles at -12.5° and +12.5° (holds: the mirrored steering is expected); the variant at
+    # -7.5° and +12.5°: (12.5° − 7.5°)² = 0.0873² = 0.0076 rad² > the tolerance² 0.0025
     flip = GlobalFlip.at_severity(1)
     params = FlipParams(flipped=True)
-    original = log(*[(LEFT_BLOCK,)] * 9)
+    original = log(*[(LEFT_BLOCK,)] * 5)
     mirrored = [flip.apply(scene, params) for scene in original]
     for system, holds in ((ObstacleAvoidance(initial_speed=8.0), True), (LeftSectorOffset(initial_speed=8.0), False)):
         before = replay(system, original)[-1].decision

@@ -1,7 +1,8 @@
 """The built-in controller on hand-made scenes: the VFH's histogram, valleys and hysteresis worked out by
 hand, and ObstacleAvoidance.process's speed and steering decisions (defaults unless a test says otherwise:
-36 sectors of 5° from -90° (sector 0, right) to +90°, max_range 25 m, enlargement 1.0 + 0.5 = 1.5 m,
-thresholds 3.0 / 1.5, wide valley 8 sectors, period 0.1 s, a_max 4 m/s², margin 2 m, cruise 8 m/s)."""
+36 sectors of 5° from -90° (sector 0, right) to +90°, sector k centred at -87.5° + 5k, a cell covering the
+sectors whose centre lies in its cone enlarged by 1.0 + 0.5 = 1.5 m, thresholds 3.0 / 1.5, wide valleys from
+4 sectors (the car keeps 2 off their border), period 0.1 s, a_max 4 m/s², margin 2 m, cruise 8 m/s)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from lidarfuzz.suts.controller import VFH, ControllerConfig, Mode, ObstacleAvoid
 from lidarfuzz.suts.sequence import replay
 from tests.suts.controller_scenes import frame, log
 
-NO_SMOOTHING = ControllerConfig(smoothing=0)
+# the VFH tests: no smoothing, and an active window of 25 m, so that a cell's magnitude is weight × (1 − d/25)
+VFH_CONFIG = ControllerConfig(smoothing=0, window_radius=25.0)
 
 
 def cell(x: float, y: float) -> np.ndarray:
@@ -32,54 +34,54 @@ def test_vfh_free_road_heads_for_the_goal() -> None:
 
 def test_vfh_obstacle_dead_ahead() -> None:
     # one cell 10 m ahead weighing 6: magnitude 6 × (1 − 10/25) = 3.6 > 3.0, enlarged by asin(1.5/10) = 8.63°:
-    # sectors floor((90 − 8.63)/5) = 16 to floor((90 + 8.63)/5) = 19 are blocked
-    result = VFH(NO_SMOOTHING).calculate(cell(10.0, 0.0), np.array([6.0]), goal=0.0)
+    # the centres -7.5°, -2.5°, 2.5°, 7.5° (sectors 16 to 19) lie in its cone
+    result = VFH(VFH_CONFIG).calculate(cell(10.0, 0.0), np.array([6.0]), goal=0.0)
     assert np.flatnonzero(result.binary).tolist() == [16, 17, 18, 19]
     assert result.histogram[16:20] == pytest.approx([3.6] * 4)
     # valleys (0, 15) and (20, 35); the goal sector 18 is 3 from the first, 2 from the second: the left one,
-    # wide (16 sectors), entered 4 sectors in from its border: sector 24, centre -90 + 24.5 × 5 = 32.5°
+    # wide (16 sectors), entered 2 sectors in from its border: sector 22, centre -87.5 + 22 × 5 = 22.5°
     assert result.valley == (20, 35) and result.wide
-    assert math.degrees(result.direction) == pytest.approx(32.5)
+    assert math.degrees(result.direction) == pytest.approx(22.5)
 
 
 def test_vfh_obstacle_left_steers_right() -> None:
     # a cell at (10, 2): d = 10.198, magnitude 6 × (1 − 10.198/25) = 3.553, angle 11.31°, spread
-    # asin(1.5/10.198) = 8.46°: from 2.85° (sector 18) to 19.77° (sector 21) blocked
-    result = VFH(NO_SMOOTHING).calculate(cell(10.0, 2.0), np.array([6.0]), goal=0.0)
-    assert np.flatnonzero(result.binary).tolist() == [18, 19, 20, 21]
-    assert result.histogram[18] == pytest.approx(6 * (1 - math.hypot(10, 2) / 25))
-    # valleys (0, 17) 1 sector from the goal sector 18 and (22, 35) 4 away: the right one, 4 sectors in from
-    # its left border: sector 13, centre -90 + 13.5 × 5 = -22.5°
-    assert result.valley == (0, 17)
-    assert math.degrees(result.direction) == pytest.approx(-22.5)
+    # asin(1.5/10.198) = 8.46°: the cone [2.85°, 19.77°] holds the centres 7.5°, 12.5°, 17.5° (sectors 19-21)
+    result = VFH(VFH_CONFIG).calculate(cell(10.0, 2.0), np.array([6.0]), goal=0.0)
+    assert np.flatnonzero(result.binary).tolist() == [19, 20, 21]
+    assert result.histogram[19] == pytest.approx(6 * (1 - math.hypot(10, 2) / 25))
+    # the goal sector 18 is free, in the valley (0, 18), but at its left end: 2 sectors in, sector 16, -7.5°
+    assert result.valley == (0, 18)
+    assert math.degrees(result.direction) == pytest.approx(-7.5)
 
 
 def test_vfh_narrow_valley_aims_at_its_middle_not_the_goal() -> None:
-    # cells at (10, ±3.5): d = 10.595, magnitude 3.457, angle ±19.29°, spread 8.14°: sectors 12-15 and 20-23
-    result = VFH(NO_SMOOTHING).calculate(np.array([[10.0, -3.5], [10.0, 3.5]]), np.array([6.0, 6.0]), goal=0.05)
-    assert np.flatnonzero(result.binary).tolist() == [12, 13, 14, 15, 20, 21, 22, 23]
-    # the goal (2.9°, sector 18) lies in the valley (16, 19), 4 sectors wide: narrow, through its middle,
-    # sector 17.5, -90 + 18 × 5 = 0°
-    assert result.valley == (16, 19) and not result.wide
+    # cells at (10, ±2.6): d = 10.333, magnitude 6 × (1 − 10.333/25) = 3.52, angle ±14.57°, spread 8.35°:
+    # cones [-22.92°, -6.23°] (centres of sectors 13-16) and [6.23°, 22.92°] (sectors 19-22)
+    result = VFH(VFH_CONFIG).calculate(np.array([[10.0, -2.6], [10.0, 2.6]]), np.array([6.0, 6.0]), goal=0.05)
+    assert np.flatnonzero(result.binary).tolist() == [13, 14, 15, 16, 19, 20, 21, 22]
+    # the goal (2.9°, sector 18) lies in the valley (17, 18), 2 sectors wide: narrow, through its middle,
+    # sector 17.5, -87.5 + 17.5 × 5 = 0°
+    assert result.valley == (17, 18) and not result.wide
     assert result.direction == pytest.approx(0.0)
 
 
 def test_vfh_goal_outside_the_field_of_view_is_clipped() -> None:
     # 2 rad > 90°: clipped to 90°, sector 36 clipped to 35; the valley (0, 35) is wide but the goal is 0 sectors
-    # from its left end: 4 sectors in, sector 31, -90 + 31.5 × 5 = 67.5°
+    # from its left end: 2 sectors in, sector 33, -87.5 + 33 × 5 = 77.5°
     result = VFH(ControllerConfig()).calculate(np.zeros((0, 2)), np.zeros(0), goal=2.0)
     assert result.goal_sector == 35
-    assert math.degrees(result.direction) == pytest.approx(67.5)
+    assert math.degrees(result.direction) == pytest.approx(77.5)
 
 
 def test_vfh_hysteresis_keeps_a_sector_blocked_until_under_the_low_threshold() -> None:
-    vfh = VFH(NO_SMOOTHING)
+    vfh = VFH(VFH_CONFIG)
     assert vfh.calculate(cell(10.0, 0.0), np.array([6.0]), goal=0.0).binary[16:20].all()  # 3.6 > 3.0
     # weight 4.9: 4.9 × 0.6 = 2.94, just under the high threshold and above the low one (1.5): still blocked
     held = vfh.calculate(cell(10.0, 0.0), np.array([4.9]), goal=0.0)
-    assert held.binary[16:20].all() and math.degrees(held.direction) == pytest.approx(32.5)
+    assert held.binary[16:20].all() and math.degrees(held.direction) == pytest.approx(22.5)
     # a fresh histogram (or one after a reset) sees 2.94 as free
-    fresh = VFH(NO_SMOOTHING).calculate(cell(10.0, 0.0), np.array([4.9]), goal=0.0)
+    fresh = VFH(VFH_CONFIG).calculate(cell(10.0, 0.0), np.array([4.9]), goal=0.0)
     assert not fresh.binary.any() and fresh.direction == 0.0
     # weight 2: 1.2 < 1.5 frees the sectors
     released = vfh.calculate(cell(10.0, 0.0), np.array([2.0]), goal=0.0)
@@ -90,13 +92,13 @@ def test_vfh_hysteresis_keeps_a_sector_blocked_until_under_the_low_threshold() -
 
 
 def test_vfh_everything_blocked_holds_the_last_direction() -> None:
-    # a cell 1 m ahead, inside the enlargement radius (1.5 m): it covers -90° to +90°, every sector, with
+    # a cell 1 m ahead, inside the enlargement radius (1.5 m): its cone is -90° to +90°, every sector, with
     # 5 × (1 − 1/25) = 4.8 > 3.0
-    vfh = VFH(NO_SMOOTHING)
-    vfh.calculate(cell(10.0, 2.0), np.array([6.0]), goal=0.0)  # -22.5°, as above
+    vfh = VFH(VFH_CONFIG)
+    vfh.calculate(cell(10.0, 2.0), np.array([6.0]), goal=0.0)  # -7.5°, as above
     result = vfh.calculate(cell(1.0, 0.0), np.array([5.0]), goal=0.0)
     assert result.blocked and result.valley is None and result.binary.all()
-    assert math.degrees(result.direction) == pytest.approx(-22.5)
+    assert math.degrees(result.direction) == pytest.approx(-7.5)
 
 
 def test_empty_road_cruises_straight() -> None:
@@ -130,21 +132,21 @@ def test_wall_ahead_at_5_m_is_an_emergency_stop_and_the_car_resumes_once_clear()
     assert again.last.stopping_distance == pytest.approx(10.0) and again.last.mode is Mode.STOP
 
 
-@pytest.mark.parametrize(("side", "sign", "valley"), [((1.3, 3.0), -1, (0, 16)), ((-3.0, -1.3), 1, (19, 35))])
+@pytest.mark.parametrize(("side", "sign", "valley"), [((1.3, 3.0), -1, (0, 17)), ((-3.0, -1.3), 1, (18, 35))])
 def test_obstacle_on_one_side_steers_to_the_other(side: tuple[float, float], sign: int,
                                                   valley: tuple[int, int]) -> None:
-    # a 1 m × 1.7 m block 8-9 m ahead, beside the corridor (|y| ≥ 1.3 > 1.25): its cells, enlarged by
-    # asin(1.5/8.3) ≈ 10.4°, reach from about 20° down to about -1.6° (sector 17), and smoothing spreads the
-    # density one sector more: the valley on the other side ends at sector 16 (starts at 19 on the right);
-    # 4 sectors in from that border: sector 12, -90 + 12.5 × 5 = -27.5° (sector 23: +27.5°)
+    # a 1 m × 1.7 m block 6-7 m ahead, beside the corridor (|y| ≥ 1.3 > 1.25): its nearest cell (6.25, 1.25) is
+    # 11.3° left and 6.37 m away, enlarged by asin(1.5/6.37) = 13.6° its cone reaches -2.3°, short of sector 17's
+    # centre (-2.5°), and smoothing leaves sector 17 at 1.8 < 3: the blocked run starts at the goal's sector 18,
+    # the valley on the right ends at 17, and the car aims 2 sectors in: sector 15, -87.5 + 15 × 5 = -12.5°
+    # (on the right: blocked up to 17, valley (18, 35), sector 20: +12.5°)
     controller = ObstacleAvoidance(initial_speed=8.0)
-    steering = [controller.step(f).steering for f in log(*[((8.0, 9.0, *side),)] * 9)]
+    steering = [controller.step(f).steering for f in log(*[((6.0, 7.0, *side),)] * 5)]
     assert controller.last is not None and controller.last.vfh is not None
     assert controller.last.vfh.valley == valley
-    assert math.degrees(controller.last.vfh.direction) == pytest.approx(sign * 27.5)
-    # steering rate limit: 0.6 rad/s × 0.1 s = 0.06 rad per frame, until -27.5° = -0.47997 rad
-    assert steering[:3] == pytest.approx([sign * 0.06, sign * 0.12, sign * 0.18])
-    assert steering[-1] == pytest.approx(sign * math.radians(27.5))
+    assert math.degrees(controller.last.vfh.direction) == pytest.approx(sign * 12.5)
+    # steering rate limit: 0.6 rad/s × 0.1 s = 0.06 rad per frame, until 12.5° = 0.2182 rad
+    assert steering == pytest.approx([sign * 0.06, sign * 0.12, sign * 0.18] + [sign * math.radians(12.5)] * 2)
 
 
 def test_blind_frames_are_coasted_through_then_the_car_stops() -> None:

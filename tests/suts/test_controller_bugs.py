@@ -19,8 +19,8 @@ from lidarfuzz.suts.sequence import Decision, SequenceSystem, replay
 from tests.suts.controller_scenes import log
 
 WALL_AT_5 = (5.0, 5.2, -3.0, 3.0)
-LEFT_BLOCK = (8.0, 9.0, 1.3, 3.0)
-RIGHT_BLOCK = (8.0, 9.0, -3.0, -1.3)
+LEFT_BLOCK = (6.0, 7.0, 1.3, 3.0)
+RIGHT_BLOCK = (6.0, 7.0, -3.0, -1.3)
 
 
 def decisions(system: SequenceSystem, frames: list) -> list[Decision]:
@@ -52,9 +52,9 @@ def test_linear_stopping_distance_misses_the_emergency_stop() -> None:
 
 
 def test_sticky_hysteresis_keeps_avoiding_an_obstacle_that_is_gone() -> None:
-    # frame 0 blocks the sectors of the block on the left (steer right, -0.06 after the rate limit); on the
-    # empty road after it the correct controller frees them and steers back to 0 (within 0.06 of -0.06);
-    # the variant never frees them and keeps turning right by 0.06 per frame
+    # frame 0 blocks the sectors of the block on the left (steer right towards -12.5°, -0.06 after the rate
+    # limit); on the empty road after it the correct controller frees them and steers back to 0 (within 0.06 of
+    # -0.06); the variant never frees them and keeps turning right by 0.06 per frame
     frames = log((LEFT_BLOCK,), (), ())
     correct = [d.steering for d in decisions(ObstacleAvoidance(initial_speed=8.0), frames)]
     buggy = [d.steering for d in decisions(StickyHysteresis(initial_speed=8.0), frames)]
@@ -66,18 +66,19 @@ def test_sticky_hysteresis_keeps_avoiding_an_obstacle_that_is_gone() -> None:
 
 
 def test_left_sector_offset_swerves_less_around_an_obstacle_on_the_left() -> None:
-    # nine frames with the block on the left: the correct controller settles at -27.5° (see test_controller);
-    # the variant places the block's sectors one further left, its valley ends one sector later (17) and it
-    # aims 4 sectors in: sector 13, -90 + 13.5 × 5 = -22.5°
-    left = log(*[(LEFT_BLOCK,)] * 9)
+    # five frames with the block on the left: the correct controller settles at -12.5° (see test_controller:
+    # its cone reaches -2.3°, sector 18 and up are blocked). The variant shifts every index of an angle left of
+    # straight ahead: the cone's first covered centre, found as sector_of(-2.3° + 2.5° = 0.2°), becomes 19, the
+    # goal sector 18 is free, the valley (0, 18), and the car aims 2 sectors in from its end: 16, -7.5°
+    left = log(*[(LEFT_BLOCK,)] * 5)
     correct = decisions(ObstacleAvoidance(initial_speed=8.0), left)[-1].steering
     buggy_system = LeftSectorOffset(initial_speed=8.0)
     buggy = decisions(buggy_system, left)[-1].steering
-    assert correct == pytest.approx(-math.radians(27.5))
-    assert buggy == pytest.approx(-math.radians(22.5))
+    assert correct == pytest.approx(-math.radians(12.5))
+    assert buggy == pytest.approx(-math.radians(7.5))
     assert buggy_system.last is not None and buggy_system.last.vfh is not None
-    assert buggy_system.last.vfh.valley == (0, 17)
+    assert buggy_system.last.vfh.valley == (0, 18)
     # its mirror image on the right lies at negative angles where the index is right: the same decisions
-    right = log(*[(RIGHT_BLOCK,)] * 9)
+    right = log(*[(RIGHT_BLOCK,)] * 5)
     assert decisions(LeftSectorOffset(initial_speed=8.0), right) == decisions(ObstacleAvoidance(initial_speed=8.0),
                                                                               right)

@@ -79,8 +79,8 @@ class LeftSectorOffByOne(VFH):
 class LeftSectorOffset(BuggyController):
     """The polar histogram's sector index is off by one on the left side, so whatever lies left of
     straight ahead is placed one sector (5°) further left than it is: an obstacle on the left seems
-    farther from the heading than it is, and the car swerves less around it (22.5° instead of
-    27.5° in the tests' scene) — closer past it than around its mirror image on the right."""
+    farther from the heading than it is, and the car swerves less around it (7.5° instead of
+    12.5° in the tests' scene) — closer past it than around its mirror image on the right."""
 
     name = "controller-bug-left-sector"
     vfh_class = LeftSectorOffByOne

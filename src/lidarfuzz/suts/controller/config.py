@@ -38,12 +38,15 @@ class ControllerConfig(BaseModel):
     # vector field histogram
     field_of_view_deg: float = Field(default=180.0, gt=0.0, le=360.0, description="directions considered, centred")
     sector_deg: float = Field(default=5.0, gt=0.0, le=45.0, description="width of one histogram sector")
+    window_radius: float = Field(default=12.0, gt=0.0, description="the VFH's active window: obstacle cells farther "
+                                                                 "away do not count, nearer ones weigh 1 − d / this")
     robot_radius: float = Field(default=1.0, gt=0.0, description="half the car's width (m)")
     safety_distance: float = Field(default=0.5, ge=0.0, description="kept between the car and obstacles (m)")
     smoothing: int = Field(default=2, ge=0, description="sectors on each side averaged into one")
     threshold_high: float = Field(default=3.0, gt=0.0, description="density above which a sector becomes blocked")
     threshold_low: float = Field(default=1.5, ge=0.0, description="density below which a blocked sector is free")
-    wide_valley: int = Field(default=8, ge=1, description="a valley of this many sectors or more is wide")
+    wide_valley: int = Field(default=4, ge=1, description="a valley of this many sectors or more is wide; the car "
+                                                          "keeps half of it off a wide valley's border")
     goal_direction_deg: float = Field(default=0.0, description="where the car wants to go, left positive (a frame's "
                                                                "metadata 'goal_direction' in radians overrides it)")
     # steering

@@ -40,6 +40,16 @@ class ObstacleMap:
         return len(self.counts)
 
 
+def cell_index(xy: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int64], int]:
+    """Each point's cell as one flat index into the dense grid spanning the points, and the grid's
+    size (a dense grid, not ``np.unique`` over rows: one pass instead of a sort)."""
+    ij = np.floor(xy / cell).astype(np.int64)
+    low = ij.min(axis=0)
+    ij -= low
+    width = int(ij[:, 1].max()) + 1
+    return ij[:, 0] * width + ij[:, 1], (int(ij[:, 0].max()) + 1) * width
+
+
 def relative_heights(xy: NDArray[np.float64], z: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
     """Each point's height above the lowest point of its ``cell`` × ``cell`` column.
 
@@ -50,10 +60,8 @@ def relative_heights(xy: NDArray[np.float64], z: NDArray[np.float64], cell: floa
     """
     if len(z) == 0:
         return np.zeros(0)
-    ij = np.floor(xy / cell).astype(np.int64)
-    _, cell_of = np.unique(ij, axis=0, return_inverse=True)
-    cell_of = cell_of.reshape(-1)
-    lowest = np.full(int(cell_of.max()) + 1, np.inf)
+    cell_of, size = cell_index(xy, cell)
+    lowest = np.full(size, np.inf)
     np.minimum.at(lowest, cell_of, z)
     return z - lowest[cell_of]
 
@@ -72,10 +80,13 @@ def occupancy(xy: NDArray[np.float64], height: NDArray[np.float64], config: Cont
     if len(xy) == 0:
         return ObstacleMap.empty()
     ij = np.floor(xy / config.cell).astype(np.int64)
-    cells, cell_of, counts = np.unique(ij, axis=0, return_inverse=True, return_counts=True)
-    cell_of = cell_of.reshape(-1)
-    tops = np.full(len(cells), -np.inf)
+    cell_of, size = cell_index(xy, config.cell)
+    counts = np.bincount(cell_of, minlength=size)
+    tops = np.full(size, -np.inf)
     np.maximum.at(tops, cell_of, height)
-    keep = counts >= config.min_cell_points
-    centers = (cells[keep].astype(np.float64) + 0.5) * config.cell
+    keep = np.flatnonzero(counts >= config.min_cell_points)
+    # a kept cell's integer coordinates: those of any of its points (the first)
+    first = np.full(size, len(cell_of))
+    np.minimum.at(first, cell_of, np.arange(len(cell_of)))
+    centers = (ij[first[keep]].astype(np.float64) + 0.5) * config.cell
     return ObstacleMap(centers, counts[keep].astype(np.float64), tops[keep])

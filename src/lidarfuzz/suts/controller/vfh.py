@@ -1,13 +1,14 @@
 """The Vector Field Histogram (Borenstein & Koren 1991, with VFH+'s enlargement and hysteresis).
 
 Directions ahead of the car are cut into sectors (5° over the forward half-plane by default;
-sector 0 is the rightmost, angles are left positive). Each obstacle cell adds its magnitude —
-its weight (points) times ``1 − d / max_range`` — to every sector its angle covers once the
-obstacle is enlarged by the car's radius plus a safety distance (``asin(r / d)`` either side).
-The histogram is smoothed over neighbouring sectors and thresholded with hysteresis into blocked
-and free sectors; runs of free sectors are valleys. The valley nearest the goal direction is
-chosen: in a wide valley the car keeps ``wide_valley / 2`` sectors off the border nearest the goal
-(or heads straight for the goal when it lies well inside), in a narrow one it aims at the middle.
+sector 0 is the rightmost, angles are left positive). Each obstacle cell within the active window
+(``window_radius``) adds its magnitude — its weight times ``1 − d / window_radius`` — to every
+sector whose centre direction lies in the cell's cone once the obstacle is enlarged by the car's
+radius plus a safety distance (``asin(r / d)`` either side; VFH+'s enlargement). The histogram is
+smoothed over neighbouring sectors and thresholded with hysteresis into blocked and free sectors;
+runs of free sectors are valleys. The valley nearest the goal direction is chosen: in a wide
+valley the car keeps ``wide_valley / 2`` sectors off the border nearest the goal (or heads
+straight for the goal when it lies well inside), in a narrow one it aims at the middle.
 """
 
 from __future__ import annotations
@@ -98,12 +99,15 @@ class VFH:
         """The direction to drive in, from obstacle cells (M×2 ``x, y`` in metres, their weights)
         and the goal direction (rad, left positive).
 
-        Example (one cell 10 m ahead weighing 5, no smoothing: a density of 5 × (1 − 10/25) = 3,
-        not above ``threshold_high`` = 3, so every sector stays free):
+        Example (one cell 10 m ahead weighing 24, no smoothing: a density of 24 × (1 − 10/12) = 4
+        blocks the four sectors whose centres lie within asin(1.5/10) = 8.6° of straight ahead, and
+        the car keeps 2 sectors off the border of the nearest valley, on the left):
             >>> vfh = VFH(ControllerConfig(smoothing=0))
-            >>> r = vfh.calculate(np.array([[10.0, 0.0]]), np.array([5.0]), goal=0.0)
-            >>> float(r.histogram.max()), r.blocked, r.direction
-            (3.0, False, 0.0)
+            >>> r = vfh.calculate(np.array([[10.0, 0.0]]), np.array([24.0]), goal=0.0)
+            >>> round(float(r.histogram.max()), 6), np.flatnonzero(r.binary).tolist(), r.valley
+            (4.0, [16, 17, 18, 19], (20, 35))
+            >>> round(math.degrees(r.direction), 6)
+            22.5
         """
         cfg = self.config
         n = self.n_sectors
@@ -128,18 +132,21 @@ class VFH:
         histogram = np.zeros(n)
         if len(obstacles):
             distance = np.hypot(obstacles[:, 0], obstacles[:, 1])
-            near = (distance > 1e-6) & (distance < cfg.max_range) & (weights > 0)
+            near = (distance > 1e-6) & (distance < cfg.window_radius) & (weights > 0)
             if near.any():
                 xy, d, w = obstacles[near], distance[near], weights[near]
                 angle = np.arctan2(xy[:, 1], xy[:, 0])
-                magnitude = w * (1.0 - d / cfg.max_range)
+                magnitude = w * (1.0 - d / cfg.window_radius)
                 radius = cfg.robot_radius + cfg.safety_distance
                 # an obstacle within the enlargement radius covers half the circle
                 spread = np.where(d > radius, np.arcsin(np.minimum(1.0, radius / np.maximum(d, 1e-9))), np.pi / 2)
                 low, high = angle - spread, angle + spread
-                seen = (high >= -self.half_fov) & (low < self.half_fov)
+                # a sector is covered when its centre direction lies in the enlarged cone
+                half_sector = self.sector / 2.0
+                seen = (high >= -self.half_fov + half_sector) & (low <= self.half_fov - half_sector)
                 if seen.any():
-                    first, last = self.sector_of(low[seen]), self.sector_of(high[seen])
+                    first = self.sector_of(low[seen] + half_sector)
+                    last = self.sector_of(high[seen] - half_sector)
                     sectors = np.arange(n)
                     covered = (sectors[None, :] >= first[:, None]) & (sectors[None, :] <= last[:, None])
                     histogram = magnitude[seen] @ covered
