@@ -206,3 +206,17 @@ def test_an_isolated_python_system_is_cut_off_at_the_timeout() -> None:
         assert results[0].ok and results[0].decision is not None and results[0].decision.speed == 1.0
         assert results[1].failure is not None and results[1].failure.kind is FailureKind.TIMEOUT
         assert not results[2].stepped and not system.alive
+
+
+@pytest.mark.parametrize("name", sorted(available_sequences()))
+def test_every_registered_sequence_system_keeps_the_contract(name: str) -> None:
+    # deterministic and reset per log, an empty cloud is a decision (blind), inputs left untouched,
+    # a stable fingerprint
+    frames = [*log((), ((5.0, 5.2, -3.0, 3.0),), ((6.0, 7.0, 1.3, 3.0),)), *empty_frames(1)]
+    before = [f.points.data.copy() for f in frames]
+    system = create_sequence(f"{name}?initial_speed=8.0")
+    first, second = replay(system, frames), replay(system, frames)
+    assert all(r.ok for r in first), [r.failure for r in first if r.failure]
+    assert [r.decision for r in first] == [r.decision for r in second]
+    assert all(np.array_equal(f.points.data, b) for f, b in zip(frames, before, strict=True))
+    assert system.fingerprint() == create_sequence(f"{name}?initial_speed=8.0").fingerprint()
