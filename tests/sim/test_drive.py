@@ -10,11 +10,13 @@ import pytest
 from typer.testing import CliRunner
 
 from lidarfuzz.cli.app import app
+from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io import open_dataset
 from lidarfuzz.io.kitti import KittiLog
-from lidarfuzz.sim import GenerationConfig, compile_world, generate_dataset, generate_scene
+from lidarfuzz.sim import GenerationConfig, compile_world, generate_dataset, generate_scene, parse_scene
 from lidarfuzz.sim.drive import MIN_RIGHT_RADIUS
 from lidarfuzz.sim.world import ProfiledTrajectory, ego_labels
+from tests.sim.helpers import street
 
 DURATION = 40.0  # s: a 400-frame log at 10 Hz
 SEEDS = range(6)
@@ -119,3 +121,17 @@ def test_a_300_frame_drive_log_stops_for_a_pedestrian_and_turns(tmp_path):
     ahead = stopped.boxes.centers
     assert any(str(c) == "Pedestrian" and 0 < x < 15 and abs(y) < 6 for c, (x, y, _) in
                zip(stopped.boxes.labels, ahead, strict=True))
+
+
+def test_a_bad_ego_file_is_one_line_naming_file_and_line(tmp_path):
+    root = tmp_path / "log"
+    spec = parse_scene(street(ego={"position": [0, -1.75], "speed": 10, "route": [[0, -1.75], [10.5, -1.75]]}))
+    generate_dataset(root, GenerationConfig(frames=2, scene=spec, sensor="VLP-16"), workers=1)
+    # 10.5 m at 10 m/s: still driving at 0.1 s; a plain route has no curvature.
+    assert open_dataset(root)[1].metadata["speed"] == 10.0
+    ego = root / "ego.txt"
+    lines = ego.read_text().splitlines()
+    ego.write_text("\n".join([lines[0], lines[1], "000001 10.0 fast 0 0"]) + "\n")
+    with pytest.raises(DataFormatError, match="not a number") as info:
+        open_dataset(root)
+    assert "ego.txt" in str(info.value) and ":3" in str(info.value) and "\n" not in str(info.value)
