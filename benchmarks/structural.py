@@ -14,6 +14,16 @@ call — which the recorder does not use because it costs more (see the table).
 Functions (tests/structural/sample_code.py): ``ground_height``, numpy-heavy (a 120,000-point
 cloud: most time in numpy, few Python lines), and ``steer``, branchy pure Python (200
 obstacles: every line traced). Target (issue 20): ≤ 3× per frame of a system under test.
+
+Then the built-in controller (``lidarfuzz.suts.controller``, the whole package as the target) on
+a simulator drive log (``--controller-frames`` HDL-64E frames, made under ``bench-out/`` on first
+use): the log replayed plain (reset, then every frame in order) and under the recorder; per frame,
+median of ``--repeat`` replays.
+
+Last, segment selection on a ``--log-frames`` frame log (default 2,500, VLP-16 so that it is made
+in minutes; made on first use): the controller's per-frame coverage of the whole log (one replay,
+timed), then each heuristic's selection from its segments of 5, median of ``--repeat``. Target
+(issue 20): < 10 s.
 """
 
 from __future__ import annotations
@@ -33,9 +43,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the sample code 
 from coverage.control import Coverage
 from tests.structural import sample_code
 
-from lidarfuzz.structural.python_coverage import RecorderConfig
+from lidarfuzz.structural.python_coverage import CoverageRecorder, RecorderConfig
 
 TARGET = "tests.structural.sample_code"
+CONTROLLER = "lidarfuzz.suts.controller"
+WORK = Path(__file__).resolve().parents[1] / "bench-out" / "structural"
 
 
 def cases() -> list[tuple[str, Callable[..., Any], tuple[Any, ...]]]:
@@ -92,10 +104,78 @@ def erase_per_call(function: Callable[..., Any], args: tuple[Any, ...]) -> Calla
     return run
 
 
+def drive_log(frames: int, sensor: str) -> Path:
+    """A simulator drive log of ``frames`` frames (made once under ``bench-out/structural``)."""
+    from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
+
+    path = WORK / f"drive-{sensor}-{frames}"
+    if not (path / "timestamps.txt").exists():
+        start = time.perf_counter()
+        generate_dataset(path, GenerationConfig(frames=frames, seed=0, drive=True, sensor=sensor), overwrite=True)
+        print(f"(made {path.name} in {time.perf_counter() - start:.0f} s)")
+    return path
+
+
+def controller(frames: int, repeat: int) -> None:
+    """The controller's replay of a drive log, plain and under the recorder, per frame."""
+    from lidarfuzz.structural.log_coverage import frame_coverage
+    from lidarfuzz.structural.logs import open_log
+    from lidarfuzz.suts.controller import ObstacleAvoidance
+
+    scenes = list(open_log(drive_log(frames, "HDL-64E")))
+    system = ObstacleAvoidance()
+    recorder = CoverageRecorder([CONTROLLER])
+
+    def plain() -> None:
+        system.reset()
+        for scene in scenes:
+            system.step(scene)
+
+    def recorded() -> None:
+        frame_coverage(scenes, system.step, recorder, reset=system.reset)
+
+    plain()  # warm
+    a = per_call(plain, 1, repeat) / len(scenes)
+    b = per_call(recorded, 1, repeat) / len(scenes)
+    points = statistics.median(len(s.points) for s in scenes)
+    print(f"{f'controller.step ({points:,.0f} points)':<40} {a * 1e3:9.3f} {'':>10} {'':>6} {b * 1e3:12.3f} "
+          f"{b / a:5.2f}x")
+
+
+def selection(frames: int, repeat: int) -> None:
+    """Each heuristic's selection from a ``frames``-frame log's segments of 5."""
+    from lidarfuzz.structural.heuristics import HEURISTICS, select
+    from lidarfuzz.structural.log_coverage import decision_signature, frame_coverage
+    from lidarfuzz.structural.logs import open_log
+    from lidarfuzz.structural.segments import partition, segment_coverage
+    from lidarfuzz.suts.controller import ObstacleAvoidance
+
+    log = open_log(drive_log(frames, "VLP-16"))
+    system = ObstacleAvoidance()
+    start = time.perf_counter()
+    replay = frame_coverage(log, system.step, CoverageRecorder([CONTROLLER]), reset=system.reset)
+    replayed = time.perf_counter() - start
+    segments = partition(log.frame_ids, 5)
+    per_segment = segment_coverage(segments, replay.covered)
+    signatures = [decision_signature(o) for o in replay.outputs]
+    print(f"\nselection on a {len(log):,}-frame log ({len(segments)} segments of 5); the replay under coverage "
+          f"took {replayed:.1f} s ({replayed / len(log) * 1e3:.1f} ms a frame)")
+    print(f"{'heuristic':<18} {'seconds':>8} {'segments':>9} {'frames':>7}")
+    for name in HEURISTICS:
+        def run(name: str = name) -> object:
+            return select(name, segments, per_segment, frames=100, signatures=signatures, seed=0)
+
+        seconds = per_call(run, 1, repeat)
+        chosen = run()
+        print(f"{name:<18} {seconds:8.3f} {len(chosen):9d} {chosen.frames:7d}")  # type: ignore[attr-defined]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=7)
     parser.add_argument("--calls", type=int, default=20)
+    parser.add_argument("--controller-frames", type=int, default=50)
+    parser.add_argument("--log-frames", type=int, default=2500)
     options = parser.parse_args()
     recorder = RecorderConfig((TARGET,)).build()
     print(f"{'function':<40} {'plain ms':>9} {'traced ms':>10} {'ratio':>6} {'recorded ms':>12} {'ratio':>6} "
@@ -109,6 +189,8 @@ def main() -> None:
         print(f"{name:<40} {plain * 1e3:9.3f} {traced * 1e3:10.3f} {traced / plain:5.2f}x "
               f"{recorded * 1e3:12.3f} {recorded / plain:5.2f}x "
               f"{erased * 1e3:14.3f} {erased / plain:5.2f}x")
+    controller(options.controller_frames, options.repeat)
+    selection(options.log_frames, options.repeat)
 
 
 if __name__ == "__main__":
