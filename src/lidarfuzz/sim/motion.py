@@ -28,7 +28,7 @@ VW Passat, 2.71 m), its steering angle ``δ = atan(L·κ)`` (:func:`steering_ang
 
 Example (10 m/s, a stop at 100 m for 5 s; braking at 3 m/s² starts 100/6 m before it):
     >>> profile = SpeedProfile.plan(300.0, [(0.0, 300.0, 10.0)], stops=[(100.0, 5.0)])
-    >>> round(float(profile.time_at(100.0)), 4), round(float(profile.distance(16.0)), 4)
+    >>> round(profile.time_at(100.0), 4), round(float(profile.distance(16.0)[0]), 4)  # standing at 16 s
     (11.6667, 100.0)
 """
 
