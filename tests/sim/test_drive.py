@@ -45,7 +45,7 @@ def test_the_ego_stops_with_bounded_braking_turns_smoothly_and_drives_on_to_the_
         t = np.arange(0.0, DURATION, 0.1)
         speed, yaw_rate, curvature, steering = ego_labels(ego, t).T
         stopped = np.flatnonzero(speed < 1e-9)
-        assert len(stopped) >= 20, seed  # stands at least 2 s (the crossing's or the queue's)
+        assert len(stopped) >= 19, seed  # stands at least 2 s (behind a car; 3 s at a crossing): 19 samples or more
         assert speed[stopped[-1] + 1:].max() == pytest.approx(spec.ego.speed)  # and gets back to its speed
         assert speed[-1] > 0  # the route outlasts the log
         acceleration = np.diff(speed) / 0.1

@@ -150,7 +150,7 @@ def plan_actors(plan: DrivePlan, ego: dict[str, Any], main: Road, cross: Road, c
         lead_leaves = arrive + first_wait
         ego["stops"] = [{"at": _r(ego_stop), "duration": 0.0}]
         ego_arrives = _profile_of(ego, ego=True).profile.time_at(ego_stop)
-        ego["stops"] = [{"at": _r(ego_stop), "duration": _r(max(1.0, lead_leaves + 1.5 - ego_arrives))}]
+        ego["stops"] = [{"at": _r(ego_stop), "duration": _r(max(2.0, lead_leaves + 1.5 - ego_arrives))}]
         actors.insert(0, lead)
     stepping = _stepping_out(plan, ego, cross, rng, duration)
     if stepping is not None:
