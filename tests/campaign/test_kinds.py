@@ -85,7 +85,7 @@ def with_probe(monkeypatch: pytest.MonkeyPatch) -> None:
 
 # -- the table ---------------------------------------------------------------------------
 def test_every_row_names_a_module_with_the_hooks() -> None:
-    assert kinds.kind_names() == ("mutation", "guided", "fuzz")
+    assert kinds.kind_names() == ("mutation", "guided", "fuzz", "structural")
     for row in kinds.TASK_KINDS:
         module = row.implementation()
         for hook in ("check_spec", "plan", "start", "describe"):
@@ -96,7 +96,7 @@ def test_every_row_names_a_module_with_the_hooks() -> None:
 
 
 def test_an_unknown_kind_is_refused_naming_those_there_are(world: Path) -> None:
-    with pytest.raises(DataFormatError, match="unknown task kind 'bogus'; choose one of mutation, guided, fuzz"):
+    with pytest.raises(DataFormatError, match="unknown task kind 'bogus'; choose one of mutation, guided, fuzz, structural"):
         parse_campaign({"dataset": str(world), "sut": "classic", "kind": "bogus", "operators": [{"name": "fog"}]})
     with pytest.raises(kinds.UnknownKindError):
         kinds.task_kind("bogus")

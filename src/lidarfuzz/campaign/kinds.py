@@ -14,7 +14,7 @@ campaign's validation) stays cheap, and the table depends on no kind.
 
 Example:
     >>> [kind.name for kind in TASK_KINDS]
-    ['mutation', 'guided', 'fuzz']
+    ['mutation', 'guided', 'fuzz', 'structural']
     >>> task_kind("guided").module
     'lidarfuzz.campaign.coverage_search'
 """
@@ -39,12 +39,15 @@ class TaskKind:
         help: What a task of this kind does, in a line.
         module: The module implementing the kind's hooks.
         requires_operators: Its campaigns must list operators (a search's are an optional pool).
+        consumes_logs: Its system is a sequence system replaying logs in order
+            (:func:`lidarfuzz.suts.registry.create_sequence` builds it), not a per-frame one.
     """
 
     name: str
     help: str
     module: str
     requires_operators: bool = False
+    consumes_logs: bool = False
 
     def implementation(self) -> Any:
         """The implementing module (a :class:`~lidarfuzz.campaign.lifecycle.KindImplementation`)."""
@@ -58,6 +61,9 @@ TASK_KINDS: tuple[TaskKind, ...] = (
              "lidarfuzz.campaign.coverage_search"),
     TaskKind("fuzz", "DeepHunter-style coverage-guided fuzzing loop on a learned SUT",
              "lidarfuzz.campaign.coverage_search"),
+    TaskKind("structural", "Neves et al.'s structural testing: field-test logs replayed in order through a sequence "
+             "system under code coverage, discriminatory segments, generated logs (HGT, AVG, ...)",
+             "lidarfuzz.campaign.structural", consumes_logs=True),
 )
 
 

@@ -143,10 +143,13 @@ class SubtaskPlan:
 @dataclass(frozen=True)
 class KindPlan:
     """What a task kind adds to a new task: its subtasks after the originals, and options of its own
-    (stored as :attr:`lidarfuzz.store.contracts.TaskOptions.kind_options`; the kind validates them)."""
+    (stored as :attr:`lidarfuzz.store.contracts.TaskOptions.kind_options`; the kind validates them).
+    ``original_units``: how many results complete the originals' subtask (None: one per frame; a
+    structural task's originals are its field-test logs, one result each)."""
 
     subtasks: list[SubtaskPlan]
     options: dict[str, Any] = field(default_factory=dict)
+    original_units: int | None = None
 
 
 __all__ = ["ORIGINAL", "KindPlan", "SubtaskPlan", "harmless_basis", "operator_key", "operator_stream",

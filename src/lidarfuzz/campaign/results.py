@@ -344,7 +344,16 @@ def summarise(store: Store, task_id: int, *, baseline: int | None = None) -> Tas
                        ap_warnings=ap_warnings(subtasks), robustness=robustness, violations=violation,
                        deeptest=deeptest_table(subtasks[1:]),
                        findings=FindingsSummary(total=sum(kinds.values()), by_kind=kinds, top=top),
-                       run=task.summary.run if task.summary else None)
+                       run=task.summary.run if task.summary else None, kind_summary=_kind_summary(store, task))
+
+
+def _kind_summary(store: Store, task: Any) -> dict[str, Any]:
+    """What the task's kind reports beyond the shared tables: its module's ``kind_summary(store,
+    task)`` when it has one (a structural task's coverage tables), else nothing."""
+    from lidarfuzz.campaign.kinds import kind_of
+
+    hook = getattr(kind_of(task).implementation(), "kind_summary", None)
+    return dict(hook(store, task)) if callable(hook) else {}
 
 
 def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[TopFinding]:

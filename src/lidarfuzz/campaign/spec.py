@@ -20,6 +20,17 @@ Example (``campaign.yaml``)::
     reference: classic-v1       # optional: a system (or a list) run on the same mutants, compared in the report
     pilot: 5                    # optional: a 5-frame pilot first; settings whose floor leaves no room are
                                 #   lowered or dropped (lidarfuzz.campaign.pilot)
+
+A structural campaign (``kind: structural``, :mod:`lidarfuzz.campaign.structural`)::
+
+    kind: structural
+    dataset: [drive-0, drive-1]  # field-test logs (one, or a list), replayed in order
+    sut: controller              # a sequence system
+    coverage:
+      targets: [lidarfuzz.suts.controller.avoidance:ObstacleAvoidance.process]
+    segments: 5
+    heuristics: [greedy_edges, decision_change, random]
+    strategies: [HGT, AVG]
 """
 
 from __future__ import annotations
@@ -121,6 +132,24 @@ class CampaignSpec(_Model):
         default_factory=list, description="differential testing: systems (registered model names or SUT specs) "
                                           "each run as a task of its own on the same frames, operators and seed; "
                                           "the report compares the system's violation rates and AP with theirs")
+    logs: list[str] = Field(default_factory=list, description="structural: further field-test logs after dataset "
+                                                              "(dataset: [a, b] says the same)")
+    coverage: dict[str, Any] = Field(
+        default_factory=dict, description="structural: targets (the code to cover) and optionally budget_frames, "
+                                          "height, severity, radius, timeout")
+    segments: int | None = Field(default=None, ge=1, description="structural: frames per segment (default 5)")
+    heuristics: list[str] = Field(default_factory=list, description="structural: segment-selection heuristics "
+                                                                    "(default all five)")
+    strategies: list[str] = Field(default_factory=list, description="structural: log-generation strategies "
+                                                                    "(default HGT, AVG)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _several_logs(cls, data: Any) -> Any:
+        if isinstance(data, dict) and isinstance(data.get("dataset"), list) and data["dataset"]:
+            first, *rest = data["dataset"]
+            return {**data, "dataset": first, "logs": [*rest, *data.get("logs", [])]}
+        return data
 
     @field_validator("reference", mode="before")
     @classmethod

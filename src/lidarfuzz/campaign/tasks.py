@@ -88,23 +88,26 @@ def unlabelled_frames(dataset: Any, frame_ids: list[str], allow: bool, path: str
     return missing
 
 
-def _model_row(s: Any, ref: str, options: dict[str, Any]) -> Model:
+def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = False) -> Model:
     """The model a campaign runs: a registered one by name, else one registered for ``ref`` and
     ``options`` now. Either way the system is built and fingerprinted: when its code (or weights)
     changed since it was registered, another row holds the new fingerprint, so the old rows'
-    fingerprint, and with it the old code's cached outputs, is never reused."""
-    from lidarfuzz.suts.registry import create
+    fingerprint, and with it the old code's cached outputs, is never reused. ``sequence``: the
+    system consumes logs in order (:func:`~lidarfuzz.suts.registry.create_sequence` builds it)."""
+    from lidarfuzz.suts.registry import create, create_sequence
+
+    build: Any = create_sequence if sequence else create
 
     row = s.scalar(select(Model).where(Model.name == ref))
     if row is not None:
         if options:
             raise ConflictError(f"model {ref!r} is registered with its options; register another to change them")
-        fingerprint = create(row.spec, **dict(row.options or {})).fingerprint()
+        fingerprint = build(row.spec, **dict(row.options or {})).fingerprint()
         if fingerprint == row.fingerprint:
             return row
         ref, options, note = row.spec, dict(row.options or {}), f"{row.name} with changed code or weights"
     else:
-        fingerprint = create(ref, **options).fingerprint()
+        fingerprint = build(ref, **options).fingerprint()
         note = "registered by a campaign"
     for candidate in s.scalars(select(Model).where(Model.spec == ref)):
         if candidate.fingerprint == fingerprint and candidate.options == options:
@@ -135,13 +138,15 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
     from lidarfuzz.store.inventory import dataset_options as stored_options
     from lidarfuzz.store.inventory import open_registered
 
+    logs = task_kind(spec.kind).consumes_logs
     with store.session() as s:
         dataset = _dataset_row(s, spec.dataset, dataset_options)
-        model = _model_row(s, spec.sut, dict(sut_options or {}))
+        model = _model_row(s, spec.sut, dict(sut_options or {}), sequence=logs)
         opened = open_registered(dataset)
         frame_ids = select_frames(opened.frame_ids(), spec.frames, spec.frame_order, spec.seed)
         allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
-        unlabelled = unlabelled_frames(opened, frame_ids, allow, dataset.path)
+        # a log is replayed whole and judged by decisions, not AP: its labels are not required
+        unlabelled = [] if logs else unlabelled_frames(opened, frame_ids, allow, dataset.path)
         options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
                               timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
                               pilot=pilot)
@@ -169,7 +174,8 @@ def _add_task(s: Any, spec: CampaignSpec, name: str, dataset: Dataset, model: Mo
     """One task of ``spec`` on ``model`` with its subtasks planned (a campaign with references adds
     one per reference system: the same frames, operators and seed, so the same mutants)."""
     kind = task_kind(spec.kind).implementation().plan(spec, model, options.frame_ids)
-    plans = [SubtaskPlan(ORIGINAL, None, len(options.frame_ids), 0, -1), *kind.subtasks]
+    originals = len(options.frame_ids) if kind.original_units is None else kind.original_units
+    plans = [SubtaskPlan(ORIGINAL, None, originals, 0, -1), *kind.subtasks]
     keys = [operator_key(p.operator) for p in plans]
     if len(set(keys)) != len(keys):
         raise ConflictError("the campaign lists the same operator configuration twice")
