@@ -155,7 +155,7 @@ def decision_relations(choice: Any) -> list[dict[str, Any]]:
     chosen = [from_spec(item if isinstance(item, str) else item.model_dump()) for item in choice]
     wrong = [r.name for r in chosen if type(r).output != "decisions"]
     if wrong:
-        raise ValueError(f"relation {wrong[0]!r} judges detections, not a sequence system's decisions "
+        raise ValueError(f"relations: {wrong[0]!r} judges detections, not a sequence system's decisions "
                          "(steering_tolerance, speed_tolerance, safety)")
     return [r.spec() for r in chosen]
 
@@ -179,7 +179,7 @@ def check_spec(spec: CampaignSpec) -> None:
         if isinstance(exc, ValidationError):
             first = exc.errors()[0]
             where = ".".join(str(p) for p in first["loc"])
-            raise ValueError(f"{where}: {first['msg']}") from None
+            raise ValueError(f"{where}: {first['msg'].removeprefix('Value error, ')}") from None
         raise
     decision_relations(spec.relations)
 

@@ -30,6 +30,7 @@ from lidarfuzz.campaign.lifecycle import (
 )
 from lidarfuzz.campaign.plan import ORIGINAL, SubtaskPlan, operator_key, relations_for, select_frames, subtask_label
 from lidarfuzz.campaign.spec import CampaignSpec
+from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.store.contracts import PilotNote, SubtaskInputs, TaskOptions
 from lidarfuzz.store.errors import ConflictError, StoreError
@@ -96,7 +97,14 @@ def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = Fa
     system consumes logs in order (:func:`~lidarfuzz.suts.registry.create_sequence` builds it)."""
     from lidarfuzz.suts.registry import create, create_sequence
 
-    build: Any = create_sequence if sequence else create
+    def build(spec: str, **given: Any) -> Any:
+        if not sequence:
+            return create(spec, **given)
+        try:
+            return create_sequence(spec, **given)
+        except LidarfuzzError as exc:
+            raise ConflictError(f"sut: {exc} (a log campaign needs a system that consumes logs in order, e.g. "
+                                "controller)") from None
 
     row = s.scalar(select(Model).where(Model.name == ref))
     if row is not None:
