@@ -302,6 +302,7 @@ class CoverageRecorder:
         self._coverage = Coverage(branch=True, data_file=None, config_file=False, include=list(self.model.files))
         self._coverage.set_option("run:disable_warnings", ["no-data-collected", "module-not-measured"])
         self._calls = 0
+        self._context = ""
         self.last: Covered = frozenset()
 
     def requirements(self) -> Covered:
@@ -313,18 +314,27 @@ class CoverageRecorder:
 
         When it raises, the exception propagates and :attr:`last` holds what it covered.
         """
-        if self._calls and self._calls % self.erase_every == 0:
-            self._coverage.erase()
-        context = f"call-{self._calls}"
-        self._calls += 1
-        self._coverage.start()
+        self.begin()
         try:
-            self._coverage.switch_context(context)
             result = function(*args, **kwargs)
         finally:
-            self._coverage.stop()
-            self.last = self._collect(context)
+            self.end()
         return result, self.last
+
+    def begin(self) -> None:
+        """Start measuring a unit of work (one call, one request of a worker); :meth:`end` closes it."""
+        if self._calls and self._calls % self.erase_every == 0:
+            self._coverage.erase()
+        self._context = f"call-{self._calls}"
+        self._calls += 1
+        self._coverage.start()
+        self._coverage.switch_context(self._context)
+
+    def end(self) -> Covered:
+        """Stop measuring the unit :meth:`begin` opened: what it covered (also in :attr:`last`)."""
+        self._coverage.stop()
+        self.last = self._collect(self._context)
+        return self.last
 
     def _collect(self, context: str) -> Covered:
         data = self._coverage.get_data()

@@ -412,6 +412,7 @@ class WorkerSequence(SequenceSystem):
         self.version = version  # type: ignore[misc]
         self.max_steering = max_steering  # type: ignore[misc]
         self._index = 0
+        self.last_answer: Any = None  # the program's last answer as read (extra fields kept, e.g. coverage)
 
     def config(self) -> dict[str, Any]:
         return {**self.worker.config(), "max_steering": self.max_steering}
@@ -442,4 +443,5 @@ class WorkerSequence(SequenceSystem):
         request = {**self.worker.frame_request(frame), "index": self._index, "timestamp": frame.timestamp,
                    "metadata": json.loads(json.dumps(dict(frame.metadata), default=str))}
         self._index += 1
-        return Decision.from_dict(self.worker.exchange(request), f"{self.name} answer")
+        self.last_answer = self.worker.exchange(request)
+        return Decision.from_dict(self.last_answer, f"{self.name} answer")
