@@ -141,6 +141,11 @@ def _worst_drop(summary: TaskSummary) -> DeltaRow | None:
 
 def _headline(summary: TaskSummary) -> str:
     """The one-paragraph summary in plain language."""
+    from lidarfuzz.report.structural import headline as structural_headline
+
+    structural = structural_headline(summary)
+    if structural is not None:
+        return structural
     task = summary.task
     subtasks = summary.subtasks
     mutated = len(subtasks[1:])
@@ -314,6 +319,7 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
     """Everything the template shows, formatted."""
     from lidarfuzz import __version__
     from lidarfuzz.report.comparison import comparison_view
+    from lidarfuzz.report.structural import structural_view
 
     task = summary.task
     drawn = charts(summary) if chart_pngs is None else chart_pngs
@@ -336,6 +342,7 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
         "robustness": _robustness(summary),
         "violations": _violations(summary),
         "deeptest": deeptest_view(summary.deeptest),
+        "structural": structural_view(summary),
         "failures": _failures(summary),
         "findings": _findings(summary, images),
         "findings_total": summary.findings.total,
