@@ -11,6 +11,10 @@ interrupted search exactly where it stopped and gives the same tests as an unint
 run. ``lidarfuzz cancel``, the heartbeat, reports and ``lidarfuzz replay`` work as for any
 campaign: a test's operator is a ``sequence`` of its chain, with exact params.
 
+A search guided by neuron coverage needs a SUT exposing its ``torch.nn.Module``; one guided by
+code coverage (``code_nodes``, ``code_edges`` and ``targets``: :mod:`lidarfuzz.search.code`) runs
+any system, its coverage recorded around each ``detect`` call in the process running the task.
+
 The engine knows no particular system: a criterion that needs a training profile finds it in
 the profile cache or in the folders the SUT names through ``profile_dirs()`` (see
 :func:`profile_dirs`). The hooks of :class:`~lidarfuzz.campaign.lifecycle.KindImplementation`
@@ -105,11 +109,21 @@ class _SearchRun:
         self.original, self.sub = subs[ORIGINAL], subs[self.config.kind]
         self.sut = create(task.model.spec, **task.model.options)
         self.sut.load()
-        module = torch_module(self.sut)
-        self.criteria = build_criteria(self.config.criteria, module, profile_dirs(self.sut))
         relations = [from_spec(spec) for spec in self.sub.plan.relation_specs]
-        self.evaluator = SearchEvaluator(open_registered(task.dataset), self.sut, relations,
-                                         ActivationRecorder(module), keep_share=self.config.keep_share)
+        self.evaluator: SearchEvaluator
+        if self.config.code:  # code coverage around each detect call: any Python system
+            from lidarfuzz.search.code import CodeSearchEvaluator, make_code_criteria
+            from lidarfuzz.structural.python_coverage import RecorderConfig
+
+            self.criteria = list(make_code_criteria(self.config.criteria))
+            self.evaluator = CodeSearchEvaluator(open_registered(task.dataset), self.sut, relations,
+                                                 RecorderConfig(self.config.targets),
+                                                 keep_share=self.config.keep_share)
+        else:
+            module = torch_module(self.sut)
+            self.criteria = build_criteria(self.config.criteria, module, profile_dirs(self.sut))
+            self.evaluator = SearchEvaluator(open_registered(task.dataset), self.sut, relations,
+                                             ActivationRecorder(module), keep_share=self.config.keep_share)
         self.search = make_search(self.config, task.options.frame_ids, self.criteria, task.seed)
         state = self.sub.state
         if state:
@@ -304,11 +318,20 @@ def check_spec(spec: CampaignSpec) -> None:
                          "moved test; add equivariance (or use auto)")
 
 
-def _check_searchable(model: Model) -> None:
-    """A coverage-guided search hooks the SUT's ``torch.nn.Module``: refuse a SUT without one
-    now, not when the task runs (the weights are not loaded to find out)."""
+def _check_searchable(model: Model, config: SearchConfig) -> None:
+    """A search guided by neuron coverage hooks the SUT's ``torch.nn.Module``: refuse a SUT
+    without one now, not when the task runs (the weights are not loaded to find out). A search
+    guided by code coverage runs any system: its targets must name code that exists."""
     from lidarfuzz.suts.registry import create
 
+    if config.code:
+        from lidarfuzz.structural.targets import resolve
+
+        try:
+            resolve(config.targets)
+        except LidarfuzzError as exc:
+            raise ConflictError(f"targets: {exc}") from None
+        return
     system = create(model.spec, **model.options)
     if not hasattr(type(system), "module") and "module" not in vars(system):
         raise ConflictError(f"a coverage-guided search needs a SUT built on a torch.nn.Module exposed as `.module`; "
@@ -320,7 +343,7 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
     labels (moved with the scene by a scene-moving step): :func:`search_relations` says which
     relations are checked."""
     search = search_config(spec)
-    _check_searchable(model)
+    _check_searchable(model, search)
     relation_specs = search_relations(search, spec.relations)
     options = search.model_dump(mode="json")
     return KindPlan([SubtaskPlan(search.kind, {"name": search.kind, "search": options}, search.budget,

@@ -139,7 +139,8 @@ def print_search(store: Any, task_id: int) -> None:
         return
     info = sub.results.search
     seeds = next((s for s in task.subtasks if s.name == ORIGINAL), None)
-    table = Table(title=f"{task.options.kind} search: neuron coverage (task {task_id})")
+    what = "code coverage" if any(name.startswith("code_") for name in info.coverage) else "neuron coverage"
+    table = Table(title=f"{task.options.kind} search: {what} (task {task_id})")
     table.add_column("criterion")
     table.add_column("seeds alone", justify="right")
     table.add_column("after the search", justify="right")

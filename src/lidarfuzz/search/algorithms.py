@@ -35,6 +35,10 @@ pillars found no violation with the default pool (0 of 116 valid tests), and wit
 height_shift, global_translate and global_flip added, 4 of 86 valid moved tests broke equivariance
 (6 findings), nearly all objects a rotation carried out of the camera's view, which pillars does
 not read (``fov_only``); the equivariance config's ``max_truncation`` leaves such objects out.
+
+**Code coverage** may guide either search instead of neurons, for any Python system: the criteria
+``code_nodes`` and ``code_edges`` with ``targets`` naming the code to cover (``guide: code`` is
+``code_edges`` with both criteria); see :mod:`lidarfuzz.search.code`.
 """
 
 from __future__ import annotations
@@ -79,6 +83,8 @@ class SearchConfig(BaseModel):
     budget: int = Field(200, ge=1, description="tests to generate (seed frames not counted)")
     criteria: tuple[str, ...] = ("nc:0.2", "kmnc:10", "nbc", "snac", "tknc:2", "tknp:2")
     guide: str = Field("nc", description="the criterion whose increase accepts a test")
+    targets: tuple[str, ...] = Field((), description="code criteria: the code to cover (pkg.module, "
+                                     "pkg.module:Class, pkg.module:function)")
     max_failed_tries: int = Field(5, ge=0, description="guided: failed tries before the next frame")
     max_chain: int = Field(6, ge=1, description="most operators in one test's chain")
     batch: int = Field(4, ge=1, description="fuzz: mutants per picked seed (one forward pass)")
@@ -87,14 +93,36 @@ class SearchConfig(BaseModel):
     minimise: bool = True
     minimise_budget: int = Field(12, ge=0, description="fuzz: SUT runs spent minimising one new finding")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _code_guide(cls, data: Any) -> Any:
+        """``guide: code`` means code_edges; a code guide without criteria tracks both code criteria;
+        targets may be one comma-separated string (``--search targets=pkg.a,pkg.b``)."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        if data.get("guide") == "code":
+            data["guide"] = "code_edges"
+        if str(data.get("guide", "")).startswith("code_") and "criteria" not in data:
+            data["criteria"] = ("code_nodes", "code_edges")
+        if isinstance(data.get("targets"), str):
+            data["targets"] = tuple(t.strip() for t in data["targets"].split(",") if t.strip())
+        return data
+
     @field_validator("criteria")
     @classmethod
     def _known_criteria(cls, value: tuple[str, ...]) -> tuple[str, ...]:
         from lidarfuzz.coverage.criteria import parse_spec
+        from lidarfuzz.search.code import is_code_criterion, make_code_criteria
 
-        names = [parse_spec(spec)[0] for spec in value]  # CoverageError is a ValueError: pydantic names the field
+        code = [spec for spec in value if is_code_criterion(spec)]
+        make_code_criteria(code)  # a value after a code criterion is an error
+        # CoverageError is a ValueError: pydantic names the field
+        names = [spec.split(":")[0].strip().lower() if spec in code else parse_spec(spec)[0] for spec in value]
         if len(set(names)) != len(names):
             raise ValueError(f"a criterion is listed twice in {list(value)}")
+        if code and len(code) != len(value):
+            raise ValueError(f"code criteria {code} and neuron criteria cannot be mixed in one search")
         return value
 
     @model_validator(mode="after")
@@ -102,7 +130,17 @@ class SearchConfig(BaseModel):
         names = [c.split(":")[0].strip().lower() for c in self.criteria]
         if self.guide not in names:
             raise ValueError(f"guide {self.guide!r} must be one of the criteria {names}")
+        if self.code and not self.targets:
+            raise ValueError("targets: code criteria need the code to cover, e.g. targets=lidarfuzz.suts.classic "
+                             "(--target on the command line)")
+        if self.targets and not self.code:
+            raise ValueError(f"targets: only code criteria (code_nodes, code_edges) read targets, not {names}")
         return self
+
+    @property
+    def code(self) -> bool:
+        """Whether the search is guided by code coverage (its criteria are code criteria)."""
+        return any(c.split(":")[0].strip().lower().startswith("code_") for c in self.criteria)
 
     @field_validator("operators")
     @classmethod

@@ -138,8 +138,11 @@ class SearchEvaluator:
             self._operators[key] = from_spec(spec)
         return self._operators[key]
 
-    def _forward(self, scenes: list[Any]) -> tuple[list[Any], list[dict[str, NDArray[np.float32]]], float, Any]:
-        """Outputs and per-input neuron values of one batched pass (a failure fails the batch)."""
+    def _forward(self, scenes: list[Any]) -> tuple[list[Any], list[dict[str, NDArray[np.float32]]], float,
+                                                    list[FailureRecord | None]]:
+        """Outputs, per-input coverage values and per-input failures of one pass: here one batched
+        forward with the neuron hooks on (a failure fails the batch); a subclass may measure
+        otherwise (:class:`lidarfuzz.search.code.CodeSearchEvaluator`: code coverage per input)."""
         start = time.perf_counter()
         self.recorder.clear()
         try:
@@ -147,10 +150,10 @@ class SearchEvaluator:
                 outputs = self.sut.detect_batch(scenes)
         except Exception as exc:  # the SUT's crash is a result
             failure = FailureRecord(kind="crash", message=f"{type(exc).__name__}: {exc}")
-            return [None] * len(scenes), [{} for _ in scenes], time.perf_counter() - start, failure
+            return [None] * len(scenes), [{} for _ in scenes], time.perf_counter() - start, [failure] * len(scenes)
         values = self.recorder.values()
         rows = [{name: array[i] for name, array in values.items()} for i in range(len(scenes))]
-        return list(outputs), rows, time.perf_counter() - start, None
+        return list(outputs), rows, time.perf_counter() - start, [None] * len(scenes)
 
     def original(self, frame_id: str) -> Evaluation:
         """The seed frame itself (cached)."""
@@ -158,8 +161,8 @@ class SearchEvaluator:
         if found is not None:
             return found
         scene = self.dataset.load(frame_id)
-        outputs, rows, seconds, failure = self._forward([scene])
-        evaluation = Evaluation(frame_id, [], scene, outputs[0], rows[0], failure, seconds=seconds)
+        outputs, rows, seconds, failures = self._forward([scene])
+        evaluation = Evaluation(frame_id, [], scene, outputs[0], rows[0], failures[0], seconds=seconds)
         self._originals[frame_id] = evaluation
         if len(self._originals) > self._cache:
             self._originals.popitem(last=False)
@@ -215,8 +218,8 @@ class SearchEvaluator:
             evaluations.append(evaluation)
         runnable = [e for e in evaluations if e.scene is not None]
         if runnable:
-            outputs, rows, seconds, failure = self._forward([e.scene for e in runnable])
-            for evaluation, output, row in zip(runnable, outputs, rows, strict=True):
+            outputs, rows, seconds, failures = self._forward([e.scene for e in runnable])
+            for evaluation, output, row, failure in zip(runnable, outputs, rows, failures, strict=True):
                 evaluation.output, evaluation.values = output, row
                 evaluation.seconds = seconds / len(runnable)
                 evaluation.failure = failure
