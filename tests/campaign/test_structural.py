@@ -196,3 +196,14 @@ def test_several_field_test_logs_are_rows_of_the_table(drive: Path, tmp_path: Pa
     # the second log (4 frames, 2 segments) covers what the first does: 3/4; its HGT log all 4
     assert nodes["rows"] == [{"log": "drive", "values": [0.75, 0.75, 1.0]},
                              {"log": "second", "values": [0.75, 0.75, 1.0]}]
+
+
+def test_a_worker_program_is_measured_through_its_answers(drive: Path, tmp_path: Path) -> None:
+    # the same system as a program of its own: the same coverage, hence the same tables
+    worker = Path(__file__).with_name("structural_worker.py")
+    store = Store(tmp_path / "ws")
+    task_id, outcome = run(store, campaign(drive, sut=f"worker:python3 {worker}", strategies=["HGT"]))
+    assert outcome.status == Status.DONE
+    nodes = next(t for t in summarise(store, task_id).kind_summary["tables"]
+                 if t["function"] == TARGET and t["criterion"] == "node")
+    assert nodes["rows"] == [{"log": "drive", "values": [0.75, 0.75, 1.0]}]

@@ -53,7 +53,6 @@ if TYPE_CHECKING:
     from lidarfuzz.campaign.structural_summary import StructuralSummary
     from lidarfuzz.store.models import Model
     from lidarfuzz.structural.logs import OrderedLog
-    from lidarfuzz.structural.python_coverage import CoverageRecorder
     from lidarfuzz.structural.requirements import Covered
     from lidarfuzz.suts.sequence import SequenceSystem, StepResult
 
@@ -248,7 +247,7 @@ class _Measured:
     """A sequence system whose every step runs under a coverage recorder (what each step covered,
     in :attr:`covered`; a step that raises keeps what it covered before raising)."""
 
-    def __init__(self, system: SequenceSystem, recorder: CoverageRecorder) -> None:
+    def __init__(self, system: SequenceSystem, recorder: Any) -> None:
         self.system, self.recorder = system, recorder
         self.covered: list[Covered] = []
 
@@ -275,7 +274,26 @@ class _Measured:
         return decision
 
 
-def measured_replay(system: SequenceSystem, recorder: CoverageRecorder, frames: Iterable[Any], *,
+def measured_system(spec: str, options: dict[str, Any], targets: Sequence[str]) -> tuple[SequenceSystem, Any, str]:
+    """The system a spec names, the recorder that measures its steps, and its fingerprint. A Python
+    system runs in this process under :class:`~lidarfuzz.structural.python_coverage.CoverageRecorder`;
+    a ``worker:`` program runs behind :mod:`lidarfuzz.structural.worker_coverage`'s wrapper, its
+    answers carrying what each step covered (the fingerprint is the unwrapped program's)."""
+    from lidarfuzz.structural.python_coverage import CoverageRecorder
+    from lidarfuzz.suts.registry import create_sequence
+
+    system = create_sequence(spec, **options)
+    fingerprint = system.fingerprint()
+    scheme, _, command = spec.strip().partition(":")
+    if scheme != "worker":
+        return system, CoverageRecorder(targets), fingerprint
+    from lidarfuzz.structural.worker_coverage import WorkerRecorder, wrap_command
+
+    wrapped = create_sequence(f"worker:{wrap_command(command, targets)}", **options)
+    return wrapped, WorkerRecorder(wrapped, targets), fingerprint
+
+
+def measured_replay(system: SequenceSystem, recorder: Any, frames: Iterable[Any], *,
                     timeout: float | None = None) -> tuple[list[StepResult], list[Covered]]:
     """:func:`~lidarfuzz.suts.sequence.replay` with every step measured: its results and, per frame,
     what the step covered (nothing for a frame that was never stepped)."""
@@ -334,20 +352,17 @@ class _StructuralRun:
     def __init__(self, store: Store, task: Task, progress: Callable[[ProgressEvent], None] | None,
                  stop: Any) -> None:
         from lidarfuzz.oracles.relations.registry import from_spec
-        from lidarfuzz.structural.python_coverage import CoverageRecorder
         from lidarfuzz.structural.stored import from_labels
-        from lidarfuzz.suts.registry import create_sequence
 
         self.store, self.task, self.progress = store, task, progress
         self.watch = Watch(store, task.id, stop)
         self.config = task_config(task)
         self.relations = [from_spec(spec) for spec in task.options.kind_options.get("relations", [])]
         self.logs = open_logs(self.config.logs)
-        self.recorder = CoverageRecorder(self.config.targets)
         self.total = from_labels(self.config.total)
-        self.system = create_sequence(task.model.spec, **dict(task.model.options or {}))
+        self.system, self.recorder, fingerprint = measured_system(task.model.spec, dict(task.model.options or {}),
+                                                                  self.config.targets)
         self.system.load()
-        fingerprint = self.system.fingerprint()
         if fingerprint != task.model.fingerprint:
             self.system.close()
             raise StructuralSetupError(
@@ -660,4 +675,5 @@ def kind_summary(store: Store, task: Task) -> dict[str, Any]:
 
 __all__ = ["BASE", "DEFAULT_HEURISTICS", "DEFAULT_STRATEGIES", "StructuralConfig", "StructuralSetupError",
            "check_spec", "config_of", "counted_below", "decision_relations", "describe", "finish_subtasks",
-           "kind_summary", "logs_folder", "measured_replay", "open_logs", "plan", "start", "summary_of", "task_config"]
+           "kind_summary", "logs_folder", "measured_replay", "measured_system", "open_logs", "plan", "start",
+           "summary_of", "task_config"]
