@@ -83,19 +83,17 @@ def hash_files(paths: Sequence[str | Path]) -> list[str]:
     return out
 
 
-class SystemUnderTest(ABC, Generic[S, O]):
-    """A system under test. Subclasses implement :meth:`detect`; the rest has defaults.
+class SystemIdentity:
+    """What identifies a system under test, per-frame or sequence: ``name``, ``version``, its
+    configuration, weight files and code, and the ``fingerprint`` hashing them.
 
     Class attributes:
         name: Short name used in reports (instances may override it).
         version: Version of the system (bump it when its behaviour changes).
-        classes: The output classes it may emit; anything else is an invalid output.
-            None accepts any class.
     """
 
     name: ClassVar[str] = "sut"
     version: ClassVar[str] = "0"
-    classes: ClassVar[tuple[str, ...] | None] = ("Car", "Pedestrian", "Cyclist")
 
     def config(self) -> Mapping[str, Any]:
         """JSON-able configuration; part of the fingerprint."""
@@ -103,11 +101,6 @@ class SystemUnderTest(ABC, Generic[S, O]):
 
     def weight_files(self) -> Sequence[Path]:
         """Files whose content determines the output (weights, models); hashed into the fingerprint."""
-        return ()
-
-    def profile_dirs(self) -> Sequence[Path]:
-        """Read-only folders holding training profiles of the system's network (neuron coverage
-        criteria that need one look there after the cache), e.g. the folder its weights ship in."""
         return ()
 
     def code_objects(self) -> Sequence[Any]:
@@ -142,6 +135,24 @@ class SystemUnderTest(ABC, Generic[S, O]):
         }
         text = json.dumps(payload, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+class SystemUnderTest(SystemIdentity, ABC, Generic[S, O]):
+    """A system under test. Subclasses implement :meth:`detect`; the rest has defaults.
+
+    Class attributes:
+        name: Short name used in reports (instances may override it).
+        version: Version of the system (bump it when its behaviour changes).
+        classes: The output classes it may emit; anything else is an invalid output.
+            None accepts any class.
+    """
+
+    classes: ClassVar[tuple[str, ...] | None] = ("Car", "Pedestrian", "Cyclist")
+
+    def profile_dirs(self) -> Sequence[Path]:
+        """Read-only folders holding training profiles of the system's network (neuron coverage
+        criteria that need one look there after the cache), e.g. the folder its weights ship in."""
+        return ()
 
     def load(self) -> None:
         """Acquire resources (weights, processes). Called once before the first sample."""

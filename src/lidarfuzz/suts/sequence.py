@@ -37,7 +37,6 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
@@ -45,15 +44,14 @@ import traceback
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.suts.base import Failure, FailureKind, hash_files, validate_detections
-from lidarfuzz.suts.code import program_code, python_code
+from lidarfuzz.suts.base import Failure, FailureKind, SystemIdentity, validate_detections
+from lidarfuzz.suts.code import program_code
 from lidarfuzz.suts.errors import SutError
 from lidarfuzz.suts.external import PointsFormat, WorkerSut, parse_response
 
@@ -149,9 +147,10 @@ def validate_decision(decision: Any, max_steering: float = MAX_STEERING) -> str 
     return None
 
 
-class SequenceSystem(ABC):
+class SequenceSystem(SystemIdentity, ABC):
     """A system under test that consumes a log in order. Subclasses implement :meth:`reset`
-    and :meth:`step`; identity and lifecycle have the per-frame contract's defaults.
+    and :meth:`step`; identity (:class:`~lidarfuzz.suts.base.SystemIdentity`: name, version,
+    configuration, weights, code, fingerprint) and lifecycle have the per-frame contract's defaults.
 
     Class attributes:
         name: Short name used in reports (instances may override it).
@@ -163,49 +162,20 @@ class SequenceSystem(ABC):
     version: ClassVar[str] = "0"
     max_steering: ClassVar[float] = MAX_STEERING
 
-    def config(self) -> Mapping[str, Any]:
-        """JSON-able configuration; part of the fingerprint."""
-        return {}
-
-    def weight_files(self) -> Sequence[Path]:
-        """Files whose content determines the decisions; hashed into the fingerprint."""
-        return ()
-
-    def code_objects(self) -> Sequence[Any]:
-        """The Python objects whose source computes the decisions (default: the system's class)."""
-        return (type(self),)
-
-    def code(self) -> Mapping[str, str]:
-        """What identifies the code, by the rule of :mod:`lidarfuzz.suts.code`."""
-        return python_code(self.code_objects())
-
-    def fingerprint(self) -> str:
-        """A stable hash of name, version, configuration, weight files and code (hex, 16 chars),
-        by the rule of :meth:`lidarfuzz.suts.base.SystemUnderTest.fingerprint`."""
-        payload = {
-            "name": self.name,
-            "version": self.version,
-            "config": self.config(),
-            "weights": hash_files(self.weight_files()),
-            "code": dict(self.code()),
-        }
-        text = json.dumps(payload, sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
-
     @property
     def alive(self) -> bool:
         """False once the system can no longer continue this log (its program died or was killed,
         losing its state); :meth:`reset` brings it back for the next log."""
         return True
 
-    def set_timeout(self, seconds: float) -> None:  # noqa: B027 - an optional hook
+    def set_timeout(self, seconds: float) -> None:
         """Cut a step off after ``seconds`` (systems in another process; in-process systems cannot
         be interrupted, :func:`replay` discards their late decisions instead)."""
 
-    def load(self) -> None:  # noqa: B027 - an optional hook
+    def load(self) -> None:
         """Acquire resources. Called once before the first log."""
 
-    def close(self) -> None:  # noqa: B027 - an optional hook
+    def close(self) -> None:
         """Release them."""
 
     @abstractmethod
