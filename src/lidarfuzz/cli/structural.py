@@ -8,7 +8,7 @@ from lidarfuzz.cli.common import console
 
 
 def _pct(value: float | None) -> str:
-    return "–" if value is None else f"{100 * value:.1f} %"
+    return "–" if value is None else f"{100 * value:.1f}"
 
 
 def print_structural(store: Any, task_id: int) -> None:
@@ -25,7 +25,7 @@ def print_structural(store: Any, task_id: int) -> None:
             continue  # the one function's table says it already
         what = entry.function or "every target"
         name = "all-nodes" if entry.criterion == "node" else "all-edges"
-        table = Table(title=f"{name} of {what} ({entry.total} requirements), task {task_id}")
+        table = Table(title=f"{name} of {what} ({entry.total} requirements), % covered, task {task_id}")
         table.add_column("log", no_wrap=True)
         for column in entry.columns:
             table.add_column(column, justify="right")
@@ -34,7 +34,7 @@ def print_structural(store: Any, task_id: int) -> None:
         table.add_row("average", *[_pct(v) for v in entry.average], end_section=False)
         console.print(table)
     if summary.reduction:
-        table = Table(title="base logs: size and coverage against the field-test log")
+        table = Table(title="base logs: size and coverage (%) against the field-test log")
         for column in ("log", "heuristic", "segments", "frames", "nodes", "edges"):
             table.add_column(column, justify="left" if column in ("log", "heuristic") else "right")
         for r in summary.reduction:
