@@ -158,7 +158,11 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
                               timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
                               pilot=pilot)
-        task = _add_task(s, spec, spec.name, dataset, model, options)
+        planned = spec
+        if logs:  # every field-test log by its path: registered names (the web API's way) or paths
+            others = [_dataset_row(s, ref).path for ref in spec.logs]
+            planned = spec.model_copy(update={"dataset": dataset.path, "logs": others})
+        task = _add_task(s, planned, spec.name, dataset, model, options)
         as_reference = options.model_copy(update={"reference_of": task.id, "pilot": None})
         references = [_add_task(s, spec, f"{spec.name or 'campaign'}: reference {ref}", dataset,
                                 _model_row(s, ref, {}), as_reference)
