@@ -16,7 +16,7 @@ import contextlib
 import multiprocessing
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -69,6 +69,36 @@ def _serve(spec: str, conn: Connection, options: dict[str, Any] | None = None) -
     sut.close()
 
 
+def spawn_served(serve: Callable[..., None], spec: str, options: Any, name: str,
+                 start_timeout: float) -> tuple[Any, Any, tuple[Any, Any, Any, Any]]:
+    """Start ``serve(spec, connection, options)`` in a spawned process and wait for it to load
+    the system: (the process, the parent's end of the pipe, the system's identity as sent).
+
+    Raises:
+        SutError: ``timeout`` when it is not ready within ``start_timeout``; ``crash`` when it
+            dies loading or reports that it could not load.
+    """
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe()
+    process = ctx.Process(target=serve, args=(spec, child, options), daemon=True, name=name)
+    process.start()
+    child.close()
+    if not parent.poll(start_timeout):
+        process.kill()
+        process.join()
+        raise SutError(FailureKind.TIMEOUT, f"{spec}: not ready after {start_timeout:g} s")
+    try:
+        reply = parent.recv()
+    except EOFError:
+        process.join()
+        raise SutError(FailureKind.CRASH, f"{spec}: died while loading (exit code {process.exitcode})") from None
+    if reply[0] == "error":
+        process.join()
+        failure: Failure = reply[1]
+        raise SutError(failure.kind, f"{spec}: could not load: {failure.message}", failure.detail)
+    return process, parent, (reply[1], reply[2], reply[3], reply[4])
+
+
 class IsolatedSut(SystemUnderTest[Any, Any]):
     """A SUT (given by its spec string) running in its own worker process, with a timeout.
 
@@ -119,28 +149,8 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
     def load(self) -> None:
         if self._process is not None and self._process.is_alive():
             return
-        ctx = multiprocessing.get_context("spawn")
-        parent, child = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(self.spec, child, self.options), daemon=True,
-                              name=f"sut:{self.spec}")
-        process.start()
-        child.close()
-        if not parent.poll(self.start_timeout):
-            process.kill()
-            process.join()
-            raise SutError(FailureKind.TIMEOUT, f"{self.spec}: not ready after {self.start_timeout:g} s")
-        try:
-            reply = parent.recv()
-        except EOFError:
-            process.join()
-            message = f"{self.spec}: worker died while loading (exit code {process.exitcode})"
-            raise SutError(FailureKind.CRASH, message) from None
-        if reply[0] == "error":
-            process.join()
-            failure: Failure = reply[1]
-            raise SutError(failure.kind, f"{self.spec}: could not load: {failure.message}", failure.detail)
-        self._identity = (reply[1], reply[2], reply[3], reply[4])
-        self._process, self._conn = process, parent
+        self._process, self._conn, self._identity = spawn_served(_serve, self.spec, self.options,
+                                                                 f"sut:{self.spec}", self.start_timeout)
 
     def _kill(self) -> None:
         if self._process is not None:

@@ -20,6 +20,7 @@ from typing import Any
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import Failure, FailureKind
 from lidarfuzz.suts.errors import SutError
+from lidarfuzz.suts.guard import spawn_served
 from lidarfuzz.suts.registry import create_sequence
 from lidarfuzz.suts.sequence import Decision, SequenceSystem, failure_of
 
@@ -107,28 +108,8 @@ class IsolatedSequence(SequenceSystem):
     def load(self) -> None:
         if self.alive:
             return
-        ctx = multiprocessing.get_context("spawn")
-        parent, child = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(self.spec, child, self.options), daemon=True,
-                              name=f"sequence:{self.spec}")
-        process.start()
-        child.close()
-        if not parent.poll(self.start_timeout):
-            process.kill()
-            process.join()
-            raise SutError(FailureKind.TIMEOUT, f"{self.spec}: not ready after {self.start_timeout:g} s")
-        try:
-            reply = parent.recv()
-        except EOFError:
-            process.join()
-            message = f"{self.spec}: died while loading (exit code {process.exitcode})"
-            raise SutError(FailureKind.CRASH, message) from None
-        if reply[0] == "error":
-            process.join()
-            failure: Failure = reply[1]
-            raise SutError(failure.kind, f"{self.spec}: could not load: {failure.message}", failure.detail)
-        self._identity = (reply[1], reply[2], reply[3], reply[4])
-        self._process, self._conn = process, parent
+        self._process, self._conn, self._identity = spawn_served(_serve, self.spec, self.options,
+                                                                 f"sequence:{self.spec}", self.start_timeout)
 
     def _kill(self) -> None:
         if self._process is not None:
