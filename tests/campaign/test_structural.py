@@ -19,6 +19,7 @@ Checked 5 + 1 + 3 + 2 = 11, violated 3.
 
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 from typing import Any
@@ -207,3 +208,45 @@ def test_a_worker_program_is_measured_through_its_answers(drive: Path, tmp_path:
     nodes = next(t for t in summarise(store, task_id).kind_summary["tables"]
                  if t["function"] == TARGET and t["criterion"] == "node")
     assert nodes["rows"] == [{"log": "drive", "values": [0.75, 0.75, 1.0]}]
+
+
+def test_the_run_command_with_flags_and_with_a_campaign_file(drive: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+
+    runner = CliRunner()
+    ws = tmp_path / "ws"
+    flags = ["run", "--kind", "structural", "--dataset", str(drive), "--sut", SYSTEM, "--target", TARGET,
+             "--heuristic", "greedy_edges", "--strategy", "HGT", "--segments", "2", "--workspace", str(ws)]
+    done = runner.invoke(app, flags, env={"COLUMNS": "200"})
+    assert done.exit_code == 0, done.output
+    # the all-nodes row: FT log 75, base 75, aggregated with HGT 100
+    assert "greedy_edges agg HGT" in done.output and re.search(r"drive\s*│\s*75\.0\s*│\s*75\.0\s*│\s*100\.0\s*│",
+                                                                done.output)
+    assert "safety 3/9 violated" in done.output  # checked: FT 5, base 1, HGT 3 (no AVG log here)
+    assert (ws / "reports" / "task-1" / "report.html").is_file()
+    file = tmp_path / "campaign.yaml"
+    file.write_text(f"kind: structural\ndataset: [{drive}]\nsut: {SYSTEM}\ncoverage: {{targets: [{TARGET}]}}\n"
+                    "segments: 2\nheuristics: [greedy_edges]\nstrategies: [AVG]\n", encoding="utf-8")
+    again = runner.invoke(app, ["run", str(file), "--workspace", str(ws)], env={"COLUMNS": "200"})
+    assert again.exit_code == 0, again.output
+    assert "greedy_edges agg AVG" in again.output
+    missing = runner.invoke(app, [*flags[:7], *flags[9:]])  # no --target
+    assert isinstance(missing.exception, LidarfuzzError) and str(missing.exception).startswith("--target:")
+    wrong = runner.invoke(app, ["run", "--dataset", str(drive), "--sut", "classic", "--op", "fog", "--strategy",
+                                "HGT", "--workspace", str(ws)])
+    assert isinstance(wrong.exception, LidarfuzzError) and "--kind structural" in str(wrong.exception)
+
+
+def test_a_log_that_covers_nothing_gives_empty_base_logs_not_a_failure(drive: Path, tmp_path: Path) -> None:
+    # Gate.reset runs before a log, never inside a step: every step covers none of its requirements,
+    # so each heuristic selects no segment, and the base and generated logs are empty (0 %)
+    store = Store(tmp_path / "ws")
+    reset = "tests.campaign.structural_system:Gate.reset"
+    task_id, outcome = run(store, campaign(drive, coverage={"targets": [reset]}))
+    assert outcome.status == Status.DONE
+    figures = summarise(store, task_id).kind_summary
+    nodes = next(t for t in figures["tables"] if t["function"] and t["criterion"] == "node")
+    assert nodes["rows"][0]["values"] == [0.0, 0.0, 0.0, 0.0]
+    assert [r["frames"] for r in figures["reduction"]] == [0]

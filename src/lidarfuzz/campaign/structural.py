@@ -471,6 +471,18 @@ class _StructuralRun:
             else:
                 chosen, segments, ft_row = self.selection(session, unit)
                 picked = [segments[i] for i in chosen.segments]
+                selection = {"segments": list(chosen.segments), "frames": chosen.frames,
+                             "log_segments": len(segments), "log_frames": len(self.logs[unit.ft])}
+                if not picked:  # the field-test log covered nothing of the targets: an empty log covers nothing
+                    empty: dict[str, Any] = {
+                        "role": unit.role, "log": name, "log_id": None, "path": "", "ft": unit.ft,
+                        "heuristic": unit.heuristic, "strategy": unit.strategy, "frames": 0, "frame_ids": [],
+                        "decisions": [], "failures": {}, "covered": {}, "selection": selection,
+                        "relations": {r.name: {"checked": 0, "violated": 0} for r in self.relations},
+                        "note": "the heuristic chose no segment: the field-test log covered none of the targets"}
+                    self._commit(session, unit, name, selection, empty, None, 0.0)
+                    self.stats.units += 1
+                    return
                 chosen_strategy = strategy(unit.strategy or "none", height=self.config.height,
                                            severity=self.config.severity, radius=self.config.radius)
                 made = write_generated_log(self.logs[unit.ft], picked, chosen_strategy,
@@ -478,8 +490,6 @@ class _StructuralRun:
                                            seed=self.task.seed, heuristic=unit.heuristic,
                                            segment_size=self.config.segment_size, overwrite=True)
                 log = open_log(made.path)
-                selection = {"segments": list(chosen.segments), "frames": chosen.frames,
-                             "log_segments": len(segments), "log_frames": len(self.logs[unit.ft])}
             results, per_frame = measured_replay(self.system, self.recorder, log.frames(),
                                                  timeout=self.config.timeout)
             covered = union(*per_frame)
@@ -507,25 +517,29 @@ class _StructuralRun:
                       "covered": to_labels(covered), "relations": outcomes, "selection": selection}
             first = failed[0].failure if failed else None
             seconds = sum(r.seconds for r in results)
-            result_id = session.execute(insert(FrameResult).returning(FrameResult.id), {
-                "subtask_id": unit.sub.id, "frame_id": Path(self.config.logs[unit.ft]).name[:200], "trial": unit.ft,
-                "params": {"log": name, "heuristic": unit.heuristic, "strategy": unit.strategy, **selection},
-                "output": output, "failure": None if first is None else FailureRecord(
-                    kind=first.kind.value, message=f"step {failed[0].index}: {first.message}"),
-                "relations": [], "seconds": seconds, "cached": False, "created_at": now()}).scalar_one()
             for failure in failed:
                 assert failure.failure is not None
                 findings.insert(0, self._finding(unit, log, made, failure.index, failure.failure.kind.value, None,
                                                  failure.failure.message, results, None))
-            for finding in findings:
-                session.execute(insert(Finding), {**finding, "task_id": self.task.id, "frame_result_id": result_id})
-            session.execute(update(Subtask).where(Subtask.id == unit.sub.id).values(
-                done=Subtask.done + 1, status=Status.RUNNING))
-            session.execute(update(Task).where(Task.id == self.task.id).values(done=Task.done + 1,
-                                                                                 heartbeat_at=now()))
+            self._commit(session, unit, name, selection, output, None if first is None else FailureRecord(
+                kind=first.kind.value, message=f"step {failed[0].index}: {first.message}"), seconds, findings)
         self.stats.units += 1
         self.stats.sut += seconds
         self.stats.failures += len(failed)
+
+    def _commit(self, session: Any, unit: _Unit, name: str, selection: dict[str, Any], output: dict[str, Any],
+                failure: FailureRecord | None, seconds: float, findings: Sequence[dict[str, Any]] = ()) -> None:
+        """The unit's frame result, its findings and the counters (in the unit's transaction)."""
+        result_id = session.execute(insert(FrameResult).returning(FrameResult.id), {
+            "subtask_id": unit.sub.id, "frame_id": Path(self.config.logs[unit.ft]).name[:200], "trial": unit.ft,
+            "params": {"log": name, "heuristic": unit.heuristic, "strategy": unit.strategy, **selection},
+            "output": output, "failure": failure, "relations": [], "seconds": seconds, "cached": False,
+            "created_at": now()}).scalar_one()
+        for finding in findings:
+            session.execute(insert(Finding), {**finding, "task_id": self.task.id, "frame_result_id": result_id})
+        session.execute(update(Subtask).where(Subtask.id == unit.sub.id).values(
+            done=Subtask.done + 1, status=Status.RUNNING))
+        session.execute(update(Task).where(Task.id == self.task.id).values(done=Task.done + 1, heartbeat_at=now()))
 
     # -- relations ---------------------------------------------------------------------
     def _finding(self, unit: _Unit, log: OrderedLog, made: Any, step: int, kind: str, magnitude: float | None,
