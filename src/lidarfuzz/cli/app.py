@@ -102,12 +102,14 @@ models.command("remove")(catalog.models_remove)
 app.add_typer(models, name="models")
 
 log_commands = typer.Typer(help="Structural testing with logs (Neves et al.): partition a log into segments, "
-                                "select discriminatory ones, generate new logs, compare coverage.",
+                                "select discriminatory ones, generate new logs, compare coverage, search for logs "
+                                "that reach uncovered code.",
                            no_args_is_help=True)
 log_commands.command("partition")(logs.partition_command)
 log_commands.command("select")(logs.select_command)
 log_commands.command("generate")(logs.generate_command)
 log_commands.command("compare")(logs.compare_command)
+log_commands.command("search")(logs.search_command)
 app.add_typer(log_commands, name="logs")
 
 

@@ -1,4 +1,5 @@
-"""``lidarfuzz logs partition | generate``: Neves et al.'s logs, segments and generated logs."""
+"""``lidarfuzz logs partition | select | generate | compare | search``: Neves et al.'s logs, segments and
+generated logs, and a search for logs that reach uncovered code."""
 
 from __future__ import annotations
 
@@ -306,4 +307,80 @@ def compare_command(
     print_listing(columns, rows, records, as_json=as_json)
 
 
-__all__ = ["compare_command", "generate_command", "parse_segments", "partition_command", "select_command"]
+def search_command(
+    log: LogArgument,
+    sut: SutOption,
+    target: TargetOption,
+    out: Annotated[Path, typer.Option("--out", "-o", help="New folder for the generated log (KITTI layout, "
+                                      "generated_log.json); its checkpoint is OUT.search.json, and a rerun with the "
+                                      "same arguments continues from it.")],
+    budget: Annotated[int, typer.Option(min=0, help="Candidates to try: one replay of the log each.")] = 50,
+    seed: Annotated[int, typer.Option(help="Seeds every draw.")] = 0,
+    operators: Annotated[str | None, typer.Option(help="The operator pool, comma-separated (default: heights, "
+                                                  "positions, objects, deletions, clutter, weather).")] = None,
+    size: SizeOption = 5,
+    max_severity: Annotated[int, typer.Option(min=1, max=5, help="Severities are drawn from 1 to this.")] = 5,
+    random: Annotated[bool, typer.Option("--random", help="The baseline: segments and operators at random on the "
+                                         "log's own frames, nothing built on a kept candidate.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out folder that is no output of this "
+                                            "search.")] = False,
+    topic: TopicOption = None,
+    layout: LayoutOption = None,
+    record: Annotated[str | None, typer.Option("--record", help="Record the generated log in the store under this "
+                                               "name (heuristic search; its parent recorded too).")] = None,
+    workspace: WorkspaceOption = WORKSPACE,
+    as_json: JsonOption = False,
+) -> None:
+    """Search for a log that covers code the log does not: mutate segments, keep what reaches new code."""
+    from lidarfuzz.structural.search import DEFAULT_OPERATORS, SearchSettings, search_log
+    from lidarfuzz.suts.registry import create_sequence
+
+    pool = DEFAULT_OPERATORS if operators is None else tuple(o.strip() for o in operators.split(",") if o.strip())
+    settings = SearchSettings(operators=pool, budget=budget, seed=seed, size=size, max_severity=max_severity,
+                              strategy="random" if random else "search")
+    opened = _open(log, layout, topic)
+
+    def report(candidate: Any) -> None:
+        if candidate.kept and not as_json:
+            console.print(f"candidate {candidate.index}: {candidate.source} + {'+'.join(candidate.operators)} "
+                          f"covers {len(candidate.new)} new requirement(s)")
+
+    with create_sequence(sut) as system:
+        result = search_log(opened, system, target, settings, out, system_spec=sut, overwrite=overwrite,
+                            on_candidate=report)
+    if record is not None and result.log is not None:
+        from lidarfuzz.store.errors import NotFoundError
+        from lidarfuzz.structural.segments import partition
+        from lidarfuzz.structural.stored import get_log, record_generated, record_log, record_segments
+
+        with open_store(workspace).session() as session:
+            try:
+                parent_row = get_log(session, opened.path.name)
+            except NotFoundError:
+                parent_row = record_log(session, opened, opened.path.name)
+            record_segments(session, parent_row, partition(opened.frame_ids, size))
+            record_generated(session, result.log, record, parent_row)
+    summary = result.to_json()
+    rows = []
+    for function, kinds in result.per_function().items():
+        by = sorted({(m.candidate, m.source, "+".join(m.operators)) for r, m in result.found.items()
+                     if r.function == function})
+        rows.append([function, str(len(kinds["node"])), str(len(kinds["edge"])),
+                     ", ".join(f"c{c} ({source}: {ops})" for c, source, ops in by)])
+    counts = summary["coverage"]
+    st = result.stats
+
+    def share(kind: str, which: str) -> str:
+        return f"{counts[kind][which]}/{counts[kind]['total']}"
+
+    footer = (f"{st['candidates']} candidate(s), {st['replays']} replay(s), {st['kept']} kept; nodes "
+              f"{share('node', 'start')} -> {share('node', 'covered')}, edges {share('edge', 'start')} -> "
+              f"{share('edge', 'covered')}; {result.frames} frame(s) written to {out}"
+              + (f"; recorded as log {record!r}" if record else ""))
+    columns = [Column("function", name=True), Column("+nodes", justify="right"), Column("+edges", justify="right"),
+               Column("found by")]
+    print_listing(columns, rows, summary, as_json=as_json, footer=footer)
+
+
+__all__ = ["compare_command", "generate_command", "parse_segments", "partition_command", "search_command",
+           "select_command"]

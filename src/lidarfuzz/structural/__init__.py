@@ -10,6 +10,7 @@ gcov data via gcovr) and :mod:`~lidarfuzz.structural.views` (tables, annotated s
 comparisons); logs: :mod:`~lidarfuzz.structural.logs` (data sets in replay order),
 :mod:`~lidarfuzz.structural.segments`, :mod:`~lidarfuzz.structural.heuristics` (discriminatory
 segments), :mod:`~lidarfuzz.structural.log_coverage` (a log replayed under coverage, two logs
-compared), :mod:`~lidarfuzz.structural.generate` (generated logs) and
+compared), :mod:`~lidarfuzz.structural.generate` (generated logs),
+:mod:`~lidarfuzz.structural.search` (a search for logs that reach uncovered code) and
 :mod:`~lidarfuzz.structural.stored` (the meta-model in the store).
 """

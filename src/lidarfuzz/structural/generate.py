@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import json
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -248,25 +248,36 @@ def write_generated_log(log: OrderedLog, segments: Sequence[Segment], chosen: St
         if s.last >= len(log) or s.first < 0:
             raise GenerationError(f"{log.path}: segment {s.id} (frames {s.first}..{s.last}) lies outside the log "
                                   f"of {len(log)} frames")
+    return write_log(log, generate_frames(log, segments, chosen, seed=seed), out, strategy=chosen.name, seed=seed,
+                     heuristic=heuristic, segment_size=segment_size or max(len(s) for s in segments),
+                     segments=tuple(s.index for s in sorted(segments, key=lambda s: s.index)), overwrite=overwrite)
+
+
+def write_log(log: OrderedLog, frames: Iterable[tuple[Scene, Provenance]], out: str | PathLike[str], *,
+              strategy: str, seed: int, heuristic: str | None, segment_size: int, segments: tuple[int, ...],
+              overwrite: bool = False) -> GeneratedLog:
+    """Write frames made from ``log``, with their provenance, as a generated log in the new folder ``out``
+    (KITTI layout, ``timestamps.txt`` and :data:`MANIFEST`), atomically: when ``frames`` raises,
+    nothing is left. :func:`write_generated_log` writes a strategy's frames with it; other generators
+    (:mod:`lidarfuzz.structural.search`) their own."""
     destination = Path(out)
     records: list[Provenance] = []
     timed = log.timestamps is not None
     with atomic_folder(destination, overwrite=overwrite) as tmp:
         writer = KittiWriter(tmp, durable=False)  # the folder's rename is what makes it visible
-        for scene, record in generate_frames(log, segments, chosen, seed=seed):
+        for scene, record in frames:
             if not timed or scene.timestamp is None:
                 scene = scene.replace(timestamp=record.position * UNTIMED_PERIOD)
             writer.add(scene)
             records.append(record)
         writer.close()
-        made = GeneratedLog(str(destination), str(log.path), len(log), heuristic, chosen.name, seed,
-                            segment_size or max(len(s) for s in segments),
-                            tuple(s.index for s in sorted(segments, key=lambda s: s.index)), tuple(records))
+        made = GeneratedLog(str(destination), str(log.path), len(log), heuristic, strategy, seed, segment_size,
+                            segments, tuple(records))
         (tmp / MANIFEST).write_text(json.dumps(made.to_json(), indent=1) + "\n", encoding="utf-8")
     return made
 
 
 __all__ = [
     "MANIFEST", "PAPER_HEIGHT", "GeneratedLog", "GenerationError", "Provenance", "Strategy", "expected_frames",
-    "generate_frames", "operator_stream", "strategy", "write_generated_log",
+    "generate_frames", "operator_stream", "strategy", "write_generated_log", "write_log",
 ]
