@@ -123,4 +123,32 @@ def structural_view(summary: TaskSummary, *, with_fragments: bool = True) -> dic
             "views": fragments(data) if with_fragments else None}
 
 
-__all__ = ["fragments", "headline", "structural_summary", "structural_view"]
+#: The standalone page's own look (the report's section is styled by the report).
+PAGE_STYLE = """
+body { font: 14px/1.5 system-ui, sans-serif; color: #1f2328; margin: 12px 16px; }
+table { border-collapse: collapse; margin: 6px 0 14px; }
+th, td { border-bottom: 1px solid #d8dee4; padding: 3px 8px; text-align: right; }
+th.left, td.left { text-align: left; }
+h2 { font-size: 18px; } h3 { font-size: 15px; margin: 18px 0 4px; }
+.note, .muted { color: #59636e; font-size: 13px; }
+.wide { overflow-x: auto; }
+"""
+
+
+def section_html(summary: TaskSummary) -> str | None:
+    """The report's structural section as a page of its own (what the web app's task page embeds);
+    None for another kind of task."""
+    from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+
+    view = structural_view(summary)
+    if view is None:
+        return None
+    env = Environment(loader=PackageLoader("lidarfuzz.report", "templates"), autoescape=select_autoescape(
+        ["html", "j2"], default=True), undefined=StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    section = env.get_template("structural.html.j2").render(structural=view)
+    title = f"task {summary.task.id}: structural coverage"
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{title}</title>'
+            f"<style>{PAGE_STYLE}</style></head><body>{section}</body></html>")
+
+
+__all__ = ["PAGE_STYLE", "fragments", "headline", "section_html", "structural_summary", "structural_view"]

@@ -12,8 +12,8 @@ import json
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Depends
-from fastapi.responses import FileResponse
+from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi.responses import FileResponse, HTMLResponse
 from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.tasks import get_task
@@ -91,6 +91,27 @@ async def report_html(ctx: Web, task_id: int) -> FileResponse:
     # opened in its own tab it runs in an opaque origin: its scripts never see the app's token
     return FileResponse(folder / "report.html", media_type="text/html",
                         headers={"Cache-Control": "no-cache", "Content-Security-Policy": REPORT_POLICY})
+
+
+def _structural_page(ctx: WebContext, task_id: int) -> str:
+    from lidarfuzz.campaign.results import summarise
+    from lidarfuzz.report.structural import section_html
+
+    page = section_html(summarise(ctx.store, task_id))
+    if page is None:
+        raise HTTPException(status.HTTP_409_CONFLICT, f"task {task_id} is not a structural task")
+    return page
+
+
+@router.get("/tasks/{task_id}/structural", response_class=HTMLResponse,
+            responses={200: {"content": {"text/html": {}}, "description": "a structural task's tables and views"},
+                       409: {"description": "not a structural task"}})
+async def structural_html(ctx: Web, task_id: int) -> HTMLResponse:
+    """A structural task's coverage tables (Neves et al.'s form), coverage per module/class/function,
+    annotated source, control-flow graphs and logs side by side: the report's section as a page
+    (what the task page embeds), from what is stored now."""
+    page = await run_in_threadpool(_structural_page, ctx, task_id)
+    return HTMLResponse(page, headers={"Cache-Control": "no-cache", "Content-Security-Policy": REPORT_POLICY})
 
 
 def _export_route(name: str, media_type: str) -> None:

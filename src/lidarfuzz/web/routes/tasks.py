@@ -155,10 +155,12 @@ def tasks_list(ctx: Web, limit: Annotated[int, Query(ge=1, le=500)] = 50, offset
 def _check_references(ctx: WebContext, spec: Any) -> None:
     """The API runs campaigns on registered data sets only (no server paths), and on registered
     models or specs the API may register."""
-    if spec.dataset not in {d.name for d in list_datasets(ctx.store)}:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"request body: field 'dataset': no data set named {spec.dataset!r} "
-                            f"(GET /api/datasets lists them; upload or generate one first)")
+    names = {d.name for d in list_datasets(ctx.store)}
+    for field, name in [("dataset", spec.dataset), *((f"logs.{i}", log) for i, log in enumerate(spec.logs))]:
+        if name not in names:  # a structural campaign's further field-test logs pass the same check
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"request body: field '{field}': no data set named {name!r} "
+                                f"(GET /api/datasets lists them; upload or generate one first)")
     models = {m.name for m in list_models(ctx.store)}
     if spec.sut not in models:
         check_model_spec(spec.sut, ctx.uploads, field="sut")
