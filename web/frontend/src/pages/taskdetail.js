@@ -1,7 +1,8 @@
 // Task detail: status, live progress (server-sent events) overall and per subtask with the operator
-// running now, the AP-per-operator chart, the subtask table, stop / delete, report and findings.
+// running now, the AP-per-operator chart (a structural task: its coverage tables and views, the page
+// the server renders), the subtask table, stop / delete, report and findings.
 // The reply's fields and statuses are the ones its JSON Schema declares (../contract.js).
-import { api, subscribe } from "../api.js";
+import { api, fetchBlob, subscribe } from "../api.js";
 import { apChart, apValue, classesOf } from "../chart.js";
 import { statusesOf, taskSchema } from "../contract.js";
 import { clear, formatNumber, formatTime, go, h, notice, progressBar, statusBadge } from "../dom.js";
@@ -20,6 +21,19 @@ export async function taskDetailPage(root, id) {
   const chartBox = h("div", { testid: "ap-chart-box" });
   const tableBody = h("tbody", { testid: "subtasks-body" });
   const live = h("span", { class: "live muted", testid: "live" });
+  const structural = task.kind === "structural";
+  // a structural task's tables and views (GET /api/tasks/{id}/structural), sandboxed as the report is
+  const coverageFrame = h("iframe", { class: "report-frame", title: `coverage of task ${id}`, testid: "structural-frame", sandbox: "allow-popups" });
+
+  async function renderStructural() {
+    if (!structural) return;
+    try {
+      const blob = await fetchBlob(`/api/tasks/${id}/structural`);
+      coverageFrame.srcdoc = await blob.text();
+    } catch (exc) {
+      clear(message).append(notice("error", exc.message));
+    }
+  }
 
   const clsSelect = h("select", { testid: "chart-class" });
   const diffSelect = h("select", { testid: "chart-difficulty" }, ["easy", "moderate", "hard"].map((d) => h("option", { value: d, selected: d === view.difficulty }, d)));
@@ -102,6 +116,7 @@ export async function taskDetailPage(root, id) {
     }
     renderHead();
     renderResults();
+    renderStructural();
   }
 
   async function stop() {
@@ -187,9 +202,13 @@ export async function taskDetailPage(root, id) {
     facts,
     overall,
     running,
-    h("h2", {}, "AP per operator"),
-    h("div", { class: "toolbar" }, h("label", {}, "Class ", clsSelect), h("label", {}, "Difficulty ", diffSelect), h("label", {}, "Points ", pointsSelect)),
-    chartBox,
+    ...(structural
+      ? [h("h2", {}, "Structural coverage"), coverageFrame]
+      : [
+          h("h2", {}, "AP per operator"),
+          h("div", { class: "toolbar" }, h("label", {}, "Class ", clsSelect), h("label", {}, "Difficulty ", diffSelect), h("label", {}, "Points ", pointsSelect)),
+          chartBox,
+        ]),
     h("h2", {}, "Subtasks"),
     h(
       "table",
@@ -200,6 +219,7 @@ export async function taskDetailPage(root, id) {
   );
   renderHead();
   renderResults();
+  renderStructural();
   return () => {
     closeStream();
     if (poll) clearInterval(poll);
