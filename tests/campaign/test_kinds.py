@@ -96,7 +96,8 @@ def test_every_row_names_a_module_with_the_hooks() -> None:
 
 
 def test_an_unknown_kind_is_refused_naming_those_there_are(world: Path) -> None:
-    with pytest.raises(DataFormatError, match="unknown task kind 'bogus'; choose one of mutation, guided, fuzz, structural"):
+    with pytest.raises(DataFormatError,
+                       match="unknown task kind 'bogus'; choose one of mutation, guided, fuzz, structural"):
         parse_campaign({"dataset": str(world), "sut": "classic", "kind": "bogus", "operators": [{"name": "fog"}]})
     with pytest.raises(kinds.UnknownKindError):
         kinds.task_kind("bogus")
