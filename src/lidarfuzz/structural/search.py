@@ -2,45 +2,53 @@
 
 Neves et al. generate logs with one strategy per segment and measure what they reach; here a
 loop searches for them. It starts from a log (the field test, or a base log) replayed in order
-under the coverage recorder, and spends a budget of *candidates*:
+under the coverage recorder, and spends a budget of *candidates* on a *working log* W, a list of
+*units*: at first the log's segments (``s000003``), later also mutated copies (``c12``: the unit
+candidate 12 made).
 
-1. **Pick a segment** of the *working log* W (at first the log itself), with probability
-   proportional to ``decay ** times picked × (1 + uncovered near it)``, where "near" counts the
-   requirements not yet covered in the functions the segment's own replay ran (its frames reach
-   that code; what they miss is one branch away). A segment that yields a kept candidate counts as
-   picked zero times again (a new seed, as DeepHunter's queue treats an accepted test).
+1. **Pick a unit** with probability proportional to ``decay ** times picked × (1 + near)``, where
+   *near* counts the requirements not yet covered in the functions the unit's own replay ran (its
+   frames reach that code; what they miss is a branch away). A new unit has been picked zero times
+   (a new seed, as DeepHunter's queue treats an accepted test).
 2. **Mutate it**: two operators of the pool at severities drawn from 1 to ``max_severity``,
    composed in order (a ``sequence``), as DeepTest's guided search does: the first is the next of
-   the operators that made earlier candidates kept (when there are any), the second is random.
-   Each frame of the segment gets its own concrete params (``SeedSequence([seed, candidate, 1,
-   position])``), applied to W's frames — so kept mutations build on one another (a frame shifted
-   up 0.4 m by one kept candidate is shifted again by the next).
-3. **Replay** the candidate log — W with that segment replaced — from its start, because the
-   system keeps state: the frames before the segment are stepped *without* recording (they are
-   W's, so their coverage is W's, known; untraced steps run at the system's own speed), the
-   segment and every frame after it under the recorder (a changed state can change what later,
-   unchanged frames run). One candidate costs one replay: ``F`` steps of which ``F − first``
-   recorded. Copying the system's state at the segment's start instead would cost ``k`` steps, but
-   the sequence contract offers no copy (``reset``/``step`` only; a ``worker:`` program's state
-   cannot be copied at all). The system must be deterministic: the prefix is not re-measured.
-4. **Keep** the candidate when its log covers a requirement (node or edge) that neither the
-   starting log nor W covered, and loses none that W had found beyond the starting log; W becomes
-   the candidate. So the written log, replayed, covers everything the summary lists.
+   the operators of kept candidates (when there are any), the second is random. Every frame of
+   the unit is mutated with the same draw of the generator (``SeedSequence([seed, candidate,
+   1])``): params that depend only on the draw (a height, a fog density) are the unit's, a stretch
+   of road seen under one condition; params that depend on a frame's content (which object) are
+   drawn from that frame.
+3. **Insert** the mutated copy right after its unit — as Neves et al.'s generated logs insert a
+   mutant after its source — so the unit keeps what it covered (a frame lifted 0.4 m still covers
+   its branch when a copy lifted once more covers the next), and **replay** the candidate log from
+   its start, because the system keeps state: the units up to the insertion point are stepped
+   *without* recording (their coverage is W's, known; untraced steps run at the system's own
+   speed), the new unit and every unit after it under the recorder (a changed state can change
+   what later, unchanged frames run). One candidate costs one replay of W plus k frames, of which
+   the part from the insertion point on is recorded. Copying the system's state at the insertion
+   point instead would save the prefix, but the sequence contract offers no copy
+   (``reset``/``step`` only; a ``worker:`` program's state cannot be copied at all). The system
+   must be deterministic: the prefix is not measured again.
+4. **Keep** the candidate when its log covers a requirement (node or edge) that W did not, and
+   loses none W covered (a changed state may lose some after the insertion point); W becomes the
+   candidate log. So the written log, replayed, covers everything the summary lists, and at least
+   what the starting log covers (its frames are all there, in order).
 
 Candidates whose operators fail on a frame count against the budget without a replay. The
-``random`` strategy is the baseline with the same budget and the same acceptance: segments
-uniformly, both operators at random, always applied to the *starting* log's frames (nothing builds
-on a kept candidate).
+``random`` strategy is the baseline with the same budget and the same acceptance: a segment of
+the starting log uniformly, both operators at random, applied to the starting log's own frames
+(nothing builds on a kept candidate).
 
-Every draw comes from ``SeedSequence([seed, candidate, purpose, …])``: the search is a function
-of its arguments. The state — kept candidates with their concrete params, times picked, the queue
-of productive operators, counters, and which candidate found each requirement — is written after
-every candidate to a JSON checkpoint beside the output (``OUT.search.json``, replaced atomically).
-A rerun with the same arguments continues from it (a larger budget goes on; W's coverage is
-restored by one replay, not counted in the budget) and ends with the same log as an uninterrupted
-run. At the end W is written as a generated log (KITTI layout, :func:`~lidarfuzz.structural.generate.write_log`,
+Every draw comes from ``SeedSequence([seed, candidate, purpose])``: the search is a function of
+its arguments. The state — the kept candidates with their exact per-frame params, times each unit
+was picked, the queue of productive operators, counters, and which candidate found each
+requirement — is written after every candidate to a JSON checkpoint beside the output
+(``OUT.search.json``, replaced atomically). A rerun with the same arguments continues from it (a
+larger budget goes on; W is rebuilt from the exact params and its coverage restored by one replay,
+not counted in the budget) and ends with the same log as an uninterrupted run. At the end W is
+written as a generated log (KITTI layout, :func:`~lidarfuzz.structural.generate.write_log`,
 heuristic and strategy ``search``): every frame's source and the flattened chain of every kept
-operator applied to it, with its exact params.
+operator applied to it, with its exact params; an inserted unit's frames are timed evenly between
+its segment's last frame and the next segment's first (after the log's end: by its last gap).
 """
 
 from __future__ import annotations
