@@ -161,11 +161,19 @@ def test_cli_logs_search(log: OrderedLog, tmp_path: Path) -> None:
     assert "candidate 0: s000000 + height_shift+height_shift covers 3 new requirement(s)" in first.output
     assert "candidate 6" not in first.output  # seed 2 keeps candidates 0, 63 and 65
     # the same arguments with a larger budget go on from candidate 10
-    more = CliRunner().invoke(app, [*args, "--budget", "70", "--json"])
+    workspace = ["--workspace", str(tmp_path / "ws"), "--record", "climbed"]
+    more = CliRunner().invoke(app, [*args, "--budget", "70", "--json", *workspace])
     assert more.exit_code == 0, more.output
     summary = json.loads(more.output)
     assert summary["stats"]["candidates"] == 70 and summary["stats"]["restore_replays"] == 1
     assert {entry["candidate"] for entry in summary["found_by"]} == {0, 63, 65}
     assert summary["coverage"]["node"]["covered"] == 9 and summary["frames"] == 24
+    from lidarfuzz.store.store import Store
+    from lidarfuzz.structural.stored import get_log
+
+    with Store(tmp_path / "ws").session() as session:
+        row = get_log(session, "climbed")
+        assert (row.heuristic, row.strategy, row.frame_count) == ("search", "search", 24)
+        assert row.parent is not None and row.parent.name == "log"
     bad = CliRunner().invoke(app, [*args, "--operators", "nothing"])
     assert bad.exit_code != 0 and "--operators: unknown operator(s) ['nothing']" in str(bad.exception)
