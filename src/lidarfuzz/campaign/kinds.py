@@ -57,10 +57,10 @@ class TaskKind:
 TASK_KINDS: tuple[TaskKind, ...] = (
     TaskKind("mutation", "operators × severities on every frame, detections compared by AP and relations",
              "lidarfuzz.campaign.mutation", requires_operators=True),
-    TaskKind("guided", "DeepTest's greedy coverage-guided search on a learned SUT",
-             "lidarfuzz.campaign.coverage_search"),
-    TaskKind("fuzz", "DeepHunter-style coverage-guided fuzzing loop on a learned SUT",
-             "lidarfuzz.campaign.coverage_search"),
+    TaskKind("guided", "DeepTest's greedy coverage-guided search on a learned SUT (neuron coverage) or any "
+             "Python system (code coverage: --guide code --target CODE)", "lidarfuzz.campaign.coverage_search"),
+    TaskKind("fuzz", "DeepHunter-style coverage-guided fuzzing loop on a learned SUT (neuron coverage) or any "
+             "Python system (code coverage)", "lidarfuzz.campaign.coverage_search"),
     TaskKind("structural", "Neves et al.'s structural testing: field-test logs replayed in order through a sequence "
              "system under code coverage, discriminatory segments, generated logs (HGT, AVG, ...)",
              "lidarfuzz.campaign.structural", consumes_logs=True),

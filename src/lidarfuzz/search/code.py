@@ -26,7 +26,7 @@ Example:
     >>> layout = CodeLayout(every)
     >>> values = layout.values(frozenset({Requirement("m:f", "node", 4)}))
     >>> values["nodes"].tolist(), values["edges"].tolist()
-    [[0.0, 1.0]], [[0.0]]
+    ([[0.0, 1.0]], [[0.0]])
     >>> nodes = CodeNodes()
     >>> nodes.update(values).tolist(), nodes.coverage()
     ([True], 0.5)
