@@ -277,3 +277,15 @@ def test_the_controller_on_a_simulated_drive_log_twice_with_the_same_seed(tmp_pa
         base, *aggregated = row["values"][1:4]
         assert all(value >= base for value in aggregated), table  # L' ∪ L'' covers at least what L' does
     assert figures["relations"]["safety"]["checked"] > 0
+
+
+def test_a_finding_of_a_log_is_not_replayed_alone(drive: Path, tmp_path: Path) -> None:
+    from lidarfuzz.campaign.replay import ReplayError, replay_finding
+
+    store = Store(tmp_path / "ws")
+    task_id, _ = run(store, campaign(drive))
+    with store.session() as s:
+        finding_id = s.scalar(select(Finding.id).where(Finding.task_id == task_id).limit(1))
+    assert finding_id is not None
+    with pytest.raises(ReplayError, match=r"is a step of a log .* replay the log in order: lidarfuzz logs select"):
+        replay_finding(store, finding_id)

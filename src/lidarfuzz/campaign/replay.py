@@ -23,8 +23,10 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
+from lidarfuzz.campaign.kinds import kind_of
 from lidarfuzz.campaign.plan import ORIGINAL
 from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
+from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
 from lidarfuzz.store.errors import NotFoundError
@@ -175,6 +177,10 @@ def _boxes(result: UnitResult) -> Boxes3D | None:
     return result.detections.boxes() if result.detections is not None and result.failure is None else None
 
 
+class ReplayError(LidarfuzzError):
+    """A finding that cannot be replayed on its own (one step of a log)."""
+
+
 def replay_finding(store: Store, finding_id: int) -> Replay:
     """Re-run finding ``finding_id`` in this process, twice, and compare (see the module docstring)."""
     with store.session() as s:
@@ -192,6 +198,11 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
                 "message": finding.message, "frame_id": row.frame_id, "trial": row.trial, "subtask": sub.name,
                 "severity": sub.severity, "detail": finding.detail, "relation": replay.relation}
         task = s.get(Task, finding.task_id)
+        if task is not None and kind_of(task).consumes_logs:  # a decision of a stateful system on a whole log
+            raise ReplayError(f"finding {finding_id} is a step of a log (task {task.id}, {task.options.kind}): step "
+                              f"{finding.detail.get('step')} of {replay.dataset}; its decisions depend on every step "
+                              f"before it, so replay the log in order: lidarfuzz logs select {replay.dataset} --sut "
+                              f"{replay.sut} --target CODE")
         dataset_options = dict(task.dataset.options or {}) if task is not None else {}
         follow_recorded = None if row.detections.missing else row.detections.boxes()
         source_recorded = None if original is None or original.detections.missing else original.detections.boxes()
@@ -228,4 +239,4 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
                   has_follow=follow is not None)
 
 
-__all__ = ["TOLERANCE", "OutputComparison", "Replay", "replay_finding"]
+__all__ = ["TOLERANCE", "OutputComparison", "Replay", "ReplayError", "replay_finding"]
