@@ -49,3 +49,23 @@ def test_only_python_programs_are_wrapped() -> None:
     assert wrap_command("prog.py", ["m"]).startswith(sys.executable)
     with pytest.raises(LidarfuzzError, match="only a Python program"):
         wrap_command("./detector --serve", ["m"])
+
+
+def test_logs_select_measures_a_worker_program_as_it_measures_the_controller_in_process(kitti_log: Path,
+                                                                                        tmp_path: Path) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+
+    def select(sut: str, out: Path) -> dict[str, object]:
+        result = CliRunner().invoke(app, ["logs", "select", str(kitti_log), "--sut", sut, "--target", TARGETS[0],
+                                          "--size", "1", "--out", str(out), "--json"])
+        assert result.exit_code == 0, result.output
+        return json.loads(result.output)  # the summary record
+
+    here = select("controller", tmp_path / "a")
+    there = select(f"worker:python3 {PROGRAM}", tmp_path / "b")
+    assert here == there and float(here["nodes"]) > 0.3  # process() on 3 frames: the same share either way
+    assert 0 < float(here["base_nodes"]) <= 1  # type: ignore[arg-type]

@@ -167,8 +167,9 @@ def generate_command(
 
 
 SutOption = Annotated[str, typer.Option("--sut", help="The system that consumes the log in order: a registered "
-                                        "sequence system (controller, …) or module:callable; its code is measured "
-                                        "in this process (a worker: system's is not).")]
+                                        "sequence system (controller, …), module:callable (its code measured in "
+                                        "this process) or worker:COMMAND running a Python program (measured in "
+                                        "its process).")]
 TargetOption = Annotated[list[str], typer.Option("--target", help="Code to cover: pkg.module, pkg.module:Class or "
                                                  "pkg.module:function; repeatable.")]
 
@@ -176,11 +177,10 @@ TargetOption = Annotated[list[str], typer.Option("--target", help="Code to cover
 def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any, str]:
     """(the log's frame coverage, the recorder, the system's fingerprint) for ``sut`` on ``log``."""
     from lidarfuzz.structural.log_coverage import frame_coverage
-    from lidarfuzz.structural.python_coverage import CoverageRecorder
-    from lidarfuzz.suts.registry import create_sequence
+    from lidarfuzz.structural.worker_coverage import measured_system
 
-    recorder = CoverageRecorder(targets)
-    with create_sequence(sut) as system:
+    system, recorder = measured_system(sut, targets)
+    with system:
         replay = frame_coverage(log, system.step, recorder, reset=system.reset)
         fingerprint = system.fingerprint()
     if replay.failures:
@@ -243,7 +243,7 @@ def select_command(
     from lidarfuzz.structural.generate import strategy, write_generated_log
     from lidarfuzz.structural.heuristics import closeness, select
     from lidarfuzz.structural.log_coverage import decision_signature
-    from lidarfuzz.structural.requirements import of_kind
+    from lidarfuzz.structural.requirements import coverage_ratio, of_kind, union
     from lidarfuzz.structural.segments import partition, segment_coverage
 
     if heuristic == "budget" and frames is None:
@@ -260,10 +260,15 @@ def select_command(
                         signatures=[decision_signature(o) for o in replay.outputs], seed=seed, reference=reference)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--heuristic") from None
-    near = closeness(chosen, per_segment, segments, recorder.requirements())
+    total = recorder.requirements()
+    near = closeness(chosen, per_segment, segments, total)
+    alone = None
     if out is not None:
         write_generated_log(opened, [segments[i] for i in chosen.segments], strategy("none"), out,
                             heuristic=heuristic, segment_size=size)
+        # replayed on its own the system's state differs from inside the full log: say what it covers then
+        base, _, _ = _replay(_open(out, layout, None), sut, target)
+        alone = union(*base.covered)
     rows = [[segments[s.segment].id, str(len(segments[s.segment])), str(len(of_kind(s.added, "node"))),
              str(len(of_kind(s.added, "edge"))), str(s.score)] for s in chosen.steps]
     summary = {"heuristic": heuristic, "segments": near.segments, "frames": near.frames,
@@ -272,10 +277,15 @@ def select_command(
                "steps": [{"segment": segments[s.segment].id, "index": s.segment, "frames": s.frames,
                           "added_nodes": len(of_kind(s.added, "node")), "added_edges": len(of_kind(s.added, "edge")),
                           "score": s.score} for s in chosen.steps]}
+    if alone is not None:  # the base log replayed on its own
+        summary.update(base_nodes=coverage_ratio(alone, total, "node"), base_edges=coverage_ratio(alone, total, "edge"))
     footer = (f"{heuristic}: {near.segments} of {near.log_segments} segments, {near.frames} of {near.log_frames} "
               f"frames: nodes {_percent(near.nodes)}, edges {_percent(near.edges)} (the full log: nodes "
               f"{_percent(near.log_nodes)}, edges {_percent(near.log_edges)})"
-              + (f"; base log written to {out}" if out is not None else ""))
+              + (f"; base log written to {out}" if out is not None else "")
+              + (f"; replayed on its own it covers nodes {_percent(coverage_ratio(alone, total, 'node'))}, edges "
+                 f"{_percent(coverage_ratio(alone, total, 'edge'))} (the system's state differs from inside the "
+                 "full log)" if alone is not None else ""))
     columns = [Column("segment", name=True), Column("frames", justify="right"), Column("+nodes", justify="right"),
                Column("+edges", justify="right"), Column("score", justify="right")]
     print_listing(columns, rows, summary, as_json=as_json, footer=footer)
