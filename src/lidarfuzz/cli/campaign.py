@@ -100,7 +100,12 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
     if outcome.status == Status.CANCELLED:
         console.print(f"task {task_id} cancelled; what is done is stored (lidarfuzz resume {task_id} finishes it)")
         return 1
-    print_summary(store, task_id)
+    if task.options.kind == "structural":  # no AP, no operators: its coverage tables instead
+        from lidarfuzz.cli.structural import print_structural
+
+        print_structural(store, task_id)
+    else:
+        print_summary(store, task_id)
     if report:
         print_comparisons(store, task_id)
     code = 0
@@ -164,7 +169,19 @@ def run(
     criteria: Annotated[str | None, typer.Option(
         help="guided/fuzz: coverage criteria, e.g. nc:0.2,kmnc:10,nbc,snac,tknc:2,tknp:2 (the default).")] = None,
     guide: Annotated[str | None, typer.Option(help="guided/fuzz: criterion whose increase accepts a test "
-                                                   "(default nc).")] = None,
+                                                   "(default nc; code: code_edges, with --target).")] = None,
+    target: Annotated[list[str] | None, typer.Option(
+        "--target", help="guided/fuzz with code criteria (code_nodes, code_edges): the code to cover, "
+                         "pkg.module, pkg.module:Class or pkg.module:function (repeatable).")] = None,
+    heuristic: Annotated[list[str] | None, typer.Option(
+        "--heuristic", help="structural: a segment-selection heuristic (repeatable; default greedy_edges, "
+                            "greedy_nodes, budget, decision_change, random).")] = None,
+    strategy: Annotated[list[str] | None, typer.Option(
+        "--strategy", help="structural: a log-generation strategy, HGT, AVG or an operator (repeatable; default "
+                           "HGT and AVG).")] = None,
+    segments: Annotated[int | None, typer.Option(min=1, help="structural: frames per segment (default 5).")] = None,
+    log: Annotated[list[str] | None, typer.Option(
+        "--log", help="structural: a further field-test log after --dataset (repeatable).")] = None,
     search_option: Annotated[list[str] | None, typer.Option(
         "--search", help="guided/fuzz: any search setting k=v, e.g. max_failed_tries=5, batch=4, keep_share=0.5 "
                          "(repeatable).")] = None,
@@ -188,7 +205,12 @@ def run(
     rates beside the reference's and flags those significantly above (lidarfuzz compare A B).
 
     With --kind guided or fuzz the task is a coverage-guided search on a learned SUT (e.g. pillars):
-    generated tests, neuron coverage and deduplicated, minimised findings.
+    generated tests, neuron coverage and deduplicated, minimised findings; with --guide code and
+    --target CODE, guided by the code coverage of any Python system (e.g. classic).
+
+    With --kind structural the dataset is a field-test log (more with --log) replayed in order through a
+    sequence system (--sut controller) under code coverage of --target: segments, heuristics' base logs,
+    generated logs (--strategy), coverage tables and decision-relation findings.
     """
     from lidarfuzz.campaign.kinds import find_kind
     from lidarfuzz.campaign.spec import load_campaign, parse_campaign
@@ -218,7 +240,18 @@ def run(
             search["criteria"] = [c.strip() for c in criteria.split(",") if c.strip()]
         if guide is not None:
             search["guide"] = guide
-        spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind,
+        if target and kind != "structural":
+            search["targets"] = target
+        structural: dict[str, Any] = {}
+        if kind == "structural":
+            structural = {"coverage": {"targets": target or []}, "heuristics": heuristic or [],
+                          "strategies": strategy or [], "segments": segments, "logs": log or []}
+            if not target:
+                raise LidarfuzzError("--target: a structural campaign needs the code to cover, e.g. --target "
+                                     "lidarfuzz.suts.controller.avoidance:ObstacleAvoidance.process")
+        elif heuristic or strategy or segments or log:
+            raise LidarfuzzError("--heuristic, --strategy, --segments and --log are for --kind structural")
+        spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind, **structural,
                                "operators": "auto" if op == ["auto"] else [parse_op(o) for o in op or []],
                                "search": search,
                                "relations": chosen, "seed": seed, "trials": trials, "frames": frames,
