@@ -132,6 +132,7 @@ th.left, td.left { text-align: left; }
 h2 { font-size: 18px; } h3 { font-size: 15px; margin: 18px 0 4px; }
 .note, .muted { color: #59636e; font-size: 13px; }
 .wide { overflow-x: auto; }
+table.lf-structural-table td { white-space: nowrap; }
 """
 
 
