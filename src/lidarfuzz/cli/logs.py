@@ -305,7 +305,8 @@ def compare_command(
     first, first_recorder, _ = _replay(_open(base, layout, None), sut, target)
     second, _, _ = _replay(_open(generated, layout, None), sut, target)
     rows, records = [], []
-    for c in compare_logs(first.covered, second.covered, first_recorder.requirements()):
+    comparisons = compare_logs(first.covered, second.covered, first_recorder.requirements())
+    for c in comparisons:
         name = "all-nodes" if c.kind == "node" else "all-edges"
         rows.append([name, str(c.total), _percent(c.base), _percent(c.generated), _percent(c.together),
                      _percent(c.aggregated), str(len(c.new))])
@@ -314,7 +315,11 @@ def compare_command(
     columns = [Column("criterion", name=True), Column("total", justify="right"), Column("L'", justify="right"),
                Column("L''", justify="right"), Column("together", justify="right"),
                Column("aggregated", justify="right"), Column("new", justify="right")]
-    print_listing(columns, rows, records, as_json=as_json)
+    new = sorted({r for c in comparisons for r in c.new})
+    shown = ", ".join(r.label().split(":", 1)[-1] for r in new[:12])  # without the module: Class.method:line
+    more = f", and {len(new) - 12} more (--json lists all)" if len(new) > 12 else ""
+    footer = f"new in L'': {shown}{more}" if new else "L'' reached nothing L' did not"
+    print_listing(columns, rows, records, as_json=as_json, footer=footer)
 
 
 def search_command(
