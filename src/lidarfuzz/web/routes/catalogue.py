@@ -1,5 +1,6 @@
 """``/api/operators`` (by family, with severity tables and params schemas), operator previews,
-``/api/relations`` and ``/api/suts`` — what ``lidarfuzz operators``, ``relations`` and ``suts`` print."""
+``/api/relations``, ``/api/suts`` and ``/api/sequence-systems`` — what ``lidarfuzz operators``,
+``relations`` and ``suts`` print."""
 
 from __future__ import annotations
 
@@ -95,3 +96,48 @@ def suts(ctx: Web) -> dict[str, Any]:
                       for name, cls in sorted(available().items())],
             "forms": ["NAME", "NAME?key=value", "module:callable (installed plugins)", "onnx file (upload)",
                       "open3d checkpoint (upload)"]}
+
+
+#: The code a structural task on the built-in controller (or a bug-zoo variant of it) covers unless
+#: told otherwise: its methods in the roles of Neves et al.'s cObstacleAvoidance.process() and
+#: cVFH.calculate() (docs/structural.md).
+CONTROLLER_TARGETS = ("lidarfuzz.suts.controller.avoidance:ObstacleAvoidance.process",
+                      "lidarfuzz.suts.controller.vfh:VFH.calculate")
+HEURISTIC_HELP = {
+    "greedy_edges": "greedy set cover on edges",
+    "greedy_nodes": "greedy set cover on nodes",
+    "budget": "largest new coverage first under a frame budget",
+    "decision_change": "the segments where the system's decision changes (no coverage needed)",
+    "random": "a baseline: as many segments as another heuristic, drawn with the seed",
+}
+STRATEGY_HELP = {
+    "HGT": "every frame again after itself, every point raised by 10 m (2k frames per segment)",
+    "AVG": "the average of each two consecutive frames between them (2k − 1 frames per segment)",
+}
+
+
+def suggested_targets(cls: type[Any]) -> list[str]:
+    """The code targets the New task form proposes for a sequence system: the controller's two
+    main methods for the controller and its variants, else the system's class."""
+    from lidarfuzz.suts.controller import ObstacleAvoidance
+
+    if issubclass(cls, ObstacleAvoidance):
+        return list(CONTROLLER_TARGETS)
+    return [f"{cls.__module__}:{cls.__qualname__}"]
+
+
+@router.get("/sequence-systems")
+def sequence_systems(ctx: Web) -> dict[str, Any]:
+    """The registered systems that consume logs in order (entry-point group
+    ``lidarfuzz.sequence_suts``, ``lidarfuzz suts`` lists them as *logs*) with the code targets the
+    New task form proposes for each, and what a structural task can choose: its heuristics and
+    strategies (the defaults: all of them) and the segment size."""
+    from lidarfuzz.campaign.structural import DEFAULT_HEURISTICS, DEFAULT_STRATEGIES
+    from lidarfuzz.structural.segments import DEFAULT_SIZE
+    from lidarfuzz.suts.registry import available_sequences
+
+    return {"items": [{"name": name, "description": _doc(cls)[0], "version": cls.version,
+                       "targets": suggested_targets(cls)} for name, cls in sorted(available_sequences().items())],
+            "heuristics": [{"name": name, "description": HEURISTIC_HELP.get(name, "")} for name in DEFAULT_HEURISTICS],
+            "strategies": [{"name": name, "description": STRATEGY_HELP.get(name, "")} for name in DEFAULT_STRATEGIES],
+            "segments": DEFAULT_SIZE}

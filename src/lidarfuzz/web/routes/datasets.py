@@ -65,6 +65,29 @@ def datasets_list(ctx: Web) -> dict[str, Any]:
     return {"items": sorted(rows, key=lambda r: r["name"])}
 
 
+def _log_rows(ctx: WebContext) -> dict[str, Any]:
+    from lidarfuzz.store.inventory import dataset_options
+    from lidarfuzz.structural.logs import open_log
+
+    logs, refused = [], []
+    for row in list_datasets(ctx.store):
+        try:
+            log = open_log(row.path, options=dataset_options(row))
+        except DataFormatError as exc:  # no order (NotALogError), or not readable any more
+            refused.append({"name": row.name, "reason": exc.message + (f" ({exc.hint})" if exc.hint else "")})
+            continue
+        logs.append({"name": row.name, "frame_count": len(log), "order": log.order, "format": log.format})
+    return {"items": logs, "refused": refused}
+
+
+@router.get("/datasets/logs")
+async def datasets_logs(ctx: Web) -> dict[str, Any]:
+    """The recorded data sets that are logs (they have an order: ``lidarfuzz.structural.logs.open_log``
+    opens them), for a structural task: ``{"items": [{name, frame_count, order, format}],
+    "refused": [{name, reason}]}`` (``reason``: why a data set has no order)."""
+    return await run_in_threadpool(_log_rows, ctx)
+
+
 def _name_free(ctx: WebContext, name: str) -> None:
     check_name(name, "name")
     job = jobs_of(ctx).get(name)

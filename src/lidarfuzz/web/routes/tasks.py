@@ -152,15 +152,33 @@ def tasks_list(ctx: Web, limit: Annotated[int, Query(ge=1, le=500)] = 50, offset
             "offset": offset}
 
 
+def _check_order(field: str, row: Any) -> None:
+    """A structural campaign's field-test log must have an order (a 422 naming the field, not the
+    server path the engine would name)."""
+    from lidarfuzz.errors import DataFormatError
+    from lidarfuzz.store.inventory import dataset_options
+    from lidarfuzz.structural.logs import open_log
+
+    try:
+        open_log(row.path, options=dataset_options(row))
+    except DataFormatError as exc:
+        hint = f" ({exc.hint})" if exc.hint else ""
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"request body: field '{field}': data set {row.name!r}: {exc.message}{hint}; "
+                            f"GET /api/datasets/logs lists the logs") from None
+
+
 def _check_references(ctx: WebContext, spec: Any) -> None:
     """The API runs campaigns on registered data sets only (no server paths), and on registered
     models or specs the API may register."""
-    names = {d.name for d in list_datasets(ctx.store)}
+    rows = {d.name: d for d in list_datasets(ctx.store)}
     for field, name in [("dataset", spec.dataset), *((f"logs.{i}", log) for i, log in enumerate(spec.logs))]:
-        if name not in names:  # a structural campaign's further field-test logs pass the same check
+        if name not in rows:  # a structural campaign's further field-test logs pass the same check
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"request body: field '{field}': no data set named {name!r} "
                                 f"(GET /api/datasets lists them; upload or generate one first)")
+        if spec.kind == "structural":
+            _check_order(field, rows[name])
     models = {m.name for m in list_models(ctx.store)}
     if spec.sut not in models:
         check_model_spec(spec.sut, ctx.uploads, field="sut")
