@@ -172,14 +172,21 @@ SutOption = Annotated[str, typer.Option("--sut", help="The system that consumes 
                                         "its process).")]
 TargetOption = Annotated[list[str], typer.Option("--target", help="Code to cover: pkg.module, pkg.module:Class or "
                                                  "pkg.module:function; repeatable.")]
+GcovOption = Annotated[Path | None, typer.Option(
+    "--gcov", help="A compiled worker: program's build folder (built with --coverage; the program dumps its counts "
+                   "before answering a request with \"gcov_dump\": true). --target then names source files or "
+                   "file:function, relative to --source-root.")]
+SourceRootOption = Annotated[Path | None, typer.Option("--source-root", help="With --gcov: the sources' root "
+                                                       "(default: the build folder).")]
 
 
-def _replay(log: OrderedLog, sut: str, targets: list[str]) -> tuple[Any, Any, str]:
+def _replay(log: OrderedLog, sut: str, targets: list[str], gcov: Path | None = None,
+            source_root: Path | None = None) -> tuple[Any, Any, str]:
     """(the log's frame coverage, the recorder, the system's fingerprint) for ``sut`` on ``log``."""
     from lidarfuzz.structural.log_coverage import frame_coverage
     from lidarfuzz.structural.worker_coverage import measured_system
 
-    system, recorder = measured_system(sut, targets)
+    system, recorder = measured_system(sut, targets, gcov=gcov, source_root=source_root)
     with system:
         replay = frame_coverage(log, system.step, recorder, reset=system.reset)
         fingerprint = system.fingerprint()
@@ -232,6 +239,8 @@ def select_command(
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Also write the reduced base log (the selected "
                                              "segments, in the log's order) to this new folder.")] = None,
     topic: TopicOption = None,
+    gcov: GcovOption = None,
+    source_root: SourceRootOption = None,
     layout: LayoutOption = None,
     record: Annotated[str | None, typer.Option("--record", help="Record the log, its segments and the coverage "
                                                "of the log and of every segment (per criterion, with the "
@@ -249,7 +258,7 @@ def select_command(
     if heuristic == "budget" and frames is None:
         raise typer.BadParameter("the budget heuristic needs a frame budget", param_hint="--frames")
     opened = _open(log, layout, topic)
-    replay, recorder, fingerprint = _replay(opened, sut, target)
+    replay, recorder, fingerprint = _replay(opened, sut, target, gcov, source_root)
     segments = partition(opened.frame_ids, size)
     per_segment = segment_coverage(segments, replay.covered)
     if record is not None:
@@ -267,7 +276,7 @@ def select_command(
         write_generated_log(opened, [segments[i] for i in chosen.segments], strategy("none"), out,
                             heuristic=heuristic, segment_size=size)
         # replayed on its own the system's state differs from inside the full log: say what it covers then
-        base, _, _ = _replay(_open(out, layout, None), sut, target)
+        base, _, _ = _replay(_open(out, layout, None), sut, target, gcov, source_root)
         alone = union(*base.covered)
     rows = [[segments[s.segment].id, str(len(segments[s.segment])), str(len(of_kind(s.added, "node"))),
              str(len(of_kind(s.added, "edge"))), str(s.score)] for s in chosen.steps]
@@ -296,14 +305,16 @@ def compare_command(
     generated: Annotated[Path, typer.Argument(help="The generated log L''.")],
     sut: SutOption,
     target: TargetOption,
+    gcov: GcovOption = None,
+    source_root: SourceRootOption = None,
     layout: LayoutOption = None,
     as_json: JsonOption = False,
 ) -> None:
     """Coverage of two logs side by side, and the aggregated coverage: what L'' reached that L' did not."""
     from lidarfuzz.structural.log_coverage import compare_logs
 
-    first, first_recorder, _ = _replay(_open(base, layout, None), sut, target)
-    second, _, _ = _replay(_open(generated, layout, None), sut, target)
+    first, first_recorder, _ = _replay(_open(base, layout, None), sut, target, gcov, source_root)
+    second, _, _ = _replay(_open(generated, layout, None), sut, target, gcov, source_root)
     rows, records = [], []
     comparisons = compare_logs(first.covered, second.covered, first_recorder.requirements())
     for c in comparisons:

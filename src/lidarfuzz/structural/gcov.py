@@ -34,6 +34,7 @@ import importlib.util
 import json
 import subprocess
 import sys
+from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -122,4 +123,69 @@ def collect(build_dir: StrPath, source_root: StrPath, *, gcov: str | None = None
     return total, covered
 
 
-__all__ = ["collect", "gcda_files", "requirements", "requirements_from_report", "reset"]
+def selected(requirements: Covered, targets: Sequence[str]) -> Covered:
+    """The requirements of the targets: ``file`` (every function of a source file, relative to the
+    source root) or ``file:function``; all of them when there is no target.
+
+        >>> r = [Requirement("a.c:f", "node", 3), Requirement("a.c:g", "node", 9), Requirement("b.c:f", "node", 1)]
+        >>> sorted(x.function for x in selected(frozenset(r), ["a.c:g", "b.c"]))
+        ['a.c:g', 'b.c:f']
+    """
+    if not targets:
+        return requirements
+    return frozenset(r for r in requirements
+                     if any(r.function == t or r.function.startswith(f"{t}:") for t in targets))
+
+
+class GcovRecorder:
+    """The per-step recorder (:class:`~lidarfuzz.structural.log_coverage.Recorder`) of a compiled
+    program served over the worker protocol and built with ``--coverage``.
+
+    Every request (and reset) carries ``"gcov_dump": true``; the program answers it only after
+    writing its counts and clearing them (``__gcov_dump(); __gcov_reset();`` — as
+    ``examples/suts/c_controller/controller.c`` does when built with ``-DLIDARFUZZ_GCOV``; a weak
+    declaration of ``__gcov_dump`` would not pull it from the static libgcov). Before each step the ``.gcda`` files are
+    removed, so what gcovr reads after the answer is that step's alone.
+
+    Args:
+        system: The :class:`~lidarfuzz.suts.sequence.WorkerSequence` running the program.
+        build_dir: Where the program was built (its ``.gcno``; the ``.gcda`` appear there).
+        source_root: The sources' root (requirements are named relative to it).
+        targets: ``file`` or ``file:function`` names to keep (all when empty).
+        gcov: The gcov program matching the compiler.
+
+    Raises:
+        LidarfuzzError: No ``.gcno`` under ``build_dir``, or a target naming nothing.
+    """
+
+    def __init__(self, system: Any, build_dir: StrPath, source_root: StrPath, targets: Sequence[str] = (),
+                 *, gcov: str | None = None) -> None:
+        self.system, self.build, self.root, self.gcov = system, Path(build_dir), Path(source_root), gcov
+        self.targets = list(targets)
+        self.total = selected(requirements(self.build, self.root, gcov=gcov), self.targets)
+        if not self.total:
+            raise LidarfuzzError(f"{self.build}: no function of {', '.join(self.targets)} in the gcov notes "
+                                 f"(targets are file or file:function names relative to {self.root})")
+        system.request_extra = {**getattr(system, "request_extra", {}), "gcov_dump": True}
+        self.last: Covered = frozenset()
+
+    def requirements(self) -> Covered:
+        return self.total
+
+    def record(self, function: Callable[..., Any], *args: Any) -> tuple[Any, Covered]:
+        reset(self.build)
+        try:
+            result = function(*args)
+        finally:
+            if gcda_files(self.build):
+                self.last = selected(collect(self.build, self.root, gcov=self.gcov)[1], self.targets)
+            else:
+                self.last = frozenset()
+        if not self.last and not gcda_files(self.build):
+            raise LidarfuzzError(f"{self.build}: the program wrote no gcov data for this step: build it with "
+                                 "--coverage and have it call __gcov_dump() before answering a request with "
+                                 '"gcov_dump": true (docs/structural.md)')
+        return result, self.last
+
+
+__all__ = ["GcovRecorder", "collect", "gcda_files", "requirements", "requirements_from_report", "reset", "selected"]

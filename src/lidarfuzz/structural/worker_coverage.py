@@ -29,12 +29,15 @@ import runpy
 import shlex
 import sys
 from collections.abc import Callable, Iterable
+from os import PathLike
 from pathlib import Path
 from typing import Any, TextIO
 
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.structural.python_coverage import CoverageRecorder
 from lidarfuzz.structural.requirements import Covered, Requirement
+
+StrPath = str | PathLike[str]
 
 COVERED = "covered"
 
@@ -180,18 +183,29 @@ class WorkerRecorder:
         return result, self.last
 
 
-def measured_system(spec: str, targets: Iterable[str]) -> tuple[Any, Any]:
+def measured_system(spec: str, targets: Iterable[str], *, gcov: StrPath | None = None,
+                    source_root: StrPath | None = None) -> tuple[Any, Any]:
     """The sequence system ``spec`` names and the recorder measuring ``targets`` in it: coverage.py
-    in this process, or, for a ``worker:`` Python program, the wrapper in its process.
+    in this process, or, for a ``worker:`` Python program, the wrapper in its process; with
+    ``gcov`` (a compiled ``worker:`` program's build folder), its gcov data per step
+    (:class:`~lidarfuzz.structural.gcov.GcovRecorder`; targets are files or ``file:function``).
 
     Raises:
-        LidarfuzzError: A ``worker:`` program that is not Python, or a target that does not exist.
+        LidarfuzzError: A ``worker:`` program that is not Python (without ``gcov``), ``gcov`` for a
+            system that is no ``worker:``, or a target that does not exist.
         SutSpecError: A spec naming no sequence system.
     """
     from lidarfuzz.suts.registry import create_sequence
 
     targets = list(targets)
     scheme, _, command = spec.strip().partition(":")
+    if gcov is not None:
+        from lidarfuzz.structural.gcov import GcovRecorder
+
+        if scheme != "worker":
+            raise LidarfuzzError(f"--gcov measures a compiled worker: program, not {spec!r}")
+        system = create_sequence(spec)
+        return system, GcovRecorder(system, gcov, source_root if source_root is not None else gcov, targets)
     if scheme == "worker" and command.strip():
         words = [w for w in shlex.split(command) if not Path(w).name.startswith("python")]
         name = Path(words[1] if words[:1] == ["-m"] and len(words) > 1 else words[0]).stem if words else "worker"

@@ -290,13 +290,14 @@ class WorkerSut(SystemUnderTest[Scene, Boxes3D]):
             "calib": str(calib),
         }
 
-    def reset_state(self) -> None:
-        """Ask the program to clear its state (``{"reset": true}``, answered ``{"ok": true}``).
+    def reset_state(self, extra: dict[str, Any] | None = None) -> None:
+        """Ask the program to clear its state (``{"reset": true}``, answered ``{"ok": true}``);
+        ``extra`` fields go with the request (e.g. ``gcov_dump``).
 
         Raises:
             SutError: ``crash``, ``timeout`` or ``invalid_output`` as for a frame.
         """
-        answer = self.exchange({"reset": True})
+        answer = self.exchange({"reset": True, **(extra or {})})
         if isinstance(answer, dict) and "error" in answer:
             raise SutError(FailureKind.CRASH, f"{self.name}: the reset failed: {answer['error']}")
         if answer != {"ok": True}:

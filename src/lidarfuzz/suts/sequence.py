@@ -383,6 +383,7 @@ class WorkerSequence(SequenceSystem):
         self.max_steering = max_steering  # type: ignore[misc]
         self._index = 0
         self.last_answer: Any = None  # the program's last answer as read (extra fields kept, e.g. coverage)
+        self.request_extra: dict[str, Any] = {}  # fields sent with every request and reset (e.g. gcov_dump)
 
     def config(self) -> dict[str, Any]:
         return {**self.worker.config(), "max_steering": self.max_steering}
@@ -407,10 +408,11 @@ class WorkerSequence(SequenceSystem):
     def reset(self) -> None:
         """Start the program if it is not running, then send it the reset message."""
         self._index = 0
-        self.worker.reset_state()
+        self.worker.reset_state(self.request_extra)
 
     def step(self, frame: Scene) -> Decision:
-        request = {**self.worker.frame_request(frame), "index": self._index, "timestamp": frame.timestamp,
+        request = {**self.worker.frame_request(frame), **self.request_extra, "index": self._index,
+                   "timestamp": frame.timestamp,
                    "metadata": json.loads(json.dumps(dict(frame.metadata), default=str))}
         self._index += 1
         self.last_answer = self.worker.exchange(request)
