@@ -274,25 +274,6 @@ class _Measured:
         return decision
 
 
-def measured_system(spec: str, options: dict[str, Any], targets: Sequence[str]) -> tuple[SequenceSystem, Any, str]:
-    """The system a spec names, the recorder that measures its steps, and its fingerprint. A Python
-    system runs in this process under :class:`~lidarfuzz.structural.python_coverage.CoverageRecorder`;
-    a ``worker:`` program runs behind :mod:`lidarfuzz.structural.worker_coverage`'s wrapper, its
-    answers carrying what each step covered (the fingerprint is the unwrapped program's)."""
-    from lidarfuzz.structural.python_coverage import CoverageRecorder
-    from lidarfuzz.suts.registry import create_sequence
-
-    system = create_sequence(spec, **options)
-    fingerprint = system.fingerprint()
-    scheme, _, command = spec.strip().partition(":")
-    if scheme != "worker":
-        return system, CoverageRecorder(targets), fingerprint
-    from lidarfuzz.structural.worker_coverage import WorkerRecorder, wrap_command
-
-    wrapped = create_sequence(f"worker:{wrap_command(command, targets)}", **options)
-    return wrapped, WorkerRecorder(wrapped, targets), fingerprint
-
-
 def measured_replay(system: SequenceSystem, recorder: Any, frames: Iterable[Any], *,
                     timeout: float | None = None) -> tuple[list[StepResult], list[Covered]]:
     """:func:`~lidarfuzz.suts.sequence.replay` with every step measured: its results and, per frame,
@@ -360,8 +341,10 @@ class _StructuralRun:
         self.relations = [from_spec(spec) for spec in task.options.kind_options.get("relations", [])]
         self.logs = open_logs(self.config.logs)
         self.total = from_labels(self.config.total)
-        self.system, self.recorder, fingerprint = measured_system(task.model.spec, dict(task.model.options or {}),
-                                                                  self.config.targets)
+        from lidarfuzz.structural.log_coverage import measured_system
+
+        self.system, self.recorder, fingerprint = measured_system(task.model.spec, self.config.targets,
+                                                                  options=dict(task.model.options or {}))
         self.system.load()
         if fingerprint != task.model.fingerprint:
             self.system.close()
@@ -689,5 +672,5 @@ def kind_summary(store: Store, task: Task) -> dict[str, Any]:
 
 __all__ = ["BASE", "DEFAULT_HEURISTICS", "DEFAULT_STRATEGIES", "StructuralConfig", "StructuralSetupError",
            "check_spec", "config_of", "counted_below", "decision_relations", "describe", "finish_subtasks",
-           "kind_summary", "logs_folder", "measured_replay", "measured_system", "open_logs", "plan", "start",
+           "kind_summary", "logs_folder", "measured_replay", "open_logs", "plan", "start",
            "summary_of", "task_config"]

@@ -183,10 +183,9 @@ SourceRootOption = Annotated[Path | None, typer.Option("--source-root", help="Wi
 def _replay(log: OrderedLog, sut: str, targets: list[str], gcov: Path | None = None,
             source_root: Path | None = None) -> tuple[Any, Any, str]:
     """(the log's frame coverage, the recorder, the system's fingerprint) for ``sut`` on ``log``."""
-    from lidarfuzz.structural.log_coverage import frame_coverage
-    from lidarfuzz.structural.worker_coverage import measured_system
+    from lidarfuzz.structural.log_coverage import frame_coverage, measured_system
 
-    system, recorder = measured_system(sut, targets, gcov=gcov, source_root=source_root)
+    system, recorder, _ = measured_system(sut, targets, gcov=gcov, source_root=source_root)
     with system:
         replay = frame_coverage(log, system.step, recorder, reset=system.reset)
         fingerprint = system.fingerprint()

@@ -26,8 +26,11 @@ Example:
 
 from __future__ import annotations
 
+import shlex
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
 from typing import Any, Protocol
 
 from lidarfuzz.scene.scene import Scene
@@ -125,5 +128,46 @@ def compare_logs(base: Covered | Sequence[Covered], generated: Covered | Sequenc
     return rows[0], rows[1]
 
 
+def measured_system(spec: str, targets: Iterable[str], *, options: dict[str, Any] | None = None,
+                    gcov: str | PathLike[str] | None = None,
+                    source_root: str | PathLike[str] | None = None) -> tuple[Any, Any, str]:
+    """The sequence system ``spec`` names (with ``options``), the recorder measuring ``targets`` in
+    it, and the system's fingerprint. A Python system runs in this process under
+    :class:`~lidarfuzz.structural.python_coverage.CoverageRecorder`; a ``worker:`` Python program
+    behind :mod:`~lidarfuzz.structural.worker_coverage`'s wrapper, its answers carrying what each
+    step covered; with ``gcov`` (a compiled ``worker:`` program's build folder) its gcov data per
+    step (:class:`~lidarfuzz.structural.gcov.GcovRecorder`; targets are files or ``file:function``).
+    The fingerprint is always the unwrapped system's.
+
+    Raises:
+        LidarfuzzError: A ``worker:`` program that is not Python (without ``gcov``), ``gcov`` for a
+            system that is no ``worker:``, or a target that does not exist.
+        SutSpecError: A spec naming no sequence system.
+    """
+    from lidarfuzz.errors import LidarfuzzError
+    from lidarfuzz.structural.python_coverage import CoverageRecorder
+    from lidarfuzz.structural.worker_coverage import WorkerRecorder, wrap_command
+    from lidarfuzz.suts.registry import create_sequence
+
+    targets = list(targets)
+    options = dict(options or {})
+    system = create_sequence(spec, **options)
+    fingerprint = system.fingerprint()
+    scheme, _, command = spec.strip().partition(":")
+    if gcov is not None:
+        from lidarfuzz.structural.gcov import GcovRecorder
+
+        if scheme != "worker":
+            raise LidarfuzzError(f"--gcov measures a compiled worker: program, not {spec!r}")
+        return system, GcovRecorder(system, gcov, source_root if source_root is not None else gcov, targets), \
+            fingerprint
+    if scheme != "worker":
+        return system, CoverageRecorder(targets), fingerprint
+    words = [w for w in shlex.split(command) if not Path(w).name.startswith("python")]
+    name = Path(words[1] if words[:1] == ["-m"] and len(words) > 1 else words[0]).stem if words else "worker"
+    wrapped = create_sequence(f"worker:{wrap_command(command, targets)}", **{"name": name, **options})
+    return wrapped, WorkerRecorder(wrapped, targets), fingerprint
+
+
 __all__ = ["CriterionComparison", "FrameCoverage", "Recorder", "compare_logs", "decision_signature",
-           "frame_coverage"]
+           "frame_coverage", "measured_system"]

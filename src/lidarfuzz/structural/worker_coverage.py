@@ -183,37 +183,6 @@ class WorkerRecorder:
         return result, self.last
 
 
-def measured_system(spec: str, targets: Iterable[str], *, gcov: StrPath | None = None,
-                    source_root: StrPath | None = None) -> tuple[Any, Any]:
-    """The sequence system ``spec`` names and the recorder measuring ``targets`` in it: coverage.py
-    in this process, or, for a ``worker:`` Python program, the wrapper in its process; with
-    ``gcov`` (a compiled ``worker:`` program's build folder), its gcov data per step
-    (:class:`~lidarfuzz.structural.gcov.GcovRecorder`; targets are files or ``file:function``).
-
-    Raises:
-        LidarfuzzError: A ``worker:`` program that is not Python (without ``gcov``), ``gcov`` for a
-            system that is no ``worker:``, or a target that does not exist.
-        SutSpecError: A spec naming no sequence system.
-    """
-    from lidarfuzz.suts.registry import create_sequence
-
-    targets = list(targets)
-    scheme, _, command = spec.strip().partition(":")
-    if gcov is not None:
-        from lidarfuzz.structural.gcov import GcovRecorder
-
-        if scheme != "worker":
-            raise LidarfuzzError(f"--gcov measures a compiled worker: program, not {spec!r}")
-        system = create_sequence(spec)
-        return system, GcovRecorder(system, gcov, source_root if source_root is not None else gcov, targets)
-    if scheme == "worker" and command.strip():
-        words = [w for w in shlex.split(command) if not Path(w).name.startswith("python")]
-        name = Path(words[1] if words[:1] == ["-m"] and len(words) > 1 else words[0]).stem if words else "worker"
-        system = create_sequence(f"worker:{wrap_command(command, targets)}", name=name)
-        return system, WorkerRecorder(system, targets)
-    return create_sequence(spec), CoverageRecorder(targets)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m lidarfuzz.structural.worker_coverage",
                                      description=__doc__.splitlines()[0])
@@ -241,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-__all__ = ["COVERED", "WorkerRecorder", "covered_from", "main", "measured_system", "wrap_command"]
+__all__ = ["COVERED", "WorkerRecorder", "covered_from", "main", "wrap_command"]
 
 if __name__ == "__main__":
     sys.exit(main())
