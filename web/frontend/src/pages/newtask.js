@@ -1,9 +1,12 @@
 // The New task dialog: operators grouped by family (description, severity table, before/after
 // preview), severities or explicit parameters checked against the params schema, relations,
-// data set and model pickers, seed; the server's 422 errors are shown at the field they name.
+// data set and model pickers, seed; a structural task's logs, sequence system, code targets,
+// heuristics and strategies instead (./structural.js); the server's 422 errors are shown at the
+// field they name.
 import { api, fetchBlob, listOf } from "../api.js";
 import { clear, go, h, notice } from "../dom.js";
 import { schemaFields } from "../schema.js";
+import { structuralFields } from "./structural.js";
 
 // Operators come as a list (each with its family), as {family: [...]} or as [{family, operators}].
 export function operatorsByFamily(reply) {
@@ -178,11 +181,12 @@ function showFieldError(element, message) {
 
 export async function newTaskPage(root) {
   root.append(h("div", { class: "page-head" }, h("h1", {}, "New task")), h("p", { class: "muted" }, "Loading the catalogue…"));
-  const [operators, relations, datasets, models] = await Promise.all([
+  const [operators, relations, datasets, models, sequenceSystems] = await Promise.all([
     api("/api/operators"),
     api("/api/relations").catch(() => []),
     api("/api/datasets"),
     api("/api/models"),
+    api("/api/sequence-systems").catch(() => ({ items: [] })),
   ]);
   clear(root);
   const previews = new Map();
@@ -201,9 +205,9 @@ export async function newTaskPage(root) {
   const seed = h("input", { name: "seed", type: "number", value: 0, min: 0, step: 1, required: true, testid: "task-seed" });
   const trials = h("input", { name: "trials", type: "number", value: 1, min: 1, max: 100, step: 1, testid: "task-trials" });
   const frames = h("input", { name: "frames", type: "number", min: 1, step: 1, placeholder: "all", testid: "task-frames" });
-  const kind = h("select", { name: "kind", testid: "task-kind" }, ["mutation", "guided", "fuzz"].map((k) => h("option", { value: k }, k)));
+  const kind = h("select", { name: "kind", testid: "task-kind" }, ["mutation", "guided", "fuzz", "structural"].map((k) => h("option", { value: k }, k)));
   const search = h("textarea", { rows: 2, placeholder: '{"budget": 50, "criteria": ["nc:0.2"]}', hidden: true });
-  kind.addEventListener("change", () => (search.hidden = kind.value === "mutation"));
+  const structural = structuralFields(sequenceSystems);
 
   const rows = [];
   const families = h("div", { class: "families", testid: "operators" });
@@ -238,7 +242,30 @@ export async function newTaskPage(root) {
 
   const message = h("div", { testid: "task-message" });
   const submit = h("button", { type: "submit", class: "primary", testid: "task-submit" }, "Create task");
-  const topFields = { name, dataset, sut, seed, trials, frames, kind, relations: relationsField, search };
+  const detectionFields = { name, dataset, sut, seed, trials, frames, kind, relations: relationsField, search };
+  const structuralTopFields = { name, seed, kind, ...structural.fields };
+  const isStructural = () => kind.value === "structural";
+
+  // what a detection campaign (mutation, guided, fuzz) shows and a structural one does not
+  const detectionOnly = [
+    h("label", {}, "Data set ", dataset),
+    h("label", {}, "Model ", sut),
+    h("label", {}, "Trials ", trials),
+    h("label", {}, "Frames ", frames),
+  ];
+  const detectionSections = [h("h2", {}, "Operators"), families, h("h2", {}, "Relations"), relationsField];
+  const structuralSection = h("div", { hidden: true }, h("h2", {}, "Logs and code"), structural.element);
+  let logsLoaded = false;
+  function syncKind() {
+    for (const element of [...detectionOnly, ...detectionSections]) element.hidden = isStructural();
+    structuralSection.hidden = !isStructural();
+    search.hidden = kind.value === "mutation" || isStructural();
+    if (isStructural() && !logsLoaded) {
+      logsLoaded = true;
+      structural.load();
+    }
+  }
+  kind.addEventListener("change", syncKind);
 
   const form = h(
     "form",
@@ -246,19 +273,15 @@ export async function newTaskPage(root) {
     h(
       "div",
       { class: "card form grid" },
-      h("label", {}, "Name ", name),
-      h("label", {}, "Data set ", dataset),
-      h("label", {}, "Model ", sut),
-      h("label", {}, "Seed ", seed),
-      h("label", {}, "Trials ", trials),
-      h("label", {}, "Frames ", frames),
       h("label", {}, "Kind ", kind),
+      h("label", {}, "Name ", name),
+      detectionOnly.slice(0, 2),
+      h("label", {}, "Seed ", seed),
+      detectionOnly.slice(2),
       search,
     ),
-    h("h2", {}, "Operators"),
-    families,
-    h("h2", {}, "Relations"),
-    relationsField,
+    detectionSections,
+    structuralSection,
     message,
     h("div", { class: "form-actions" }, submit, h("a", { class: "button", href: "#/tasks" }, "Cancel")),
   );
@@ -270,15 +293,17 @@ export async function newTaskPage(root) {
   }
 
   // A server problem → the element it names: "operators.1.severities", "dataset", "seed", …
+  // (a "coverage.targets: …" line reads like a file name and its message: without a line number it is a field)
+  const fieldOf = (problem) => problem.field ?? (problem.line === undefined ? (problem.file ?? "") : "");
   function elementFor(problem, chosen) {
-    const path = problem.field ?? "";
+    const path = fieldOf(problem);
     const text = `${path} ${problem.message}`;
     const match = /operators\.(\d+)(?:\.(?:config\.)?([A-Za-z_]\w*))?/.exec(text);
     if (match) {
       const row = chosen[Number(match[1])];
       if (row) return (match[2] && row.fieldElement(match[2])) || row.row.querySelector(".op-options");
     }
-    for (const [key, element] of Object.entries(topFields)) {
+    for (const [key, element] of Object.entries(isStructural() ? structuralTopFields : detectionFields)) {
       if (path === key || path.startsWith(`${key}.`) || new RegExp(`(^|\\s)${key}(\\.\\w+)*:`).test(text)) {
         return element.closest("label") ?? element;
       }
@@ -289,7 +314,7 @@ export async function newTaskPage(root) {
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
     clearErrors();
-    const chosen = rows.filter((r) => r.checked());
+    const chosen = isStructural() ? [] : rows.filter((r) => r.checked());
     const body = { dataset: dataset.value, sut: sut.value, kind: kind.value };
     if (name.value.trim()) body.name = name.value.trim();
     let ok = true;
@@ -297,7 +322,8 @@ export async function newTaskPage(root) {
       showFieldError(element, text);
       ok = false;
     };
-    for (const [key, input] of [["seed", seed], ["trials", trials], ["frames", frames]]) {
+    const numbers = isStructural() ? [["seed", seed]] : [["seed", seed], ["trials", trials], ["frames", frames]];
+    for (const [key, input] of numbers) {
       if (input.value.trim() === "") {
         if (key === "seed") fail(input.closest("label"), "seed: a whole number is required");
         continue;
@@ -308,25 +334,31 @@ export async function newTaskPage(root) {
         fail(input.closest("label"), `${key}: a whole number${input.max ? ` from ${min} to ${input.max}` : ` ≥ ${min}`}`);
       } else body[key] = value;
     }
-    if (!dataset.value) fail(dataset.closest("label"), "register or upload a data set first");
-    if (!sut.value) fail(sut.closest("label"), "register a model first");
-    body.operators = [];
-    for (const row of chosen) {
-      const result = row.read();
-      if (result.error) fail(result.element, `${row.op.name}: ${result.error}`);
-      else body.operators.push(result.choice);
-    }
-    if (kind.value === "mutation" && !chosen.length) fail(families, "pick at least one operator");
-    if (choose.checked) {
-      const picked = relationChecks.filter((r) => r.input.checked).map((r) => r.name);
-      if (!picked.length) fail(relationsField, "pick at least one relation, or auto");
-      body.relations = picked;
-    } else body.relations = "auto";
-    if (kind.value !== "mutation" && search.value.trim()) {
-      try {
-        body.search = JSON.parse(search.value);
-      } catch {
-        fail(search, "search: not valid JSON");
+    if (isStructural()) {
+      const result = structural.read();
+      for (const [element, text] of result.errors ?? []) fail(element, text);
+      Object.assign(body, result.body ?? {});
+    } else {
+      if (!dataset.value) fail(dataset.closest("label"), "register or upload a data set first");
+      if (!sut.value) fail(sut.closest("label"), "register a model first");
+      body.operators = [];
+      for (const row of chosen) {
+        const result = row.read();
+        if (result.error) fail(result.element, `${row.op.name}: ${result.error}`);
+        else body.operators.push(result.choice);
+      }
+      if (kind.value === "mutation" && !chosen.length) fail(families, "pick at least one operator");
+      if (choose.checked) {
+        const picked = relationChecks.filter((r) => r.input.checked).map((r) => r.name);
+        if (!picked.length) fail(relationsField, "pick at least one relation, or auto");
+        body.relations = picked;
+      } else body.relations = "auto";
+      if (kind.value !== "mutation" && search.value.trim()) {
+        try {
+          body.search = JSON.parse(search.value);
+        } catch {
+          fail(search, "search: not valid JSON");
+        }
       }
     }
     if (!ok) {
@@ -342,7 +374,8 @@ export async function newTaskPage(root) {
       const unplaced = [];
       for (const problem of exc.problems.length ? exc.problems : [{ message: exc.message }]) {
         const element = elementFor(problem, chosen);
-        if (element) showFieldError(element, problem.field && !problem.message.includes(problem.field) ? `${problem.field}: ${problem.message}` : problem.message);
+        const field = fieldOf(problem);
+        if (element) showFieldError(element, field && !problem.message.includes(field) ? `${field}: ${problem.message}` : problem.message);
         else unplaced.push(problem);
       }
       message.append(notice("error", `The server refused the task (${exc.status}).`, unplaced, "task-error"));
