@@ -544,7 +544,7 @@ def test_generate_a_data_set_and_the_offline_api_docs(page: Any, server: Server)
 
 def test_journey_a_structural_task_shows_its_coverage_tables_and_views(page: Any, tmp_path: Path,
                                                                       artifacts: Path) -> None:
-    # created through the API (the New task form lists per-frame models only), then followed in the app
+    # created through the API (test_browser_structural.py creates one in the New task form), then followed in the app
     from lidarfuzz.store import Store
     from lidarfuzz.store.inventory import add_dataset
     from tests.campaign.test_structural import write_log
