@@ -99,6 +99,36 @@ def spawn_served(serve: Callable[..., None], spec: str, options: Any, name: str,
     return process, parent, (reply[1], reply[2], reply[3], reply[4])
 
 
+def ask_served(conn: Any, process: Any, message: Any, timeout: float, kill: Callable[[], None], *,
+               who: str, after: str) -> Any:
+    """Send ``message`` to a system served by :func:`spawn_served` and return its answer.
+
+    Raises:
+        SutError: ``crash`` when the process died (``kill`` then cleans up), ``timeout`` when it
+            did not answer within ``timeout`` (``kill`` stops it), or the failure it reported.
+    """
+    try:
+        conn.send(message)
+    except (BrokenPipeError, OSError):
+        code = process.exitcode
+        kill()
+        raise SutError(FailureKind.CRASH, f"{who} died (exit code {code})") from None
+    if not conn.poll(timeout):
+        kill()
+        raise SutError(FailureKind.TIMEOUT, f"no answer within {timeout:g} s; {after}")
+    try:
+        reply = conn.recv()
+    except EOFError:
+        process.join(5)
+        code = process.exitcode
+        kill()
+        raise SutError(FailureKind.CRASH, f"{who} died (exit code {code})") from None
+    if reply[0] == "error":
+        failure: Failure = reply[1]
+        raise SutError(failure.kind, failure.message, failure.detail)
+    return reply[1]
+
+
 class IsolatedSut(SystemUnderTest[Any, Any]):
     """A SUT (given by its spec string) running in its own worker process, with a timeout.
 
@@ -164,26 +194,8 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
     def detect(self, sample: Any) -> Any:
         self.load()
         assert self._conn is not None and self._process is not None
-        try:
-            self._conn.send(sample)
-        except (BrokenPipeError, OSError):
-            code = self._process.exitcode
-            self._kill()
-            raise SutError(FailureKind.CRASH, f"worker process died (exit code {code})") from None
-        if not self._conn.poll(self.timeout):
-            self._kill()
-            raise SutError(FailureKind.TIMEOUT, f"no answer within {self.timeout:g} s; worker restarted")
-        try:
-            reply = self._conn.recv()
-        except EOFError:
-            self._process.join(5)
-            code = self._process.exitcode
-            self._kill()
-            raise SutError(FailureKind.CRASH, f"worker process died (exit code {code}); restarted") from None
-        if reply[0] == "error":
-            failure: Failure = reply[1]
-            raise SutError(failure.kind, failure.message, failure.detail)
-        return reply[1]
+        return ask_served(self._conn, self._process, sample, self.timeout, self._kill, who="worker process",
+                          after="worker restarted")
 
     def detect_batch(self, samples: Sequence[Any]) -> list[Any]:
         return [self.detect(s) for s in samples]

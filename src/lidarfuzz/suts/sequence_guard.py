@@ -18,9 +18,9 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from lidarfuzz.scene.scene import Scene
-from lidarfuzz.suts.base import Failure, FailureKind
+from lidarfuzz.suts.base import FailureKind
 from lidarfuzz.suts.errors import SutError
-from lidarfuzz.suts.guard import spawn_served
+from lidarfuzz.suts.guard import ask_served, spawn_served
 from lidarfuzz.suts.registry import create_sequence
 from lidarfuzz.suts.sequence import Decision, SequenceSystem, failure_of
 
@@ -122,26 +122,8 @@ class IsolatedSequence(SequenceSystem):
     def _call(self, kind: str, payload: Any) -> Any:
         if not self.alive or self._conn is None or self._process is None:
             raise SutError(FailureKind.CRASH, "the system's process is not running (it died earlier in this log)")
-        try:
-            self._conn.send((kind, payload))
-        except (BrokenPipeError, OSError):
-            code = self._process.exitcode
-            self._kill()
-            raise SutError(FailureKind.CRASH, f"the system's process died (exit code {code})") from None
-        if not self._conn.poll(self.timeout):
-            self._kill()
-            raise SutError(FailureKind.TIMEOUT, f"no answer within {self.timeout:g} s; the process was killed")
-        try:
-            reply = self._conn.recv()
-        except EOFError:
-            self._process.join(5)
-            code = self._process.exitcode
-            self._kill()
-            raise SutError(FailureKind.CRASH, f"the system's process died (exit code {code})") from None
-        if reply[0] == "error":
-            failure: Failure = reply[1]
-            raise SutError(failure.kind, failure.message, failure.detail)
-        return reply[1]
+        return ask_served(self._conn, self._process, (kind, payload), self.timeout, self._kill,
+                          who="the system's process", after="the process was killed")
 
     def reset(self) -> None:
         """Start the process if it is not running (a fresh one after a death), then reset the system."""
