@@ -225,7 +225,10 @@ def test_the_run_command_with_flags_and_with_a_campaign_file(drive: Path, tmp_pa
     assert "greedy_edges agg HGT" in done.output and re.search(r"drive\s*│\s*75\.0\s*│\s*75\.0\s*│\s*100\.0\s*│",
                                                                 done.output)
     assert "safety 3/9 violated" in done.output  # checked: FT 5, base 1, HGT 3 (no AVG log here)
-    assert (ws / "reports" / "task-1" / "report.html").is_file()
+    report = (ws / "reports" / "task-1" / "report.html").read_text()
+    # a log campaign's report: its section first, no AP table, charts or robustness (a log has no AP)
+    assert 'id="structural"' in report and 'id="ap"' not in report and 'id="robustness"' not in report
+    assert report.index('id="structural"') < report.index('id="violations"')
     file = tmp_path / "campaign.yaml"
     file.write_text(f"kind: structural\ndataset: [{drive}]\nsut: {SYSTEM}\ncoverage: {{targets: [{TARGET}]}}\n"
                     "segments: 2\nheuristics: [greedy_edges]\nstrategies: [AVG]\n", encoding="utf-8")

@@ -303,7 +303,7 @@ def test_journey_upload_register_run_report_and_view_a_finding(page: Any, server
             page.get_by_test_id(f"op-{operator}-sev-{severity}").uncheck()
     # the operator's description, severity table and before/after preview
     page.locator(".op-row[data-operator=fov_loss] details summary").click()
-    page.wait_for_function("document.querySelector('[data-testid=preview-fov_loss]').naturalWidth > 0")
+    page.wait_for_function("document.querySelector('[data-testid=preview-fov_loss]')?.naturalWidth > 0")
     page.locator(".op-row[data-operator=fov_loss]").screenshot(path=str(artifacts / "03-new-task-operator.png"))
     page.get_by_test_id("task-submit").click()
     page.wait_for_url(re.compile(r"#/tasks/\d+$"))
@@ -312,7 +312,7 @@ def test_journey_upload_register_run_report_and_view_a_finding(page: Any, server
     # 4. watch it finish (live: the page is not reloaded)
     page.get_by_test_id("task-facts").wait_for()
     page.screenshot(path=str(artifacts / "04-task-running.png"), full_page=True)
-    page.wait_for_function("document.querySelector('h1 + [data-testid=status]').textContent === 'done'",
+    page.wait_for_function("document.querySelector('h1 + [data-testid=status]')?.textContent === 'done'",
                            timeout=180_000)
     page.wait_for_function("document.querySelectorAll('[data-testid=subtask-row][data-status=done]').length === 3")
     assert page.get_by_test_id("overall-progress").inner_text().replace(" ", "") == "9/9"
@@ -559,7 +559,7 @@ def test_journey_a_structural_task_shows_its_coverage_tables_and_views(page: Any
             "coverage": {"targets": ["lidarfuzz.suts.controller.avoidance:ObstacleAvoidance.process"]},
             "heuristics": ["greedy_edges"], "strategies": ["HGT"]})
         page.goto(f"{server.url}/#/tasks/{task['id']}")
-        page.wait_for_function("document.querySelector('h1 + [data-testid=status]').textContent === 'done'",
+        page.wait_for_function("document.querySelector('h1 + [data-testid=status]')?.textContent === 'done'",
                                timeout=120_000)
         coverage = page.frame_locator("[data-testid=structural-frame]")
         coverage.get_by_text("greedy_edges agg HGT").first.wait_for()

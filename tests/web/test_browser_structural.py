@@ -70,7 +70,7 @@ def test_a_structural_task_from_the_new_task_form(page: Any, logs_server: Server
     page.wait_for_url(re.compile(r"#/tasks/\d+$"))
     task_id = int(page.url.rsplit("/", 1)[1])
     page.get_by_test_id("task-facts").wait_for()
-    page.wait_for_function("document.querySelector('h1 + [data-testid=status]').textContent === 'done'",
+    page.wait_for_function("document.querySelector('h1 + [data-testid=status]')?.textContent === 'done'",
                            timeout=180_000)
     task = logs_server.api("GET", f"/api/tasks/{task_id}")
     # 6 frames in segments of 3; one field-test log, its base log per heuristic (5) and per heuristic the
