@@ -40,9 +40,14 @@ def operator_stream(name: str, config: dict[str, Any] | None = None) -> int:
 
 
 def subtask_label(name: str, severity: int) -> str:
-    """How reports name a subtask: ``fog@3``, ``fog (config)`` or ``original``."""
-    if name == ORIGINAL:
-        return ORIGINAL
+    """How reports name a subtask: ``fog@3``, ``fog (config)`` or ``original``; a structural task's
+    logs by their own names (``base:greedy_edges``, ``greedy_edges+HGT``: no operator's name).
+
+        >>> subtask_label("fog", 3), subtask_label("rotate_z", 0), subtask_label("greedy_edges+HGT", 0)
+        ('fog@3', 'rotate_z (config)', 'greedy_edges+HGT')
+    """
+    if name == ORIGINAL or not name.isidentifier():
+        return name
     return f"{name}@{severity}" if severity else f"{name} (config)"
 
 

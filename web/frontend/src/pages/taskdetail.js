@@ -61,7 +61,7 @@ export async function taskDetailPage(root, id) {
         ["Data set", task.dataset],
         ["SUT", task.model],
         ["Kind", task.kind],
-        ["Operators", task.operator_count],
+        ...(structural ? [] : [["Operators", task.operator_count]]),
         ["Seed", task.seed],
         ["Created", formatTime(task.created_at)],
         ["Started", formatTime(task.started_at)],
@@ -101,7 +101,8 @@ export async function taskDetailPage(root, id) {
           h("td", {}, s.label),
           h("td", {}, statusBadge(s.status)),
           h("td", { class: "progress-cell" }, progressBar(s.done, s.total, "subtask-progress")),
-          ...["bbox", "bev", "3d"].map((m) => h("td", { class: "num" }, formatNumber(apValue(s, m, view.cls, view.difficulty, view.points)))),
+          // a structural task's subtasks are logs: no AP (their coverage is in the tables above)
+          ...(structural ? [] : ["bbox", "bev", "3d"].map((m) => h("td", { class: "num" }, formatNumber(apValue(s, m, view.cls, view.difficulty, view.points))))),
         ),
       );
     }
@@ -213,7 +214,7 @@ export async function taskDetailPage(root, id) {
     h(
       "table",
       { class: "table", testid: "subtasks-table" },
-      h("thead", {}, h("tr", {}, ["Subtask", "Status", "Progress", "AP bbox", "AP BEV", "AP 3D"].map((t) => h("th", {}, t)))),
+      h("thead", {}, h("tr", {}, ["Subtask", "Status", "Progress", ...(structural ? [] : ["AP bbox", "AP BEV", "AP 3D"])].map((t) => h("th", {}, t)))),
       tableBody,
     ),
   );
