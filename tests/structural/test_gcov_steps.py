@@ -109,3 +109,21 @@ def test_logs_select_reads_a_compiled_programs_gcov_data(build: Path, kitti_log:
     refused = CliRunner().invoke(app, ["logs", "select", str(kitti_log), "--sut", "controller", "--gcov", str(build),
                                        "--target", "controller.c"])
     assert refused.exit_code != 0 and "--gcov measures a compiled worker: program" in str(refused.exception)
+
+
+def test_a_structural_campaign_on_a_compiled_program(build: Path, kitti_log: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from lidarfuzz.cli.app import app
+
+    result = CliRunner().invoke(app, [
+        "run", "--kind", "structural", "--dataset", str(kitti_log), "--sut", f"worker:{build / 'controller'}",
+        "--gcov", str(build), "--source-root", str(SOURCE), "--target", "controller.c:step",
+        "--heuristic", "greedy_edges", "--strategy", "HGT", "--segments", "1", "--workspace", str(tmp_path / "ws")],
+        env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    # the field-test log's 3 frames ran step(): its all-nodes row is above 0 and below 100
+    assert "controller.c:step" in result.output
+    row = next(line for line in result.output.splitlines() if "average" in line)
+    ft = float(row.split("│")[2])
+    assert 0 < ft < 100

@@ -81,6 +81,10 @@ class StructuralConfig(BaseModel):
         severity: The severity of an operator strategy.
         radius: AVG without rings: the farthest apart two points may be to pair (m).
         timeout: Seconds a step may take (None: no limit).
+        gcov: A compiled ``worker:`` program's build folder: its coverage is read from gcov data per
+            step (:class:`~lidarfuzz.structural.gcov.GcovRecorder`; targets are source files or
+            ``file:function``), not measured by coverage.py.
+        source_root: With ``gcov``: the sources' root (default: the build folder).
         total: Every requirement of the targets when the task was planned, as stored labels.
     """
 
@@ -96,6 +100,8 @@ class StructuralConfig(BaseModel):
     severity: int = Field(default=3, ge=1, le=5)
     radius: float = Field(default=0.5, gt=0.0)
     timeout: float | None = Field(default=None, gt=0.0)
+    gcov: str | None = None
+    source_root: str | None = None
     total: dict[str, list[str]] = Field(default_factory=dict)
 
     @field_validator("heuristics")
@@ -129,7 +135,7 @@ class StructuralConfig(BaseModel):
 def config_of(spec: CampaignSpec) -> StructuralConfig:
     """The settings of a structural campaign: its field-test logs (``dataset`` then ``logs``), its
     ``coverage.targets``, ``segments``, ``heuristics``, ``strategies`` and ``coverage``'s other keys
-    (budget_frames, height, severity, radius, timeout)."""
+    (budget_frames, height, severity, radius, timeout, gcov, source_root)."""
     coverage = dict(spec.coverage)
     targets = coverage.pop("targets", None)
     if isinstance(targets, str):
@@ -214,7 +220,18 @@ def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
     logs = _resolve_logs(spec, first)
     open_logs(logs)
     try:
-        total = requirements_of(config.targets)
+        if config.gcov is not None:
+            from lidarfuzz.structural.gcov import requirements, selected
+
+            build = Path(config.gcov).expanduser().resolve()
+            root = Path(config.source_root).expanduser().resolve() if config.source_root else build
+            config = config.model_copy(update={"gcov": str(build), "source_root": str(root)})
+            total = selected(requirements(build, root), config.targets)
+            if not total:
+                raise LidarfuzzError(f"no function of {', '.join(config.targets)} in the gcov notes of {build} "
+                                     f"(source files or file:function, relative to {root})")
+        else:
+            total = requirements_of(config.targets)
     except LidarfuzzError as exc:
         raise StructuralSetupError(f"coverage.targets: {exc}") from None
     try:
@@ -344,7 +361,9 @@ class _StructuralRun:
         from lidarfuzz.structural.log_coverage import measured_system
 
         self.system, self.recorder, fingerprint = measured_system(task.model.spec, self.config.targets,
-                                                                  options=dict(task.model.options or {}))
+                                                                  options=dict(task.model.options or {}),
+                                                                  gcov=self.config.gcov,
+                                                                  source_root=self.config.source_root)
         self.system.load()
         if fingerprint != task.model.fingerprint:
             self.system.close()

@@ -180,6 +180,11 @@ def run(
         "--strategy", help="structural: a log-generation strategy, HGT, AVG or an operator (repeatable; default "
                            "HGT and AVG).")] = None,
     segments: Annotated[int | None, typer.Option(min=1, help="structural: frames per segment (default 5).")] = None,
+    gcov: Annotated[Path | None, typer.Option(
+        help="structural: a compiled worker: program's build folder (built with --coverage, dumping its counts "
+             "on a request with \"gcov_dump\": true); --target then names source files or file:function.")] = None,
+    source_root: Annotated[Path | None, typer.Option(
+        help="structural, with --gcov: the sources' root (default: the build folder).")] = None,
     log: Annotated[list[str] | None, typer.Option(
         "--log", help="structural: a further field-test log after --dataset (repeatable).")] = None,
     search_option: Annotated[list[str] | None, typer.Option(
@@ -244,13 +249,16 @@ def run(
             search["targets"] = target
         structural: dict[str, Any] = {}
         if kind == "structural":
-            structural = {"coverage": {"targets": target or []}, "heuristics": heuristic or [],
+            coverage: dict[str, Any] = {"targets": target or []}
+            if gcov is not None:
+                coverage.update(gcov=str(gcov), source_root=str(source_root) if source_root else None)
+            structural = {"coverage": coverage, "heuristics": heuristic or [],
                           "strategies": strategy or [], "segments": segments, "logs": log or []}
             if not target:
                 raise LidarfuzzError("--target: a structural campaign needs the code to cover, e.g. --target "
                                      "lidarfuzz.suts.controller.avoidance:ObstacleAvoidance.process")
-        elif heuristic or strategy or segments or log:
-            raise LidarfuzzError("--heuristic, --strategy, --segments and --log are for --kind structural")
+        elif heuristic or strategy or segments or log or gcov:
+            raise LidarfuzzError("--heuristic, --strategy, --segments, --log and --gcov are for --kind structural")
         spec = parse_campaign({"name": name, "dataset": dataset, "sut": sut, "kind": kind, **structural,
                                "operators": "auto" if op == ["auto"] else [parse_op(o) for o in op or []],
                                "search": search,
