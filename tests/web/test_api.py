@@ -474,8 +474,26 @@ def test_generate_a_data_set_with_the_simulator(make_client: Callable[..., TestC
     assert not path.exists() and client.get("/api/datasets").json()["items"] == []
 
 
+def test_generate_a_drive_log_for_structural_tasks(make_client: Callable[..., TestClient]) -> None:
+    client = make_client(processes=1)
+    body = {"name": "drive", "frames": 4, "seed": 1, "sensor": "VLP-16", "scenes": "drive"}
+    assert client.post("/api/datasets/generate", json=body).status_code == 202
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        items = client.get("/api/datasets").json()["items"]
+        if items[0]["status"] != "generating":
+            break
+        time.sleep(0.1)
+    assert items[0]["status"] == "ready" and "a drive log" in items[0]["notes"]
+    path = Path(items[0]["path"])
+    assert len((path / "timestamps.txt").read_text().splitlines()) == 4 and (path / "ego.txt").is_file()
+    logs = client.get("/api/datasets/logs").json()["items"]
+    assert [row["name"] for row in logs] == ["drive"]  # a log: structural tasks may replay it
+
+
 @pytest.mark.parametrize(("body", "field"), [({"name": "x", "frames": 0}, "frames"),
                                              ({"name": "x", "kind": "rural"}, "kind"),
+                                             ({"name": "x", "scenes": "random"}, "scenes"),
                                              ({"name": "x", "sensor": "/etc/passwd"}, "sensor")])
 def test_a_bad_generation_request_is_refused(client: TestClient, body: dict[str, Any], field: str) -> None:
     reply = client.post("/api/datasets/generate", json=body)

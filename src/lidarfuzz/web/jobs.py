@@ -30,6 +30,7 @@ class GenerationJob:
     kind: str | None
     sensor: str | None
     path: Path
+    scenes: str = "independent"  # or "sequence" (one scene driven through: a log), "drive" (a stop and a turn)
     status: str = "generating"
     done: int = 0
     error: str = ""
@@ -40,7 +41,10 @@ class GenerationJob:
 
         return {"name": self.name, "status": self.status, "frame_count": self.frames, "done": self.done,
                 "total": self.frames, "format": "kitti", "path": str(self.path), "error": self.error,
-                "notes": f"simulator: {self.frames} frame(s), seed {self.seed}, {self.kind or 'mixed'} scenes",
+                "notes": f"simulator: {self.frames} frame(s), seed {self.seed}, "
+                         + (f"{self.kind or 'mixed'} scenes" if self.scenes == "independent" else
+                            f"a {'drive log' if self.scenes == 'drive' else 'sequence'} ({self.kind or 'any'} "
+                            "scene)"),
                 "added_at": datetime.fromtimestamp(self.started, UTC).isoformat(), "uploaded": True}
 
 
@@ -61,10 +65,11 @@ class GenerationJobs:
         with self._lock:
             return self._jobs.get(name)
 
-    def start(self, name: str, frames: int, seed: int, kind: str | None, sensor: str | None = None) -> GenerationJob:
+    def start(self, name: str, frames: int, seed: int, kind: str | None, sensor: str | None = None,
+              scenes: str = "independent") -> GenerationJob:
         """Start rendering; the caller has checked that ``name`` is free and the config valid."""
         path = self.uploads / uuid.uuid4().hex
-        job = GenerationJob(name, frames, seed, kind, sensor, path)
+        job = GenerationJob(name, frames, seed, kind, sensor, path, scenes)
         with self._lock:
             self._jobs[name] = job
         thread = threading.Thread(target=self._run, args=(job,), name=f"lidarfuzz-gen-{name}", daemon=True)
@@ -88,7 +93,8 @@ class GenerationJobs:
             job.done += 1
 
         try:
-            config = GenerationConfig(frames=job.frames, seed=job.seed, kind=job.kind, sensor=job.sensor)
+            config = GenerationConfig(frames=job.frames, seed=job.seed, kind=job.kind, sensor=job.sensor,
+                                      sequence=job.scenes != "independent", drive=job.scenes == "drive")
             generate_dataset(job.path, config, workers=self.processes, on_frame=advance)
             add_dataset(self.store, job.name, job.path, notes=job.as_dict()["notes"])
         except Exception as exc:  # shown in the list: the user sees why

@@ -240,7 +240,8 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
 
 # -- generate --------------------------------------------------------------------------------
 class GenerateRequest(BaseModel):
-    """What ``lidarfuzz gen`` renders: independent procedural scenes."""
+    """What ``lidarfuzz gen`` renders: independent procedural scenes, or one scene driven through as a
+    log (``--sequence``), or a drive log with a stop and a turn (``--drive``)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -249,6 +250,9 @@ class GenerateRequest(BaseModel):
     seed: int = Field(default=0, ge=0, description="the same seed gives the same bytes")
     kind: Literal["urban", "suburban"] | None = Field(default=None, description="scene kind (default: a mix)")
     sensor: str | None = Field(default=None, description="a sensor preset (default HDL-64E)")
+    scenes: Literal["independent", "sequence", "drive"] = Field(
+        default="independent", description="independent scenes; one scene driven through at 10 Hz (a log with "
+                                           "timestamps and poses); or a drive log: a stop, a turn, pedestrians")
 
 
 @router.post("/datasets/generate", status_code=status.HTTP_202_ACCEPTED)
@@ -261,7 +265,7 @@ def datasets_generate(ctx: Web, body: GenerateRequest) -> dict[str, Any]:
     if body.sensor is not None and body.sensor not in preset_names():
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"sensor: {body.sensor!r} is not a preset ({', '.join(preset_names())})")
-    job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor)
+    job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor, body.scenes)
     return job.as_dict()
 
 

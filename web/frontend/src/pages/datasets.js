@@ -125,6 +125,13 @@ export async function datasetsPage(root) {
     h("option", { value: "urban" }, "urban"),
     h("option", { value: "suburban" }, "suburban"),
   );
+  const genScenes = h(
+    "select",
+    { name: "scenes", testid: "generate-scenes" },
+    h("option", { value: "independent" }, "independent scenes"),
+    h("option", { value: "sequence" }, "a log: one scene driven through"),
+    h("option", { value: "drive" }, "a drive log: a stop, a turn, pedestrians"),
+  );
   const genMessage = h("div", { testid: "generate-message" });
   const genForm = h(
     "form",
@@ -138,7 +145,7 @@ export async function datasetsPage(root) {
         try {
           await api("/api/datasets/generate", {
             method: "POST",
-            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value || null },
+            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value || null, scenes: genScenes.value },
           });
           pending.add(name);
           genMessage.append(notice("ok", `Rendering ${name} in the background; it appears in the list when done.`));
@@ -149,11 +156,12 @@ export async function datasetsPage(root) {
       },
     },
     h("h2", {}, "Generate from the simulator"),
-    h("p", { class: "hint" }, "Labelled HDL-64E street scenes in KITTI layout, rendered by lidarfuzz's simulator."),
+    h("p", { class: "hint" }, "Labelled HDL-64E street scenes in KITTI layout, rendered by lidarfuzz's simulator; a log (10 Hz, with timestamps and poses) for structural tasks."),
     h("label", {}, "Name ", genName),
     h("label", {}, "Frames ", genFrames),
     h("label", {}, "Seed ", genSeed),
     h("label", {}, "Kind ", genKind),
+    h("label", {}, "Frames are ", genScenes),
     h("button", { type: "submit", class: "primary", testid: "generate-submit" }, "Generate"),
     genMessage,
   );
