@@ -96,15 +96,16 @@ def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = Fa
     fingerprint, and with it the old code's cached outputs, is never reused. ``sequence``: the
     system consumes logs in order (:func:`~lidarfuzz.suts.registry.create_sequence` builds it)."""
     from lidarfuzz.suts.registry import create, create_sequence
+    from lidarfuzz.suts.specs import SutSpecError
 
     def build(spec: str, **given: Any) -> Any:
         if not sequence:
             return create(spec, **given)
         try:
             return create_sequence(spec, **given)
-        except LidarfuzzError as exc:
-            raise ConflictError(f"sut: {exc} (a log campaign needs a system that consumes logs in order, e.g. "
-                                "controller)") from None
+        except LidarfuzzError as exc:  # the user's choice, not a state of the store: a bad input
+            raise SutSpecError(f"sut: {exc} (a log campaign needs a system that consumes logs in order, e.g. "
+                               "controller)") from None
 
     row = s.scalar(select(Model).where(Model.name == ref))
     if row is not None:
