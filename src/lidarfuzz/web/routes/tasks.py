@@ -193,10 +193,7 @@ async def tasks_create(ctx: Web, body: Annotated[dict[str, Any], Body(examples=[
     and queue it for the workers. A bad key is a 422 naming it."""
     spec = parse_campaign(body, "request body")
     _check_references(ctx, spec)
-    try:
-        task_id = await run_in_threadpool(create_task, ctx.store, spec)
-    except ValueError as exc:  # a campaign the engine cannot plan, e.g. a per-frame sut for a structural task
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"request body: {exc}") from None
+    task_id = await run_in_threadpool(create_task, ctx.store, spec)
     for reference in get_task(ctx.store, task_id).options.references:  # a campaign's reference systems
         ctx.workers.submit(reference)
     ctx.workers.submit(task_id)
