@@ -54,6 +54,7 @@ class Target(enum.StrEnum):
     BOXES = "boxes"
     CALIB = "calib"
     MAP = "map"
+    IMAGE = "image"  # a camera frame's pixels (and its depth map, moved with them)
 
 
 class Config(BaseModel):
@@ -170,6 +171,10 @@ class Operator(ABC, Generic[S, CfgT, ParT]):
     harmless_up_to: ClassVar[int] = 0
     #: Why: one sentence a report shows beside each check ("checked because …").
     harmless_because: ClassVar[str] = ""
+    #: The sample type it takes: ``"lidar"`` (a :class:`~lidarfuzz.scene.scene.Scene`) or ``"camera"``
+    #: (an :class:`~lidarfuzz.scene.image.ImageSample`). Catalogues, campaigns and the web app offer
+    #: an operator only for data of its modality.
+    modality: ClassVar[str] = "lidar"
 
     def __init__(self, config: CfgT | None = None, **fields: Any) -> None:
         if config is not None and fields:
