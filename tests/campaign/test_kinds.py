@@ -85,7 +85,7 @@ def with_probe(monkeypatch: pytest.MonkeyPatch) -> None:
 
 # -- the table ---------------------------------------------------------------------------
 def test_every_row_names_a_module_with_the_hooks() -> None:
-    assert kinds.kind_names() == ("mutation", "guided", "fuzz", "structural")
+    assert kinds.kind_names() == ("mutation", "guided", "fuzz", "structural", "camera")
     for row in kinds.TASK_KINDS:
         module = row.implementation()
         for hook in ("check_spec", "plan", "start", "describe"):

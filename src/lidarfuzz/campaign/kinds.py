@@ -14,7 +14,7 @@ campaign's validation) stays cheap, and the table depends on no kind.
 
 Example:
     >>> [kind.name for kind in TASK_KINDS]
-    ['mutation', 'guided', 'fuzz', 'structural']
+    ['mutation', 'guided', 'fuzz', 'structural', 'camera']
     >>> task_kind("guided").module
     'lidarfuzz.campaign.coverage_search'
 """
@@ -41,6 +41,9 @@ class TaskKind:
         requires_operators: Its campaigns must list operators (a search's are an optional pool).
         consumes_logs: Its system is a sequence system replaying logs in order
             (:func:`lidarfuzz.suts.registry.create_sequence` builds it), not a per-frame one.
+        modality: The sensor its data sets hold: ``lidar`` (point clouds) or ``camera`` (images,
+            opened by :mod:`lidarfuzz.io.images`, tested on a steering system built by
+            :func:`lidarfuzz.suts.registry.create_camera`).
     """
 
     name: str
@@ -48,6 +51,7 @@ class TaskKind:
     module: str
     requires_operators: bool = False
     consumes_logs: bool = False
+    modality: str = "lidar"
 
     def implementation(self) -> Any:
         """The implementing module (a :class:`~lidarfuzz.campaign.lifecycle.KindImplementation`)."""
@@ -64,6 +68,9 @@ TASK_KINDS: tuple[TaskKind, ...] = (
     TaskKind("structural", "Neves et al.'s structural testing: field-test logs replayed in order through a sequence "
              "system under code coverage, discriminatory segments, generated logs (HGT, AVG, ...)",
              "lidarfuzz.campaign.structural", consumes_logs=True),
+    TaskKind("camera", "DeepTest on a steering system: image transformations judged by Eq. 2 against MSE_orig, "
+             "Eq. 3's filter, Table 7, and Algorithm 1's coverage-guided search (search: {budget: N})",
+             "lidarfuzz.campaign.camera", modality="camera"),
 )
 
 

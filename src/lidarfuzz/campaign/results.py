@@ -163,14 +163,18 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     return out
 
 
+#: The relations whose outcomes carry DeepTest's per-mutant errors: on detections' centres and on steering.
+DEEPTEST_RELATIONS = ("deeptest_tolerance", "deeptest_steering")
+
+
 def deeptest_errors(records: Iterable[RelationRecord]) -> DeepTestErrors | None:
     """DeepTest's figures of one subtask (its MSE, Eq. 3 at the relation's ε, erroneous mutants per
     λ of :data:`~lidarfuzz.oracles.deeptest.LAMBDAS`); None when it has no ``deeptest_tolerance``
-    outcome with per-object errors."""
+    outcome with per-object errors (nor, for a steering system, ``deeptest_steering``)."""
     from lidarfuzz.oracles.deeptest import transformation_errors
 
     found = transformation_errors((r.outcome.stats, r.outcome.holds) for r in records
-                                  if r.relation == "deeptest_tolerance" and r.outcome.applicable)
+                                  if r.relation in DEEPTEST_RELATIONS and r.outcome.applicable)
     return None if found is None else DeepTestErrors.model_validate(found.to_dict())
 
 
@@ -187,7 +191,7 @@ def deeptest_table(subtasks: Sequence[SubtaskSummary]) -> DeepTestTable | None:
         assert d is not None
         errors.append(TransformationErrors(d.mse_orig, d.mse_orig_from, d.mse, d.objects, d.mutants, d.violated,
                                            tuple(d.lambdas), tuple(d.erroneous), d.configured_lambda,
-                                           d.configured_epsilon))
+                                           d.configured_epsilon, filtered=d.filtered))
     table = erroneous_table(errors)
     rows = []
     for entry, e in zip(entries, errors, strict=True):

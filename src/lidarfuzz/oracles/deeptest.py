@@ -66,6 +66,8 @@ class TransformationErrors:
         erroneous: Per λ of the grid, mutants with an object above λ · MSE_orig.
         configured_lambda: The relation's λ.
         configured_epsilon: The relation's ε.
+        filtered: Whether Eq. 3 applies at all: the paper does not filter composite transformations
+            (rain, fog, a search's chains), whose violations count at every ε.
     """
 
     mse_orig: float
@@ -78,18 +80,26 @@ class TransformationErrors:
     erroneous: tuple[int, ...]
     configured_lambda: float
     configured_epsilon: float
+    filtered: bool = True
+
+    def kept_at(self, epsilon: float) -> bool:
+        """Whether Eq. 3 keeps this transformation at ``epsilon`` (never with a per-frame MSE_orig;
+        always when it is not filtered)."""
+        if self.mse_orig_from != "data set":
+            return False
+        return not self.filtered or keeps(self.mse, self.mse_orig, epsilon)
 
     @property
     def kept(self) -> bool:
-        """Whether Eq. 3 keeps this transformation at the configured ε (never with a per-frame MSE_orig)."""
-        return self.mse_orig_from == "data set" and keeps(self.mse, self.mse_orig, self.configured_epsilon)
+        """Whether Eq. 3 keeps this transformation at the configured ε."""
+        return self.kept_at(self.configured_epsilon)
 
     def to_dict(self) -> dict[str, Any]:
         return {"mse_orig": self.mse_orig, "mse_orig_from": self.mse_orig_from, "mse": self.mse,
                 "objects": self.objects, "mutants": self.mutants, "violated": self.violated,
                 "lambdas": list(self.lambdas), "erroneous": list(self.erroneous),
                 "configured_lambda": self.configured_lambda, "configured_epsilon": self.configured_epsilon,
-                "kept": self.kept}
+                "filtered": self.filtered, "kept": self.kept}
 
 
 def transformation_errors(outcomes: Iterable[tuple[Mapping[str, Any], bool]], *,
@@ -102,6 +112,7 @@ def transformation_errors(outcomes: Iterable[tuple[Mapping[str, Any], bool]], *,
     objects = mutants = violated = 0
     erroneous = [0] * len(lambdas)
     configured = (math.nan, math.nan)
+    filtered = True
     for stats, holds in outcomes:
         if "squared_errors" not in stats:
             continue
@@ -114,6 +125,7 @@ def transformation_errors(outcomes: Iterable[tuple[Mapping[str, Any], bool]], *,
         mse_origs.add(mse_orig)
         origins.add(str(stats.get("mse_orig_from", "frame")))
         configured = (_number(stats.get("lambda")), _number(stats.get("epsilon")))
+        filtered = filtered and bool(stats.get("filtered", True))
         worst = max(errors, default=-math.inf)
         for i, lam in enumerate(lambdas):
             erroneous[i] += int(worst > lam * mse_orig)  # NaN limit: never erroneous, as the relation
@@ -122,7 +134,7 @@ def transformation_errors(outcomes: Iterable[tuple[Mapping[str, Any], bool]], *,
     origin = "data set" if origins == {"data set"} else "frame"
     one = next(iter(mse_origs)) if len(mse_origs) == 1 and origin == "data set" else math.nan
     return TransformationErrors(one, origin, total / objects if objects else math.nan, objects, mutants, violated,
-                                tuple(float(x) for x in lambdas), tuple(erroneous), *configured)
+                                tuple(float(x) for x in lambdas), tuple(erroneous), *configured, filtered=filtered)
 
 
 @dataclass(frozen=True)
@@ -173,13 +185,12 @@ def erroneous_table(transformations: Sequence[TransformationErrors], *,
     lambdas = usable[0].lambdas if usable else tuple(LAMBDAS)
     if any(t.lambdas != lambdas for t in usable):
         raise ValueError("erroneous_table: every transformation needs the same λ grid")
-    kept = tuple(tuple(t.mse_orig_from == "data set" and keeps(t.mse, t.mse_orig, eps) for eps in epsilons)
-                 for t in transformations)
+    kept = tuple(tuple(t.kept_at(eps) for eps in epsilons) for t in transformations)
     rows = range(len(lambdas)) if usable else range(0)  # no transformation to count: no table, only the notes
     counts = tuple(tuple(sum(t.erroneous[i] for t, k in zip(transformations, kept, strict=True) if k[j])
                          for j in range(len(epsilons))) for i in rows)
     unfiltered = tuple(sum(t.erroneous[i] for t in usable) for i in rows)
-    undefined = sum(1 for t in usable if math.isnan(t.mse))
+    undefined = sum(1 for t in usable if math.isnan(t.mse) and t.filtered)
     if undefined:
         notes.append(f"{undefined} transformation(s) had no matched object in any mutant (no MSE): never kept")
     return ErroneousTable(mse_orig, tuple(float(x) for x in lambdas), tuple(float(x) for x in epsilons), counts,

@@ -115,6 +115,8 @@ class SearchEvaluator:
         self._scenes: OrderedDict[str, Any] = OrderedDict()  # exact chains → mutated scene
         self._operators: dict[str, Operator[Any, Any, Any]] = {}
         self._cache = cache
+        #: data-set figures the relations read (:attr:`~lidarfuzz.oracles.relations.base.Pair.reference`)
+        self.reference: dict[str, float] = {}
 
     def motion(self, evaluation: Evaluation) -> None:
         """Mark a test whose chain moves the scene as equivariant, with the chain's composed
@@ -154,6 +156,15 @@ class SearchEvaluator:
         values = self.recorder.values()
         rows = [{name: array[i] for name, array in values.items()} for i in range(len(scenes))]
         return list(outputs), rows, time.perf_counter() - start, [None] * len(scenes)
+
+    def check_validity(self, source: Evaluation, evaluation: Evaluation) -> None:
+        """Mark a test invalid when an object of the seed frame kept less than ``keep_share`` of its
+        points (a subclass for other samples judges validity its own way)."""
+        before, after = points_kept(source.scene, evaluation.scene, self.min_points)
+        lost = after < self.keep_share * before
+        if lost.any() and evaluation.valid:
+            evaluation.valid = False
+            evaluation.validity = f"{int(lost.sum())} object(s) kept less than {self.keep_share:.0%} of their points"
 
     def original(self, frame_id: str) -> Evaluation:
         """The seed frame itself (cached)."""
@@ -224,19 +235,15 @@ class SearchEvaluator:
                 evaluation.seconds = seconds / len(runnable)
                 evaluation.failure = failure
         for evaluation in runnable:
-            before, after = points_kept(source.scene, evaluation.scene, self.min_points)
-            lost = after < self.keep_share * before
-            if lost.any() and evaluation.valid:
-                evaluation.valid = False
-                evaluation.validity = (f"{int(lost.sum())} object(s) kept less than {self.keep_share:.0%} "
-                                       "of their points")
+            self.check_validity(source, evaluation)
             if evaluation.output is None or source.output is None or not evaluation.valid:
                 continue
             # a valid test kept every object's points: its label is the seed's (the search's premise,
             # as DeepHunter's validity constraint), moved by the chain's transform when a step moved
             # the scene; so the relations for invariant operators are its oracle, or equivariance's
             pair = Pair(source.scene, evaluation.scene, source.output, evaluation.output,
-                        operator_relation=evaluation.operator_relation, transform=evaluation.transform)
+                        operator_relation=evaluation.operator_relation, transform=evaluation.transform,
+                        reference=self.reference)
             for relation in self.relations:
                 if pair.operator_relation in relation.applies_to:
                     evaluation.relations.append(OutcomeRecord.of(relation(pair)))

@@ -290,6 +290,7 @@ class DeepTestErrors(Contract):
     erroneous: list[int] = Field(default_factory=list)
     configured_lambda: Number = math.nan
     configured_epsilon: Number = math.nan
+    filtered: bool = True  # False: a composite transformation (fog, rain, a search's chains), never filtered by Eq. 3
     kept: bool = False
 
 

@@ -1,0 +1,519 @@
+"""The ``camera`` task kind: DeepTest on a steering system — transformations, Eq. 2 and 3, Algorithm 1.
+
+A camera task tests a steering system (:mod:`lidarfuzz.suts.steering`) on an image data set
+(:mod:`lidarfuzz.io.images`) the way Tian et al. (ICSE 2018) test theirs:
+
+1. **originals** — every frame once; ``MSE_orig`` is the system's mean squared error against the
+   frames' labels over this original data set (kept in the originals' subtask ``state``);
+2. **transformations** — one subtask per image transformation × severity (or explicit config),
+   ``trials`` transformed images per frame, each judged by Eq. 2 (``deeptest_steering``:
+   ``(label − θ_t)² ≤ λ · MSE_orig``). When a transformation's subtask is complete its
+   ``MSE_(trans, param)`` is known, and Eq. 3 (``|MSE_(trans, param) − MSE_orig| ≤ ε``) decides
+   whether its violations count: each violation of a kept transformation becomes a finding. Fog and
+   rain are composite in the paper and never filtered. The outcomes of every image are stored as
+   produced, so the λ × ε table (Table 7) is computed from them for any λ and ε of its grid;
+3. **guided** (when ``search.budget`` > 0) — Algorithm 1 over the transformations
+   (:mod:`lidarfuzz.search.images`) guided by neuron coverage of the system's network, each test
+   judged by Eq. 2 unfiltered, as the paper reports its guided search; the search state is
+   committed with every test, so an interrupted search resumes exactly.
+
+Eq. 2 is checked on every transformation, whatever its severity: the paper's own filter for a
+transformation that changes what the right answer is, is Eq. 3 — measured on the data, not
+assumed. Everything runs in the task's process (an image and a small network take milliseconds;
+there is no per-frame work worth a process pool). The lifecycle (resume, cancel, heartbeat,
+failures) is the shared one (:mod:`lidarfuzz.campaign.lifecycle`).
+
+Example campaign::
+
+    kind: camera
+    dataset: sim-camera         # a KITTI folder with image_2/, a Udacity folder, images + CSV, a bag
+    sut: dave2                  # a built-in steering network, a torch/ONNX model, a worker
+    operators: [{name: image_brightness, severities: [1, 3, 5]}, {name: image_fog, severities: [2]}]
+    relations: [{name: deeptest_steering, config: {lambda: 5, epsilon: 0.03}}]
+    search: {budget: 100, criteria: ["nc:0.2"], max_failed_tries: 5}
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import insert, select, update
+
+from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
+from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, operator_stream
+from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.operators.base import generator
+from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord, SearchProgress, SearchSummary, SubtaskResults
+from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, Task
+from lidarfuzz.store.store import Store
+
+if TYPE_CHECKING:
+    from lidarfuzz.campaign.spec import CampaignSpec
+    from lidarfuzz.store.contracts import TaskSummary
+
+#: DeepTest's nine transformations (Table 2/4): what a camera campaign runs when it lists none.
+DEFAULT_TRANSFORMATIONS: tuple[str, ...] = (
+    "image_brightness", "image_contrast", "image_translation", "image_scale", "image_shear", "image_rotation",
+    "image_blur", "image_fog", "image_rain",
+)
+#: The seven simple transformations DeepTest's guided search combines (RQ2/RQ3).
+SEARCH_POOL: tuple[str, ...] = DEFAULT_TRANSFORMATIONS[:7]
+#: Composite transformations in the paper: Eq. 3 does not filter them.
+UNFILTERED: frozenset[str] = frozenset({"image_fog", "image_rain"})
+DEFAULT_SEVERITIES: tuple[int, ...] = (1, 3, 5)
+GUIDED: Literal["guided"] = "guided"
+BLOCK = 16  # frames per committed block
+
+
+class CameraSetupError(LidarfuzzError, ValueError):
+    """A camera campaign that cannot run (a LiDAR operator, a relation that reads no steering)."""
+
+
+class CameraSearch(BaseModel):
+    """The guided search of a camera task (its campaign's ``search`` section)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    budget: int = Field(0, ge=0, description="tests Algorithm 1 generates after the transformations (0: no search)")
+    criteria: tuple[str, ...] = Field(("nc:0.2", "tknc:2"), description="coverage criteria tracked")
+    guide: str = Field("nc", description="the criterion whose increase keeps a test")
+    operators: tuple[str, ...] = Field(SEARCH_POOL, description="the transformations the search combines")
+    max_failed_tries: int = Field(5, ge=0, description="failed tries before the next image")
+    max_chain: int = Field(6, ge=2, description="most transformations in one test")
+
+    def search_config(self) -> Any:
+        from lidarfuzz.search.algorithms import SearchConfig
+
+        return SearchConfig.model_validate({
+            "kind": "guided", "operators": self.operators, "budget": max(self.budget, 1), "criteria": self.criteria,
+            "guide": self.guide, "max_failed_tries": self.max_failed_tries, "max_chain": self.max_chain,
+            "minimise": False})
+
+
+def camera_search(spec: CampaignSpec) -> CameraSearch:
+    return CameraSearch.model_validate(dict(spec.search))
+
+
+def camera_relations(choice: Any) -> list[dict[str, Any]]:
+    """The relation specs a camera task checks: ``deeptest_steering`` for ``auto``, else the listed
+    relations, each of which must read a steering system's output."""
+    from lidarfuzz.oracles.relations.registry import from_spec
+
+    if choice == "auto":
+        return [from_spec({"name": "deeptest_steering"}).spec()]
+    chosen = [from_spec(item if isinstance(item, str) else item.model_dump()) for item in choice]
+    wrong = [r.name for r in chosen if type(r).output != "steering"]
+    if wrong:
+        raise CameraSetupError(f"relations: {wrong} judge detections or decisions, not a steering system's angle; "
+                               "a camera campaign checks deeptest_steering")
+    return [r.spec() for r in chosen]
+
+
+def _choices(spec: CampaignSpec) -> list[tuple[str, list[int], dict[str, Any] | None]]:
+    if not spec.operators:
+        return [(name, list(DEFAULT_SEVERITIES), None) for name in DEFAULT_TRANSFORMATIONS]
+    return [(c.name, list(c.severities), c.config) for c in spec.operators]
+
+
+def check_spec(spec: CampaignSpec) -> None:
+    """Refuse LiDAR operators, relations that read no steering and a bad search section."""
+    from lidarfuzz.operators.registry import get
+
+    lidar = [name for name, _, _ in _choices(spec) if get(name).modality != "camera"]
+    if lidar:
+        raise ValueError(f"operators {lidar} mutate LiDAR frames; a camera campaign takes image transformations "
+                         f"({', '.join(DEFAULT_TRANSFORMATIONS)})")
+    camera_relations(spec.relations)
+    search = camera_search(spec)
+    if search.budget:
+        pool = [name for name in search.operators if get(name).modality != "camera"]
+        if pool:
+            raise ValueError(f"search.operators: {pool} are not image transformations")
+        search.search_config()
+
+
+def plan(spec: CampaignSpec, model: Model, frame_ids: list[str]) -> KindPlan:
+    """One subtask per transformation × severity, then the guided search's when it has a budget."""
+    from lidarfuzz.operators.registry import get
+
+    relations = camera_relations(spec.relations)
+    units = len(frame_ids) * spec.trials
+    subtasks = []
+    for name, severities, config in _choices(spec):
+        cls = get(name)
+        stream = operator_stream(cls.name, config)
+        if config is not None:
+            subtasks.append(SubtaskPlan(cls.name, cls(**config).spec(), units, 0, stream, relations))
+            continue
+        for severity in severities:
+            subtasks.append(SubtaskPlan(cls.name, cls.at_severity(severity).spec(), units, severity, stream,
+                                        relations))
+    search = camera_search(spec)
+    options = search.model_dump(mode="json")
+    if search.budget:
+        subtasks.append(SubtaskPlan(GUIDED, {"name": GUIDED, "search": options}, search.budget,
+                                    relations=relations))
+    return KindPlan(subtasks, options)
+
+
+def steering_record(output: Any) -> dict[str, Any] | None:
+    """A steering output as a frame result stores it."""
+    return None if output is None else {"steering": float(output.steering)}
+
+
+class _Stored:
+    """A steering output read back from the store (what relations read: ``.steering``)."""
+
+    def __init__(self, record: dict[str, Any]) -> None:
+        self.steering = float(record["steering"])
+
+
+class _CameraRun:
+    def __init__(self, store: Store, task: Task, progress: Callable[[ProgressEvent], None] | None,
+                 stop: Any) -> None:
+        from lidarfuzz.oracles.relations.registry import from_spec
+        from lidarfuzz.store.inventory import open_registered
+        from lidarfuzz.suts.registry import create_camera
+
+        self.store, self.task, self.progress = store, task, progress
+        self.watch = Watch(store, task.id, stop)
+        self.config = CameraSearch.model_validate(task.options.kind_options)
+        self.subtasks = sorted(task.subtasks, key=lambda sub: sub.id)
+        self.original = next(sub for sub in self.subtasks if sub.name == ORIGINAL)
+        self.dataset = open_registered(task.dataset)
+        self.sut = create_camera(task.model.spec, **task.model.options)
+        self.sut.load()
+        self.relations = {sub.id: [from_spec(spec) for spec in sub.plan.relation_specs] for sub in self.subtasks}
+        self.stats = RunStats()
+        self.connection = store.engine.connect()
+        self.frames = list(task.options.frame_ids)
+        self.outputs: dict[str, Any] = {}  # frame → its original output (None: the system failed)
+        self.mse_orig = math.nan
+
+    # -- running the system -------------------------------------------------------------
+    def run_sut(self, sample: Any) -> tuple[Any, FailureRecord | None, float]:
+        """The system's output on one sample, or its failure (a crash or an invalid output)."""
+        start = time.perf_counter()
+        try:
+            output = self.sut.detect(sample)
+        except Exception as exc:  # the system's crash is a result
+            return None, FailureRecord(kind="crash", message=f"{type(exc).__name__}: {exc}"), \
+                time.perf_counter() - start
+        seconds = time.perf_counter() - start
+        problem = self.sut.validate(output)
+        if problem is not None:
+            return None, FailureRecord(kind="invalid_output", message=problem), seconds
+        return output, None, seconds
+
+    # -- bookkeeping --------------------------------------------------------------------
+    def _done(self) -> set[tuple[int, str, int]]:
+        rows = self.connection.execute(select(FrameResult.subtask_id, FrameResult.frame_id, FrameResult.trial).join(
+            Subtask).where(Subtask.task_id == self.task.id)).all()
+        self.connection.rollback()
+        return {(int(a), str(b), int(c)) for a, b, c in rows}
+
+    def _insert(self, sub: Subtask, frame_id: str, trial: int, output: Any, failure: FailureRecord | None,
+                relations: list[OutcomeRecord], params: dict[str, Any], seconds: float) -> int:
+        row_id = self.connection.execute(insert(FrameResult).returning(FrameResult.id), {
+            "subtask_id": sub.id, "frame_id": frame_id, "trial": trial, "params": params,
+            "boxes": None, "labels": [], "gt_boxes": None, "gt_labels": [], "output": steering_record(output),
+            "failure": failure, "relations": relations, "seconds": seconds, "cached": False,
+            "created_at": now()}).scalar_one()
+        if failure is not None:
+            self.connection.execute(insert(Finding), {
+                "task_id": self.task.id, "frame_result_id": row_id, "kind": failure.kind, "cls": "",
+                "magnitude": None, "message": failure.message, "detail": {"detail": failure.detail},
+                "replay": self._replay(sub, frame_id, trial, params, None)})
+        self.stats.units += 1
+        self.stats.sut += seconds
+        self.stats.failures += int(failure is not None and failure.kind != "operator_error")
+        return int(row_id)
+
+    def _replay(self, sub: Subtask, frame_id: str, trial: int, params: dict[str, Any],
+                relation: dict[str, Any] | None) -> dict[str, Any]:
+        task = self.task
+        operator = None if sub.name == ORIGINAL else (params.get("operator") if sub.name == GUIDED else sub.operator)
+        values = params.get("params", {}) if sub.name == GUIDED else params
+        return {"dataset": task.dataset.path, "frame_id": frame_id, "trial": trial, "seed": task.seed,
+                "op_index": sub.op_index, "operator": operator, "params": values if operator else {},
+                "sut": task.model.spec, "options": task.model.options, "fingerprint": task.model.fingerprint,
+                "relation": relation, "operator_relation": "invariant" if operator else None}
+
+    def _count(self, counts: dict[int, int]) -> None:
+        for sub_id, n in counts.items():
+            self.connection.execute(update(Subtask).where(Subtask.id == sub_id).values(
+                done=Subtask.done + n, status=Status.RUNNING))
+        self.connection.execute(update(Task).where(Task.id == self.task.id).values(
+            done=Task.done + sum(counts.values()), heartbeat_at=now()))
+
+    def _progress(self, sub: Subtask, label: str) -> None:
+        if self.progress is None:
+            return
+        done = self.connection.execute(select(Task.done).where(Task.id == self.task.id)).scalar_one()
+        sub_done = self.connection.execute(select(Subtask.done).where(Subtask.id == sub.id)).scalar_one()
+        self.connection.rollback()
+        self.progress(ProgressEvent(done, self.task.total, sub.id, label, sub_done, sub.total))
+
+    # -- 1. the originals ---------------------------------------------------------------
+    def run_originals(self, done: set[tuple[int, str, int]]) -> None:
+        todo = [f for f in self.frames if (self.original.id, f, 0) not in done]
+        for start in range(0, len(todo), BLOCK):
+            self.watch.check()
+            with self.connection.begin():
+                for frame_id in todo[start:start + BLOCK]:
+                    output, failure, seconds = self.run_sut(self.dataset.load(frame_id))
+                    self._insert(self.original, frame_id, 0, output, failure, [], {}, seconds)
+                self._count({self.original.id: len(todo[start:start + BLOCK])})
+            self._progress(self.original, ORIGINAL)
+
+    def load_originals(self) -> None:
+        """The originals' outputs and MSE_orig (over the frames with a label and an output)."""
+        from lidarfuzz.oracles.relations.steering import label_of
+
+        rows = self.connection.execute(select(FrameResult.frame_id, FrameResult.output).where(
+            FrameResult.subtask_id == self.original.id, FrameResult.trial == 0)).all()
+        self.connection.rollback()
+        self.outputs = {str(f): (_Stored(o) if o else None) for f, o in rows}
+        state = dict(self.original.state or {})
+        if "mse_orig" in state:
+            self.mse_orig = math.nan if state["mse_orig"] is None else float(state["mse_orig"])
+            return
+        errors = []
+        for frame_id in self.frames:
+            label, output = label_of(self.dataset.load(frame_id)), self.outputs.get(frame_id)
+            if label is not None and output is not None:
+                errors.append((label - output.steering) ** 2)
+        self.mse_orig = sum(errors) / len(errors) if errors else math.nan
+        state = {"mse_orig": None if math.isnan(self.mse_orig) else self.mse_orig, "labelled": len(errors)}
+        with self.connection.begin():
+            self.connection.execute(update(Subtask).where(Subtask.id == self.original.id).values(state=state))
+        self.original.state = state
+
+    # -- 2. the transformations ---------------------------------------------------------
+    def judge(self, sub: Subtask, source: Any, follow: Any, output: Any, operator: Any) -> list[OutcomeRecord]:
+        from lidarfuzz.oracles.relations.base import Pair
+
+        source_output = self.outputs.get(source.frame_id)
+        if output is None:
+            return []
+        reference = {"mse_orig": self.mse_orig, "filtered": 0.0 if sub.name in UNFILTERED else 1.0}
+        pair = Pair(source, follow, source_output, output, operator_relation=operator.relation,
+                    reference=reference, basis=operator.harmless_because)
+        return [OutcomeRecord.of(relation(pair)) for relation in self.relations[sub.id]]
+
+    def run_transformations(self, done: set[tuple[int, str, int]]) -> None:
+        from lidarfuzz.operators.registry import from_spec
+
+        subs = [sub for sub in self.subtasks if sub.name not in (ORIGINAL, GUIDED)]
+        operators = {sub.id: from_spec(sub.operator) for sub in subs}
+        trials = self.task.options.trials
+        for start in range(0, len(self.frames), BLOCK):
+            block = self.frames[start:start + BLOCK]
+            work = [(f, sub, t) for f in block for sub in subs for t in range(trials) if (sub.id, f, t) not in done]
+            if not work:
+                continue
+            self.watch.check()
+            samples = {f: self.dataset.load(f) for f in {f for f, _, _ in work}}
+            counts: dict[int, int] = {}
+            with self.connection.begin():
+                for frame_id, sub, trial in work:
+                    operator, source = operators[sub.id], samples[frame_id]
+                    rng = generator(self.task.seed, frame_id, sub.op_index, trial)
+                    try:
+                        params = operator.sample(rng, source)
+                        follow = operator.apply(source, params)
+                    except Exception as exc:  # lidarfuzz's own error, never the system's
+                        error = FailureRecord(kind="operator_error", message=f"{type(exc).__name__}: {exc}")
+                        self._insert(sub, frame_id, trial, None, error, [], {}, 0.0)
+                    else:
+                        stored = params.model_dump(mode="json")
+                        output, failure, seconds = self.run_sut(follow)
+                        outcomes = self.judge(sub, source, follow, output, operator)
+                        self._insert(sub, frame_id, trial, output, failure, outcomes, stored, seconds)
+                    counts[sub.id] = counts.get(sub.id, 0) + 1
+                self._count(counts)
+            self._progress(subs[0], "transformations")
+        for sub in subs:
+            self.finish(sub)
+
+    def finish(self, sub: Subtask) -> None:
+        """A complete transformation's figures (its MSE, Eq. 3) and, when Eq. 3 keeps it at the
+        relation's ε, a finding per violating image; once (a finished subtask is left alone)."""
+        from lidarfuzz.campaign.results import deeptest_errors
+        from lidarfuzz.oracles.robustness import RelationRecord
+
+        status = self.connection.execute(select(Subtask.status).where(Subtask.id == sub.id)).scalar_one()
+        self.connection.rollback()
+        if status == Status.DONE:
+            return
+        rows = self.connection.execute(select(FrameResult.id, FrameResult.frame_id, FrameResult.trial,
+                                              FrameResult.params, FrameResult.failure, FrameResult.relations,
+                                              FrameResult.seconds).where(FrameResult.subtask_id == sub.id)).all()
+        self.connection.rollback()
+        records = [RelationRecord(o.relation, sub.name, sub.severity, f, outcome_of(o))
+                   for _, f, _, _, _, relations, _ in rows for o in relations or []]
+        errors = deeptest_errors(records)
+        results = SubtaskResults(
+            frames=len(rows), failures=sum(1 for r in rows if r.failure and r.failure.kind != "operator_error"),
+            tool_errors=_tool_errors(r.failure for r in rows), sut_seconds=float(sum(r.seconds or 0 for r in rows)),
+            deeptest=errors)
+        specs = {spec["name"]: spec for spec in sub.plan.relation_specs}
+        with self.connection.begin():
+            if errors is not None and errors.kept:
+                for row_id, frame_id, trial, params, _, relations, _ in rows:
+                    for outcome in relations or []:
+                        if not outcome.applicable or outcome.holds:
+                            continue
+                        worst = max(outcome.violations, key=lambda v: v.magnitude or 0.0, default=None)
+                        self.connection.execute(insert(Finding), {
+                            "task_id": self.task.id, "frame_result_id": row_id, "kind": outcome.relation, "cls": "",
+                            "magnitude": worst.magnitude if worst else None,
+                            "message": worst.message if worst else outcome.relation,
+                            "detail": {"stats": outcome.stats, "kept_by_eq3": True},
+                            "replay": self._replay(sub, frame_id, trial, params, specs.get(outcome.relation))})
+            self.connection.execute(update(Subtask).where(Subtask.id == sub.id).values(
+                results=results, status=Status.DONE))
+
+    # -- 3. the guided search -----------------------------------------------------------
+    def run_search(self) -> None:
+        sub = next((s for s in self.subtasks if s.name == GUIDED), None)
+        if sub is None or math.isnan(self.mse_orig):
+            return
+        from lidarfuzz.campaign.coverage_search import build_criteria, profile_dirs, torch_module
+        from lidarfuzz.coverage import ActivationRecorder
+        from lidarfuzz.search.images import ImageGuidedSearch, ImageSearchEvaluator
+
+        module = torch_module(self.sut)
+        config = self.config.search_config()
+        criteria = build_criteria(config.criteria, module, profile_dirs(self.sut))
+        evaluator = ImageSearchEvaluator(self.dataset, self.sut, self.relations[sub.id], ActivationRecorder(module),
+                                         mse_orig=self.mse_orig)
+        search = ImageGuidedSearch(config, self.frames, criteria, self.task.seed)
+        state = self.connection.execute(select(Subtask.state).where(Subtask.id == sub.id)).scalar_one()
+        self.connection.rollback()
+        if state:
+            search.load_state_dict(state)
+        specs = {spec["name"]: spec for spec in sub.plan.relation_specs}
+        while not search.finished:
+            self.watch.check()
+            records = search.step(evaluator)
+            if not records and search.finished:
+                break
+            with self.connection.begin():
+                n = 0
+                for record in records:
+                    if record.role == "seed":
+                        continue  # the originals' subtask holds the seed images already
+                    e = record.evaluation
+                    params = record.params()
+                    row_id = self._insert(sub, e.frame_id, record.index, e.output, e.failure, e.relations, params,
+                                          e.seconds)
+                    for finding in record.findings:
+                        self.connection.execute(insert(Finding), {
+                            **finding, "task_id": self.task.id, "frame_result_id": row_id,
+                            "replay": self._replay(sub, e.frame_id, record.index, params,
+                                                   specs.get(finding["kind"]))})
+                    n += 1
+                results = SubtaskResults(search=SearchProgress(coverage=search.coverage(), stats=search.stats))
+                self.connection.execute(update(Subtask).where(Subtask.id == sub.id).values(
+                    results=results, state=search.state_dict()))
+                self._count({sub.id: n})
+            self._progress(sub, GUIDED)
+        self.search_summary = SearchSummary(kind=GUIDED, coverage=search.coverage(), stats=search.stats,
+                                            signatures=search.known)
+        self.finish_search(sub)
+
+    def finish_search(self, sub: Subtask) -> None:
+        from lidarfuzz.campaign.results import deeptest_errors
+        from lidarfuzz.oracles.robustness import RelationRecord
+
+        rows = self.connection.execute(select(FrameResult.frame_id, FrameResult.failure, FrameResult.relations,
+                                              FrameResult.seconds).where(FrameResult.subtask_id == sub.id)).all()
+        current = self.connection.execute(select(Subtask.results).where(Subtask.id == sub.id)).scalar_one()
+        self.connection.rollback()
+        records = [RelationRecord(o.relation, GUIDED, 0, f, outcome_of(o)) for f, _, relations, _ in rows
+                   for o in relations or []]
+        results = current.model_copy(update={
+            "frames": len(rows), "failures": sum(1 for r in rows if r.failure and r.failure.kind != "operator_error"),
+            "tool_errors": _tool_errors(r.failure for r in rows),
+            "sut_seconds": float(sum(r.seconds or 0 for r in rows)), "deeptest": deeptest_errors(records)})
+        with self.connection.begin():
+            self.connection.execute(update(Subtask).where(Subtask.id == sub.id).values(
+                results=results, status=Status.DONE, total=len(rows), done=len(rows)))
+
+    # -- the run ------------------------------------------------------------------------
+    search_summary: SearchSummary | None = None
+
+    def execute(self) -> None:
+        done = self._done()
+        self.run_originals(done)
+        self.load_originals()
+        with self.connection.begin():
+            failures = self.connection.execute(select(FrameResult.failure).where(
+                FrameResult.subtask_id == self.original.id)).scalars().all()
+            self.connection.execute(update(Subtask).where(Subtask.id == self.original.id).values(
+                status=Status.DONE, results=SubtaskResults(frames=len(self.frames),
+                                                           failures=sum(1 for f in failures if f is not None))))
+        self.run_transformations(done)
+        self.run_search()
+
+    def summary(self) -> TaskSummary:
+        from lidarfuzz.campaign.results import summarise
+
+        with self.store.session() as s:
+            row = s.get(Task, self.task.id)
+            assert row is not None
+            row.total = row.done = sum(sub.done for sub in row.subtasks)
+        summary = summarise(self.store, self.task.id)
+        summary.search = self.search_summary
+        return summary
+
+    def close(self) -> None:
+        self.connection.close()
+        self.sut.close()
+
+
+def outcome_of(record: OutcomeRecord) -> Any:
+    from lidarfuzz.campaign.results import outcome_from_record
+
+    return outcome_from_record(record)
+
+
+def _tool_errors(failures: Iterable[FailureRecord | None]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for failure in failures:
+        if failure is not None and failure.kind == "operator_error":
+            out[failure.kind] = out.get(failure.kind, 0) + 1
+    return out
+
+
+# -- the kind's hooks (lidarfuzz.campaign.lifecycle.KindImplementation) ----------------
+counted_below: int | None = None
+
+
+def start(store: Store, task: Task, options: RunOptions) -> _CameraRun:
+    return _CameraRun(store, task, options.progress, options.stop)
+
+
+def describe(task: Task) -> str:
+    config = CameraSearch.model_validate(task.options.kind_options)
+    transformations = sum(1 for sub in task.subtasks if sub.name not in (ORIGINAL, GUIDED))
+    search = f", then a guided search of {config.budget} tests" if config.budget else ""
+    return f"camera: {len(task.options.frame_ids)} images × {transformations} transformation settings{search}"
+
+
+def kind_summary(store: Store, task: Task) -> dict[str, Any]:
+    """MSE_orig and how many labelled images it is over (the rest is in the shared tables)."""
+    task = get_task(store, task.id)
+    original = next(sub for sub in task.subtasks if sub.name == ORIGINAL)
+    state = dict(original.state or {})
+    return {"modality": "camera", "mse_orig": state.get("mse_orig"), "labelled": state.get("labelled", 0),
+            "images": len(task.options.frame_ids)}
+
+
+__all__ = ["DEFAULT_TRANSFORMATIONS", "GUIDED", "SEARCH_POOL", "UNFILTERED", "CameraSearch", "CameraSetupError",
+           "camera_relations", "check_spec", "counted_below", "describe", "kind_summary", "plan", "start"]
