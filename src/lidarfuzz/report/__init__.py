@@ -81,7 +81,12 @@ def write_report(store: Store, task_id: int, out_dir: str | Path, *, baseline: i
     out.mkdir(parents=True, exist_ok=True)
     results = evaluate(summary, parsed)
     top = [f.id for f in summary.findings.top]
-    pictures = finding_images(store, top, limit=images)
+    if summary.kind_summary.get("modality") == "camera":  # DeepTest's pairs: images and steering arrows
+        from lidarfuzz.report.camera import finding_images as camera_images
+
+        pictures = camera_images(store, top, limit=images)
+    else:
+        pictures = finding_images(store, top, limit=images)
     comparisons, notes = comparisons_for(store, task_id, baseline)
     compared = []
     for comparison in comparisons:

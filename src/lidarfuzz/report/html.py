@@ -146,6 +146,11 @@ def _headline(summary: TaskSummary) -> str:
     structural = structural_headline(summary)
     if structural is not None:
         return structural
+    from lidarfuzz.report.camera import headline as camera_headline
+
+    camera = camera_headline(summary)
+    if camera is not None:
+        return camera
     task = summary.task
     subtasks = summary.subtasks
     mutated = len(subtasks[1:])
