@@ -1,6 +1,7 @@
-"""Reading one ``sensor_msgs/PointCloud2`` topic of a log as a :class:`~lidarfuzz.io.dataset.Log`.
+"""Reading one topic of a log as a :class:`~lidarfuzz.io.dataset.Log`.
 
-:class:`BagLog` opens one PointCloud2 topic of a log as a log of
+:class:`TopicLog` is what every modality's log reader shares (the camera's is
+:class:`lidarfuzz.io.images.logs.ImageLog`); :class:`BagLog` opens one PointCloud2 topic of a log as a log of
 :class:`~lidarfuzz.scene.scene.Scene` frames. Opening indexes the topic (one pass that
 reads each message's header stamp from its first bytes; point data is not decoded);
 ``load`` decodes one message, fetching it by its log time so that the storage's own index
@@ -16,10 +17,11 @@ from __future__ import annotations
 
 import contextlib
 import struct
+from abc import abstractmethod
 from collections.abc import Iterable, Iterator, Sequence
 from os import PathLike
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Self, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +33,9 @@ from lidarfuzz.io.logs.backends import Backend, Topic, open_backend
 from lidarfuzz.io.logs.containers import LogKind, detect_kind, reading
 from lidarfuzz.io.logs.messages import NS, POINTCLOUD2, header_stamp, typestore
 from lidarfuzz.io.logs.pointcloud2 import decode
-from lidarfuzz.scene.scene import Scene
+from lidarfuzz.scene.scene import Sample, Scene
+
+S = TypeVar("S", bound=Sample)
 
 
 class _Entry(NamedTuple):
@@ -47,88 +51,71 @@ class _Entry(NamedTuple):
         return self.stamp if self.stamp else self.log_time
 
 
-def _pick_topic(path: Path, topics: list[Topic], wanted: str | None) -> Topic:
+def _pick_topic(path: Path, topics: list[Topic], wanted: str | None,
+                msgtypes: tuple[str, ...] = (POINTCLOUD2,), what: str = "sensor_msgs/PointCloud2") -> Topic:
+    """The topic to read: ``wanted``, or the only non-empty one of ``msgtypes`` (``what`` names them)."""
     def listing(items: Iterable[Topic]) -> str:
         return ", ".join(f"{t.name} ({t.msgtype or 'unknown type'}, {t.count} messages)" for t in items) or "none"
 
-    clouds = [t for t in topics if t.msgtype == POINTCLOUD2]
+    clouds = [t for t in topics if t.msgtype in msgtypes]
     names = ", ".join(t.name for t in clouds) or "none"
     if wanted is not None:
         chosen = next((t for t in topics if t.name == wanted), None)
         if chosen is None:
             raise DataFormatError(
                 path,
-                f"no topic {wanted!r}; sensor_msgs/PointCloud2 topics: {names}",
+                f"no topic {wanted!r}; {what} topics: {names}",
                 hint="pass one of them as topic=... (--topic)" if clouds else None,
             )
-        if chosen.msgtype != POINTCLOUD2:
+        if chosen.msgtype not in msgtypes:
             raise DataFormatError(
                 path,
                 f"topic {wanted!r} carries {chosen.msgtype or 'an unknown type'}, "
-                f"not sensor_msgs/PointCloud2; sensor_msgs/PointCloud2 topics: {names}",
+                f"not {what}; {what} topics: {names}",
             )
         return chosen
     if not clouds:
-        raise DataFormatError(path, f"no sensor_msgs/PointCloud2 messages in {path}; topics found: {listing(topics)}")
+        raise DataFormatError(path, f"no {what} messages in {path}; topics found: {listing(topics)}")
     candidates = [t for t in clouds if t.count > 0] or clouds
     if len(candidates) > 1:
         raise DataFormatError(
             path,
-            f"{len(candidates)} sensor_msgs/PointCloud2 topics: {listing(candidates)}",
+            f"{len(candidates)} {what} topics: {listing(candidates)}",
             hint="choose one with topic=... (--topic)",
         )
     return candidates[0]
 
 
-class BagLog(Log[Scene]):
-    """One PointCloud2 topic of a ROS 1 bag, ROS 2 bag or MCAP file, as a log of scenes.
+class TopicLog(Log[S]):
+    """One topic of a ROS 1 bag, ROS 2 bag or MCAP file, as a log of samples of one modality.
 
-    Args:
-        path: A ``.bag`` file, a ROS 2 bag directory (or its ``metadata.yaml``), or an
-            ``.mcap`` file.
-        topic: The PointCloud2 topic to read; may be left out when the log has only one.
-        nonfinite: ``"drop"`` (default) or ``"reject"`` points with NaN/Inf coordinates.
-        name: Display name (defaults to the file name).
-
-    Raises:
-        DataFormatError: The path is no readable log, the topic is missing, ambiguous or
-            not a standard PointCloud2, or a message header is malformed.
-
-    Each scene's metadata holds ``source``, ``format``, ``topic``, ``sensor_frame_id``
-    (the header's ``frame_id``), ``message_index`` and, when points were dropped,
-    ``dropped_nonfinite``. Readers for :meth:`load` stay open until :meth:`close` (or
-    the end of a ``with`` block); a pickled log reopens them when next used.
-
-    Example:
-        >>> import tempfile, pathlib
-        >>> from lidarfuzz.io.logs import write_log
-        >>> from lidarfuzz.scene.points import PointCloud
-        >>> out = pathlib.Path(tempfile.mkdtemp()) / "scan.mcap"
-        >>> _ = write_log(out, [Scene(PointCloud(np.ones((5, 4))), timestamp=12.5)])
-        >>> with BagLog(out) as log:
-        ...     log.format, log.frame_ids(), log.timestamps().tolist(), len(log["000000"])
-        ('mcap', ('000000',), [12.5], 5)
+    Subclasses name the message types they read (:attr:`msgtypes`, :attr:`what` for messages)
+    and turn one raw message into a sample (:meth:`_sample`); opening, the index, ``load`` by
+    log time, streaming iteration and the reader's lifetime are shared.
     """
+
+    #: Normalised message types the topic may carry.
+    msgtypes: ClassVar[tuple[str, ...]] = (POINTCLOUD2,)
+    #: How messages name those types.
+    what: ClassVar[str] = "sensor_msgs/PointCloud2"
 
     def __init__(
         self,
         path: str | PathLike[str],
         topic: str | None = None,
         *,
-        nonfinite: NonFinitePolicy = "drop",
         name: str | None = None,
     ) -> None:
         source, kind = detect_kind(path)
         super().__init__(source, name)
         self._kind: LogKind = kind
-        self.nonfinite: NonFinitePolicy = nonfinite
         self._reader: Backend | None = None
         backend = open_backend(source, kind)
         try:
             self.storage: str | None = backend.storage
             with reading(source, "list the topics"):
                 topics = backend.topics()
-            chosen = _pick_topic(source, topics, topic)
+            chosen = _pick_topic(source, topics, topic, self.msgtypes, self.what)
             if chosen.difference:
                 raise DataFormatError(
                     source,
@@ -209,7 +196,7 @@ class BagLog(Log[Scene]):
 
     @property
     def topic(self) -> str:
-        """The PointCloud2 topic this log reads."""
+        """The topic this log reads."""
         return self._topic.name
 
     def frame_ids(self) -> Sequence[str]:
@@ -237,7 +224,7 @@ class BagLog(Log[Scene]):
                 return index
         raise KeyError(f"{self.path}: no frame with id {frame_id!r} (ids run 000000..{len(self._ids) - 1:06d})")
 
-    def load(self, frame_id: str) -> Scene:
+    def load(self, frame_id: str) -> S:
         """Decode one message; only the stored chunk around it is read."""
         index = self._position(frame_id)
         entry = self._entries[index]
@@ -255,9 +242,9 @@ class BagLog(Log[Scene]):
                 f"topic {self._topic.name!r}, message {index} is no longer where the index found it",
                 hint="the log changed since it was opened; open it again",
             )
-        return self._finish(self._scene(index, entry.log_time, matches[entry.rank]))
+        return self._finish(self._sample(index, entry.log_time, matches[entry.rank]))
 
-    def __iter__(self) -> Iterator[Scene]:
+    def __iter__(self) -> Iterator[S]:
         """Stream every frame in one pass over the log."""
         backend = open_backend(self.path, self._kind)
         try:
@@ -268,12 +255,80 @@ class BagLog(Log[Scene]):
                     item = next(messages, None)
                 if item is None:
                     return
-                yield self._finish(self._scene(index, *item))
+                yield self._finish(self._sample(index, *item))
                 index += 1
         finally:
             backend.close()
 
-    def _scene(self, index: int, log_time: int, raw: bytes | memoryview) -> Scene:
+    @abstractmethod
+    def _sample(self, index: int, log_time: int, raw: bytes | memoryview) -> S:
+        """Message ``index`` (received at ``log_time`` ns) as a sample."""
+
+    # -- resources ----------------------------------------------------------------------
+    def close(self) -> None:
+        """Close the reader kept open for :meth:`load` (it reopens when needed)."""
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            reader.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_reader"] = None
+        return state
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+
+class BagLog(TopicLog[Scene]):
+    """One PointCloud2 topic of a ROS 1 bag, ROS 2 bag or MCAP file, as a log of scenes.
+
+    Args:
+        path: A ``.bag`` file, a ROS 2 bag directory (or its ``metadata.yaml``), or an
+            ``.mcap`` file.
+        topic: The PointCloud2 topic to read; may be left out when the log has only one.
+        nonfinite: ``"drop"`` (default) or ``"reject"`` points with NaN/Inf coordinates.
+        name: Display name (defaults to the file name).
+
+    Raises:
+        DataFormatError: The path is no readable log, the topic is missing, ambiguous or
+            not a standard PointCloud2, or a message header is malformed.
+
+    Each scene's metadata holds ``source``, ``format``, ``topic``, ``sensor_frame_id``
+    (the header's ``frame_id``), ``message_index`` and, when points were dropped,
+    ``dropped_nonfinite``. Readers for :meth:`load` stay open until :meth:`close` (or
+    the end of a ``with`` block); a pickled log reopens them when next used.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> from lidarfuzz.io.logs import write_log
+        >>> from lidarfuzz.scene.points import PointCloud
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "scan.mcap"
+        >>> _ = write_log(out, [Scene(PointCloud(np.ones((5, 4))), timestamp=12.5)])
+        >>> with BagLog(out) as log:
+        ...     log.format, log.frame_ids(), log.timestamps().tolist(), len(log["000000"])
+        ('mcap', ('000000',), [12.5], 5)
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        topic: str | None = None,
+        *,
+        nonfinite: NonFinitePolicy = "drop",
+        name: str | None = None,
+    ) -> None:
+        self.nonfinite: NonFinitePolicy = nonfinite
+        super().__init__(path, topic, name=name)
+
+    def _sample(self, index: int, log_time: int, raw: bytes | memoryview) -> Scene:
         encoding = self._topic.encoding
         store = typestore(encoding)
         where = f"topic {self._topic.name}, message {index}"
@@ -310,25 +365,3 @@ class BagLog(Log[Scene]):
         if dropped:
             metadata["dropped_nonfinite"] = dropped
         return Scene(cloud, frame_id=f"{index:06d}", timestamp=seconds, metadata=metadata)
-
-    # -- resources ----------------------------------------------------------------------
-    def close(self) -> None:
-        """Close the reader kept open for :meth:`load` (it reopens when needed)."""
-        reader, self._reader = self._reader, None
-        if reader is not None:
-            reader.close()
-
-    def __enter__(self) -> BagLog:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state["_reader"] = None
-        return state
-
-    def __del__(self) -> None:
-        with contextlib.suppress(Exception):
-            self.close()
