@@ -24,6 +24,16 @@ Systems that consume logs in order (:mod:`lidarfuzz.suts.sequence`) are named th
 ``pkg.module:name`` (a :class:`~lidarfuzz.suts.sequence.SequenceSystem` subclass or instance, or
 a class or factory returning an object with ``step``), or ``worker:COMMAND`` (the worker
 protocol with resets).
+
+Steering systems of the camera modality (:mod:`lidarfuzz.suts.steering`) are named the same way
+by :func:`create_camera`: a name registered under ``lidarfuzz.camera_suts`` (``epoch``, ``dave2``,
+``chauffeur``; ``dave2?weights=PATH``), ``onnx:PATH`` (:class:`~lidarfuzz.suts.steering.onnx.OnnxSteering`;
+query options: :class:`~lidarfuzz.suts.steering.preprocess.Preprocess` fields, ``layout``, …),
+``worker:COMMAND`` (:class:`~lidarfuzz.suts.steering.worker.WorkerSteering`) or ``pkg.module:name``
+— a :class:`~lidarfuzz.suts.steering.base.SteeringSystem` subclass or instance, or a
+``torch.nn.Module`` (an instance, or a class or factory returning one; wrapped by
+:class:`~lidarfuzz.suts.steering.pytorch.TorchSteering`, query options its Preprocess fields and
+``steering_range``, ``threads``, …).
 """
 
 from __future__ import annotations
@@ -40,12 +50,18 @@ from lidarfuzz.suts.open3d_ml import Open3DPointPillars
 from lidarfuzz.suts.python import PythonSut
 from lidarfuzz.suts.sequence import PythonSequence, SequenceSystem, WorkerSequence
 from lidarfuzz.suts.specs import SutSpecError, import_target, split_spec
+from lidarfuzz.suts.steering.base import SteeringSystem
+from lidarfuzz.suts.steering.onnx import OnnxSteering
+from lidarfuzz.suts.steering.preprocess import split_options
+from lidarfuzz.suts.steering.pytorch import TorchSteering
+from lidarfuzz.suts.steering.worker import WorkerSteering
 
-__all__ = ["GROUP", "SCHEMES", "SEQUENCE_GROUP", "SutSpecError", "available", "available_sequences", "create",
-           "create_sequence", "split_spec", "sut_factory"]
+__all__ = ["CAMERA_GROUP", "GROUP", "SCHEMES", "SEQUENCE_GROUP", "SutSpecError", "available", "available_camera",
+           "available_sequences", "create", "create_camera", "create_sequence", "split_spec", "sut_factory"]
 
 GROUP = "lidarfuzz.suts"
 SEQUENCE_GROUP = "lidarfuzz.sequence_suts"
+CAMERA_GROUP = "lidarfuzz.camera_suts"
 SCHEMES = ("subprocess", "worker", "onnx", "open3d")
 
 
@@ -152,6 +168,67 @@ def create_sequence(spec: str, **options: Any) -> SequenceSystem:
     if not callable(getattr(made, "step", None)):
         raise SutSpecError(f"SUT spec {spec!r}: {base} gave {type(made).__name__}, which has no step(frame) method")
     return PythonSequence(made, name=base.rpartition(":")[2])
+
+
+def available_camera() -> dict[str, type[SteeringSystem]]:
+    """Registered steering systems (the camera modality's) by name, built-ins first."""
+    return load_group(CAMERA_GROUP, SteeringSystem)
+
+
+def _is_module(obj: Any) -> bool:
+    """Whether ``obj`` is a ``torch.nn.Module`` instance (without importing torch for a spec that needs none)."""
+    return not isinstance(obj, type) and hasattr(obj, "state_dict") and hasattr(obj, "named_modules") and callable(obj)
+
+
+def _torch_steering(spec: str, module: Any, options: dict[str, Any]) -> TorchSteering:
+    preprocess, rest = split_options(options)
+    return _build(spec, lambda **o: TorchSteering(module, preprocess=preprocess, **o), rest)  # type: ignore[no-any-return]
+
+
+def create_camera(spec: str, **options: Any) -> SteeringSystem:
+    """Build the steering system a spec names (see the module docstring); ``options`` configure it.
+
+    Raises:
+        SutSpecError: for a spec naming nothing usable, with what is available.
+    """
+    spec = spec.strip()
+    scheme, sep, rest = spec.partition(":")
+    if sep and scheme in SCHEMES:
+        if not rest.strip():
+            raise SutSpecError(f"SUT spec {spec!r}: nothing after '{scheme}:'")
+        if scheme == "worker":
+            return _build(spec, lambda **o: WorkerSteering(rest, **o), options)  # type: ignore[no-any-return]
+        if scheme != "onnx":
+            raise SutSpecError(f"SUT spec {spec!r}: a steering system is a registered name, onnx:PATH, worker:COMMAND "
+                               f"or module:name, not {scheme}:")
+        path, query = split_spec(rest)
+        preprocess, other = split_options({**query, **options})
+        return _build(spec, lambda **o: OnnxSteering(path, preprocess=preprocess, **o), other)  # type: ignore[no-any-return]
+    base, query = split_spec(spec)
+    options = {**query, **options}
+    if ":" not in base:
+        if plugin_key(base) in {plugin_key(n) for n in available()}:
+            raise SutSpecError(f"SUT spec {spec!r}: {base} is a LiDAR system (it detects objects in point clouds); a "
+                               f"camera task needs a steering system: {', '.join(sorted(available_camera()))}")
+        cls = find(CAMERA_GROUP, SteeringSystem, base, "steering system", "see lidarfuzz suts")
+        return _build(spec, cls, options)  # type: ignore[no-any-return]
+    obj = import_target(base)
+    if isinstance(obj, SteeringSystem) or _is_module(obj):
+        if options and isinstance(obj, SteeringSystem):
+            raise SutSpecError(f"SUT spec {spec!r}: {base} is an instance; it takes no options")
+        return obj if isinstance(obj, SteeringSystem) else _torch_steering(spec, obj, options)
+    if isinstance(obj, type) and issubclass(obj, SteeringSystem):
+        return _build(spec, obj, options)  # type: ignore[no-any-return]
+    if not callable(obj):
+        raise SutSpecError(f"SUT spec {spec!r}: {base} is neither a steering system nor a torch module or factory")
+    # a torch.nn.Module class or a factory: built without options, which go to the wrapper
+    made = _build(spec, obj, {})
+    if isinstance(made, SteeringSystem):
+        return made
+    if _is_module(made):
+        return _torch_steering(spec, made, options)
+    raise SutSpecError(f"SUT spec {spec!r}: {base} gave {type(made).__name__}, which is neither a SteeringSystem "
+                       "nor a torch.nn.Module")
 
 
 def sut_factory(fn: Any) -> Any:
