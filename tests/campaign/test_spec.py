@@ -49,6 +49,10 @@ def test_a_campaign_file_is_read_and_normalised(tmp_path: Path) -> None:
         ({"relations": ["nope"]}, "relations", "unknown relation 'nope'"),
         ({"seeds": 3}, "seeds", "Extra inputs"),
         ({"frames": 0}, "frames", "greater than or equal to 1"),
+        ({"operators": [{"name": "fog"}, {"name": "brightness"}]}, "operators",
+         "image_brightness is a camera operator; a mutation campaign runs on lidar data"),
+        ({"kind": "guided", "operators": [], "search": {"operators": ["image_rain"]}}, "<root>",
+         "search.operators: image_rain is a camera operator"),
     ],
 )
 def test_mistakes_name_the_key(change: dict, field: str, message: str) -> None:

@@ -60,6 +60,9 @@ def test_operators_json_holds_structured_fields() -> None:
     assert set(records) == set(operators())
     fog = records["fog"]
     assert fog["family"] and fog["relation"] == "degrading" and isinstance(fog["targets"], list)
+    assert fog["modality"] == "lidar" and records["image_fog"]["modality"] == "camera"
+    camera = {r["name"] for r in json.loads(invoke("operators", "--modality", "camera", "--json").output)}
+    assert camera == {name for name, cls in operators().items() if cls.modality == "camera"} and "fog" not in camera
     assert set(fog["severities"]) >= {"1", "5"}
     one = json.loads(invoke("operators", "RAR", "--json").output)
     assert one["name"] == "rotate_z" and "RAR" in one["aliases"] and one["doc"]

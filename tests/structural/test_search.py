@@ -138,6 +138,8 @@ def test_an_interrupted_search_resumes_to_the_same_log(log: OrderedLog, searched
 def test_bad_settings_and_outputs(log: OrderedLog, tmp_path: Path) -> None:
     with pytest.raises(LogSearchError, match="--operators: unknown operator"):
         SearchSettings(operators=("nothing",))
+    with pytest.raises(LogSearchError, match="--operators: image_fog is a camera operator"):
+        SearchSettings(operators=("fog", "image_fog"))
     with pytest.raises(LogSearchError, match="--budget"):
         SearchSettings(budget=-1)
     with pytest.raises(LogSearchError, match="--max-severity"):

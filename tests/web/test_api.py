@@ -596,7 +596,13 @@ def test_the_operator_catalogue(client: TestClient) -> None:
 
     families = client.get("/api/operators").json()["families"]
     operators = {op["name"]: op for family in families for op in family["operators"]}
-    assert set(operators) == set(available())
+    assert set(operators) == {name for name, cls in available().items() if cls.modality == "lidar"}
+    camera = client.get("/api/operators", params={"modality": "camera"}).json()["families"]
+    assert {op["name"] for family in camera for op in family["operators"]} >= {"image_fog", "image_blur"}
+    assert all(op["modality"] == "camera" for family in camera for op in family["operators"])
+    assert client.get("/api/operators", params={"modality": "radar"}).status_code == 422
+    reply = client.get("/api/operators/image_fog/preview.png")
+    assert reply.status_code == 422 and "camera operator" in reply.json()["detail"]
     assert all(op["family"] == family["family"] for family in families for op in family["operators"])
     fog = operators["fog"]
     assert fog["relation"] == "degrading" and fog["description"] and fog["severities"] == [1, 2, 3, 4, 5]

@@ -312,6 +312,12 @@ def check_spec(spec: CampaignSpec) -> None:
     """Fail early on a bad search section, and on listed relations none of which could judge the
     tests a scene-moving operator of the pool makes."""
     config = search_config(spec)
+    from lidarfuzz.operators.registry import get
+
+    camera = [name for name in config.operators if get(name).modality != "lidar"]
+    if camera:
+        raise ValueError(f"search.operators: {camera[0]} is a {get(camera[0]).modality} operator; a {spec.kind} "
+                         "campaign searches lidar data (lidarfuzz operators --modality lidar)")
     moving = moving_operators(config)
     if moving and spec.relations != "auto" and not relations_for_kind(Relation.EQUIVARIANT, spec.relations):
         raise ValueError(f"relations: operator(s) {moving} move the scene and none of the listed relations judges a "

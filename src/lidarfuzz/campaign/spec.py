@@ -187,6 +187,14 @@ class CampaignSpec(_Model):
         kind = find_kind(info.data.get("kind", DEFAULT_KIND))
         if kind is not None and kind.requires_operators and not value:
             raise ValueError(f"a {kind.name} campaign needs at least one operator")
+        if kind is not None:
+            from lidarfuzz.operators import get
+
+            for choice in value:
+                modality = get(choice.name).modality
+                if modality != kind.modality:
+                    raise ValueError(f"{choice.name} is a {modality} operator; a {kind.name} campaign runs on "
+                                     f"{kind.modality} data (lidarfuzz operators --modality {kind.modality})")
         return value
 
     @model_validator(mode="after")

@@ -11,12 +11,19 @@ from lidarfuzz.cli.common import Column, JsonOption, LayoutOption, PlainOption, 
 
 def operators_command(
     name: Annotated[str | None, typer.Argument(help="Show one operator in full (name or alias).")] = None,
+    modality: Annotated[str | None, typer.Option(help="Only the operators for this data: lidar (point clouds) "
+                                                 "or camera (images).")] = None,
     as_json: JsonOption = False,
     plain: PlainOption = False,
 ) -> None:
-    """List the mutation operators: family, relation, targets, parameters and severity table."""
+    """List the mutation operators: modality, family, relation, targets, parameters and severity table."""
     from lidarfuzz.operators import available, get
     from lidarfuzz.operators.catalogue import format_value, severity_rows
+
+    known_modalities = sorted({cls.modality for cls in available().values()})
+    if modality is not None and modality not in known_modalities:
+        raise typer.BadParameter(f"expected one of {', '.join(known_modalities)}, got {modality!r}",
+                                 param_hint="--modality")
 
     if name is not None:
         cls = get(name)
@@ -28,8 +35,8 @@ def operators_command(
             return
         from rich.table import Table
 
-        console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.family}, "
-                      f"{cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
+        console.print(f"[bold]{cls.name}[/] ({', '.join(cls.aliases) or 'no aliases'}) — {cls.modality}, "
+                      f"{cls.family}, {cls.relation.value}; changes {', '.join(sorted(t.value for t in cls.targets))}")
         console.print(inspect.getdoc(cls) or "")
         table = Table("parameter", "description", *(f"severity {s}" for s in (0, *cls.SEVERITIES)))
         table.columns[0].no_wrap, table.columns[0].overflow = True, "fold"
@@ -39,21 +46,23 @@ def operators_command(
         return
     rows: list[list[str]] = []
     records: list[dict[str, Any]] = []
-    for op_name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+    listed = {n: cls for n, cls in available().items() if modality is None or cls.modality == modality}
+    for op_name, cls in sorted(listed.items(), key=lambda kv: (kv[1].modality != "lidar", kv[1].family, kv[0])):
         low, high = cls.SEVERITIES.get(1, {}), cls.SEVERITIES.get(max(cls.SEVERITIES, default=1), {})
         span = "; ".join(f"{k} {format_value(low[k])} … {format_value(high.get(k))}" for k in low)
-        rows.append([op_name, ", ".join(cls.aliases), cls.family, cls.relation.value,
+        rows.append([op_name, ", ".join(cls.aliases), cls.modality, cls.family, cls.relation.value,
                      ", ".join(sorted(t.value for t in cls.targets)), span])
         records.append({**_record(cls), "name": op_name})
-    columns = [Column("name", name=True), Column("aliases"), Column("family"), Column("relation"),
+    columns = [Column("name", name=True), Column("aliases"), Column("modality"), Column("family"), Column("relation"),
                Column("changes"), Column("severity 1 … 5")]
     print_listing(columns, rows, records, as_json=as_json, plain=plain,
                   footer="details: [cyan]lidarfuzz operators NAME[/]")
 
 
 def _record(cls: Any) -> dict[str, Any]:
-    """An operator class as JSON: names, family, relation, targets and its parameters at each severity."""
-    return {"name": cls.name, "aliases": list(cls.aliases), "family": cls.family, "relation": cls.relation.value,
+    """An operator class as JSON: names, modality, family, relation, targets and its parameters at each severity."""
+    return {"name": cls.name, "aliases": list(cls.aliases), "modality": cls.modality, "family": cls.family,
+            "relation": cls.relation.value,
             "targets": sorted(t.value for t in cls.targets),
             "severities": {str(level): params for level, params in sorted(cls.SEVERITIES.items())}}
 
@@ -91,6 +100,9 @@ def mutate_command(
         console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
         return
     operator = build_operator(op, severity, parse_assignments(param or []))
+    if operator.modality != "lidar":
+        raise typer.BadParameter(f"{operator.name} is a {operator.modality} operator; mutate writes lidar frames "
+                                 "(lidarfuzz operators --modality lidar)", param_hint="--op")
     if interleave:
         written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options)
         console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")

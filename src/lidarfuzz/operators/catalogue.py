@@ -11,7 +11,10 @@ from lidarfuzz.operators.base import Operator
 
 
 def format_value(value: object) -> str:
-    """A config value for a table: ``(0.2, 0.2)`` → ``0.2``, ``(5, 15)`` → ``5 – 15``."""
+    """A config value for a table: ``(0.2, 0.2)`` → ``0.2``, ``(5, 15)`` → ``5 – 15``, a list of
+    names (``("median:3", "gaussian:3")``) → ``median:3, gaussian:3``."""
+    if isinstance(value, tuple | list) and value and all(isinstance(v, str) for v in value):
+        return ", ".join(value)
     if isinstance(value, tuple | list) and len(value) == 2 and value[0] == value[1]:
         return format_value(value[0])
     if isinstance(value, float):

@@ -119,6 +119,10 @@ class SearchSettings:
         unknown = [name for name in self.operators if name not in known]
         if unknown:
             raise LogSearchError(f"--operators: unknown operator(s) {unknown}; see `lidarfuzz operators`")
+        other = [name for name in self.operators if known[name].modality != "lidar"]
+        if other:
+            raise LogSearchError(f"--operators: {other[0]} is a {known[other[0]].modality} operator; logs are "
+                                 "searched with lidar operators (lidarfuzz operators --modality lidar)")
         if not self.operators:
             raise LogSearchError("--operators: the search needs at least one operator")
         for name, value, low in (("--budget", self.budget, 0), ("--size", self.size, 1),

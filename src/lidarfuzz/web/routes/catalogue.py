@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import inspect
 from functools import cache
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Response, status
 from starlette.concurrency import run_in_threadpool
@@ -24,17 +24,20 @@ def _doc(obj: Any) -> tuple[str, str]:
 
 
 @cache
-def operator_catalogue() -> list[dict[str, Any]]:
-    """Every registered operator grouped by family (families and names sorted)."""
+def operator_catalogue(modality: str = "lidar") -> list[dict[str, Any]]:
+    """The registered operators of one modality (``lidar``, ``camera``; ``all``: every one) grouped by
+    family (families and names sorted)."""
     from lidarfuzz.operators import available
     from lidarfuzz.operators.catalogue import severity_rows
 
     families: dict[str, list[dict[str, Any]]] = {}
-    for name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+    listed = {n: cls for n, cls in available().items() if modality in ("all", cls.modality)}
+    for name, cls in sorted(listed.items(), key=lambda kv: (kv[1].family, kv[0])):
         description, doc = _doc(cls)
         severities = sorted(cls.SEVERITIES)
         families.setdefault(cls.family, []).append({
-            "name": name, "aliases": list(cls.aliases), "family": cls.family, "relation": cls.relation.value,
+            "name": name, "aliases": list(cls.aliases), "modality": cls.modality, "family": cls.family,
+            "relation": cls.relation.value,
             "targets": sorted(t.value for t in cls.targets), "description": description, "doc": doc,
             "severities": severities,
             "severity_configs": {str(s): cls.at_severity(s).config.model_dump(mode="json") for s in severities},
@@ -46,11 +49,12 @@ def operator_catalogue() -> list[dict[str, Any]]:
 
 
 @router.get("/operators")
-def operators(ctx: Web) -> dict[str, Any]:
-    """The mutation operators by family: name, aliases, description, relation, targets, the
-    severity table (config per severity 1-5, and a row per field for severities 0-5) and the
-    JSON schema of the config a campaign may give instead of severities."""
-    return {"families": operator_catalogue()}
+def operators(ctx: Web, modality: Annotated[Literal["lidar", "camera", "all"], Query()] = "lidar") -> dict[str, Any]:
+    """The mutation operators of one modality by family (LiDAR ones unless ``modality`` says
+    ``camera`` or ``all``): name, aliases, modality, description, relation, targets, the severity
+    table (config per severity 1-5, and a row per field for severities 0-5) and the JSON schema
+    of the config a campaign may give instead of severities."""
+    return {"families": operator_catalogue(modality)}
 
 
 @router.get("/operators/{name}/preview.png", response_class=Response,
@@ -66,6 +70,10 @@ async def operator_preview(ctx: Web, name: str, severity: Annotated[int, Query(g
         cls = get(name)
     except KeyError as exc:
         raise HTTPException(status.HTTP_404_NOT_FOUND, str(exc).strip("'\"")) from None
+    if cls.modality != "lidar":
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"name: {cls.name} is a {cls.modality} operator; previews are drawn from above, "
+                            "for lidar operators")
     if severity and severity not in cls.SEVERITIES:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"severity: {cls.name} has severities {', '.join(map(str, sorted(cls.SEVERITIES)))}")
