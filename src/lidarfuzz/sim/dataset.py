@@ -9,6 +9,14 @@ Two kinds of data set:
   ``timestamps.txt``, ``poses.txt`` and ``ego.txt`` (the ego vehicle's speed, yaw rate,
   curvature and steering angle per frame), for log-based testing.
 
+With a camera (``camera=(width, height)``, :mod:`lidarfuzz.sim.camera`), every frame also has
+``image_2/NNNNNN.png`` (8-bit RGB of KITTI's camera 2), ``depth_2/NNNNNN.png`` (16-bit z-depth,
+metres × 256, 0 where nothing was hit or beyond 255 m) and a row of ``steering.csv``
+(``frame_id,steering,speed``: the front-wheel angle in radians, left positive, that brings the
+ego vehicle along its route, and its speed in m/s; :mod:`lidarfuzz.sim.steering`); ``calib/``
+then describes that image. Independent frames then put their ego vehicle off its lane's centre
+(:class:`~lidarfuzz.sim.steering.LaneOffset`), so their labels vary.
+
 Besides the KITTI files, every frame's scene description is saved under ``scenes/``
 (render it again with ``lidarfuzz gen --scene``), and ``lidarfuzz_sim.json`` records
 the configuration and, once the last frame is written, ``"complete": true`` with
@@ -36,9 +44,11 @@ from typing import Any
 import numpy as np
 
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
-from lidarfuzz.io.atomic import write_text
+from lidarfuzz.io.atomic import write_bytes, write_text
 from lidarfuzz.io.kitti import KittiWriter, write_kitti_frame
 from lidarfuzz.io.kitti.dataset import EGO_COLUMNS, EGO_FILE
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.image import ImageSample
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.generate import SCENE_KINDS, generate_scene
 from lidarfuzz.sim.labels import LabelConfig
@@ -46,10 +56,14 @@ from lidarfuzz.sim.realism import RealismConfig
 from lidarfuzz.sim.render import Renderer
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, load_sensor
 from lidarfuzz.sim.spec import SceneSpec
+from lidarfuzz.sim.steering import LaneOffset, steering_labels
 from lidarfuzz.sim.terrain import WHEELBASE
 from lidarfuzz.sim.world import compile_world, ego_labels, trajectory_of
 
 SUMMARY_FILE = "lidarfuzz_sim.json"
+STEERING_FILE = "steering.csv"
+#: Largest z-depth a 16-bit depth PNG holds (metres × 256; 0 means nothing hit or farther).
+DEPTH_SCALE = 256.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +84,8 @@ class GenerationConfig:
         realism: The ranges each generated scene's ground and sensor are drawn from, from
             the scene's seed (:class:`~lidarfuzz.sim.realism.RealismConfig`; by default real
             roads' slopes and camber, and KITTI's receiver). A scene file is rendered as written.
+        camera: (width, height) of camera images to render beside the LiDAR frames, with depth
+            maps and steering labels; ``None``: LiDAR only (the files of earlier versions, bit for bit).
     """
 
     frames: int
@@ -82,6 +98,7 @@ class GenerationConfig:
     val_fraction: float = 0.5
     labels: LabelConfig = field(default_factory=LabelConfig)
     realism: RealismConfig = field(default_factory=RealismConfig)
+    camera: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -94,6 +111,8 @@ class GenerationConfig:
             load_sensor(self.sensor)  # fail early on a bad name or file
         if self.drive and self.scene is not None:
             raise ValueError("drive: a drive log is generated; it cannot render a scene file")
+        if self.camera is not None and (len(self.camera) != 2 or not all(8 <= v <= 8192 for v in self.camera)):
+            raise ValueError(f"camera: image size {self.camera} must be (width, height), each 8 … 8192")
 
     @property
     def is_sequence(self) -> bool:
@@ -108,7 +127,19 @@ class GenerationConfig:
         }
         if self.drive:  # only then: the configurations of earlier data sets stay as they were (resume)
             out["drive"] = True
+        if self.camera is not None:  # likewise
+            out["camera"] = {"width": self.camera[0], "height": self.camera[1]}
         return out
+
+    @property
+    def calibration(self) -> KittiCalibration | None:
+        """The calibration frames are rendered with: KITTI's, for the camera's image size when
+        there is a camera (:func:`~lidarfuzz.sim.camera.camera_calibration`); None: the renderer's default."""
+        if self.camera is None:
+            return None
+        from lidarfuzz.sim.camera import camera_calibration
+
+        return camera_calibration(KittiCalibration.default(), self.camera)
 
 
 @dataclass(frozen=True)
@@ -119,6 +150,8 @@ class FrameResult:
     points: int
     labels: dict[str, int]
     skipped: bool = False
+    steering: float | None = None  # camera data sets: the frame's label (rad) and the ego's speed (m/s)
+    speed: float | None = None
 
 
 @dataclass
@@ -130,6 +163,7 @@ class GenerationSummary:
     seconds: float
     points_per_frame: float
     label_counts: dict[str, int]
+    images: int = 0
 
 
 def frame_id_of(index: int) -> str:
@@ -167,10 +201,15 @@ def ego_file_text(spec: SceneSpec, frames: int) -> str:
     return "\n".join([header, *lines]) + "\n"
 
 
-def _frame_scene(config: GenerationConfig, index: int) -> SceneSpec:
+def _frame_scene(config: GenerationConfig, index: int) -> tuple[SceneSpec, SceneSpec]:
+    """An independent frame's scene, and its lane: the same scene before a camera data set
+    moves the ego vehicle off its lane's centre (:class:`~lidarfuzz.sim.steering.LaneOffset`)."""
     seed = frame_seed(config.seed, index)
-    spec = generate_scene(seed, kind=config.kind, realism=config.realism)  # type: ignore[arg-type]
-    return _with_sensor(config, spec, seed)
+    spec = _with_sensor(config, generate_scene(seed, kind=config.kind, realism=config.realism),  # type: ignore[arg-type]
+                        seed)
+    if config.camera is None:
+        return spec, spec
+    return LaneOffset.draw(seed).applied(spec), spec
 
 
 def _with_sensor(config: GenerationConfig, spec: SceneSpec, seed: int) -> SceneSpec:
@@ -182,63 +221,137 @@ def _with_sensor(config: GenerationConfig, spec: SceneSpec, seed: int) -> SceneS
     return spec.model_copy(update={"sensor": base if drawn is sensor else drawn})
 
 
-def _frame_complete(root: Path, frame_id: str) -> bool:
-    return all((root / sub / f"{frame_id}{suffix}").is_file() for sub, suffix in (
-        ("velodyne", ".bin"), ("velodyne_extra", ".npz"), ("calib", ".txt"), ("label_2", ".txt"), ("roi", ".json"),
-    ))
+_FRAME_FILES = (("velodyne", ".bin"), ("velodyne_extra", ".npz"), ("calib", ".txt"), ("label_2", ".txt"),
+                ("roi", ".json"))
+_CAMERA_FILES = (("image_2", ".png"), ("depth_2", ".png"))
+
+
+def _frame_complete(root: Path, frame_id: str, camera: bool = False) -> bool:
+    files = _FRAME_FILES + (_CAMERA_FILES if camera else ())
+    return all((root / sub / f"{frame_id}{suffix}").is_file() for sub, suffix in files)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """A frame to write: its scene (None when resuming skips it), its renderer, the frame's own
+    spec (independent frames) and its lane (the spec before the ego was moved off it)."""
+
+    index: int
+    scene: Scene | None
+    renderer: Renderer
+    spec: SceneSpec | None
+    lane: SceneSpec | None
+    t_ref: float
 
 
 def _frames(config: GenerationConfig, indices: list[int], skip: Callable[[str], bool] | None = None,
-            threads: int | None = None) -> Iterator[tuple[int, Scene | None, SceneSpec | None, Renderer]]:
-    """(index, scene or None when skipped, the frame's own spec for independent frames, renderer)."""
+            threads: int | None = None) -> Iterator[_Frame]:
+    """The frames ``indices``, rendered unless ``skip`` says they are on disk already."""
     renderer: Renderer | None = None
+    calib = config.calibration
     if config.is_sequence:
-        renderer = Renderer(compile_world(sequence_scene(config)), labels=config.labels, threads=threads)
+        renderer = Renderer(compile_world(sequence_scene(config)), calib, labels=config.labels, threads=threads)
     for index in indices:
         frame_id = frame_id_of(index)
         if renderer is not None and config.is_sequence:
             t_ref = index * renderer.sensor.period
             if skip is not None and skip(frame_id):
-                yield index, None, None, renderer
+                yield _Frame(index, None, renderer, None, None, t_ref)
                 continue
-            yield index, renderer.render(t_ref, frame_id=frame_id, timestamp=t_ref, frame_seed=config.seed), \
-                None, renderer
+            scene = renderer.render(t_ref, frame_id=frame_id, timestamp=t_ref, frame_seed=config.seed)
+            yield _Frame(index, scene, renderer, None, None, t_ref)
         else:
-            spec = _frame_scene(config, index)
-            frame_renderer = Renderer(compile_world(spec), labels=config.labels, threads=threads)
+            spec, lane = _frame_scene(config, index)
+            frame_renderer = Renderer(compile_world(spec), calib, labels=config.labels, threads=threads)
             if skip is not None and skip(frame_id):
-                yield index, None, spec, frame_renderer
+                yield _Frame(index, None, frame_renderer, spec, lane, 0.0)
                 continue
-            yield index, frame_renderer.render(0.0, frame_id=frame_id).replace(pose=None), spec, frame_renderer
+            yield _Frame(index, frame_renderer.render(0.0, frame_id=frame_id).replace(pose=None), frame_renderer,
+                         spec, lane, 0.0)
 
 
 def render_frames(config: GenerationConfig) -> Iterator[Scene]:
     """The frames ``generate_dataset`` would write, in memory (for tests, notebooks and other tools)."""
-    for _index, scene, _spec, _renderer in _frames(config, list(range(config.frames))):
-        assert scene is not None
-        yield scene
+    for frame in _frames(config, list(range(config.frames))):
+        assert frame.scene is not None
+        yield frame.scene
+
+
+def frame_steering(config: GenerationConfig, frame: _Frame) -> tuple[float, float]:
+    """A frame's steering label (rad, left positive) and the ego vehicle's speed (m/s)
+    (:func:`~lidarfuzz.sim.steering.steering_labels`)."""
+    spec = frame.spec if frame.spec is not None else frame.renderer.world.spec
+    steering, speed = steering_labels(spec, np.array([frame.t_ref]), lane=frame.lane)
+    return float(steering[0]), float(speed[0])
+
+
+def render_camera_frames(config: GenerationConfig) -> Iterator[tuple[Scene, ImageSample]]:
+    """Each frame with its camera image (``config.camera`` must be set), in memory."""
+    from lidarfuzz.sim.camera import CameraRenderer
+
+    if config.camera is None:
+        raise ValueError("camera: set an image size to render camera frames")
+    camera: CameraRenderer | None = None
+    for frame in _frames(config, list(range(config.frames))):
+        assert frame.scene is not None
+        if camera is None or camera.renderer is not frame.renderer:
+            camera = CameraRenderer(frame.renderer, config.camera)
+        steering, speed = frame_steering(config, frame)
+        yield frame.scene, camera.render(frame.t_ref, frame_id=frame.scene.frame_id, steering=steering,
+                                         timestamp=frame.scene.timestamp, metadata={"speed": speed})
+
+
+def write_camera_frame(root: Path, sample: ImageSample) -> None:
+    """``image_2/`` (8-bit RGB PNG) and ``depth_2/`` (16-bit PNG, metres × 256, 0: nothing hit
+    or beyond 255 m) of one camera frame."""
+    import cv2
+
+    depth = np.asarray(sample.depth, np.float64) * DEPTH_SCALE
+    with np.errstate(invalid="ignore"):
+        depth = np.where(np.isfinite(depth) & (depth < 65535.5), np.round(depth), 0.0).astype(np.uint16)
+    for sub, pixels in (("image_2", np.ascontiguousarray(np.asarray(sample.image)[:, :, ::-1])), ("depth_2", depth)):
+        ok, encoded = cv2.imencode(".png", pixels)
+        if not ok:
+            raise LidarfuzzError(f"{root / sub}: cannot encode frame {sample.frame_id} as PNG")
+        write_bytes(root / sub / f"{sample.frame_id}.png", encoded.tobytes(), overwrite=True, durable=False)
+
+
+def steering_file_text(results: list[FrameResult]) -> str:
+    """``steering.csv``: ``frame_id,steering,speed`` per frame (rad, left positive; m/s)."""
+    rows = [f"{r.frame_id},{round(float(r.steering or 0.0), 6) + 0.0:.6f},{round(float(r.speed or 0.0), 4) + 0.0:.4f}"
+            for r in results]
+    return "\n".join(["frame_id,steering,speed", *rows]) + "\n"
 
 
 def _render_chunk(root: str, config: GenerationConfig, indices: list[int], resume: bool,
                   threads: int | None = None) -> list[FrameResult]:
     """Worker: render and write frames ``indices``; returns what the parent records."""
+    from lidarfuzz.sim.camera import CameraRenderer
+
     out = Path(root)
     results = []
-    skip = (lambda frame_id: _frame_complete(out, frame_id)) if resume else None
-    for index, scene, spec, renderer in _frames(config, indices, skip, threads):
-        frame_id = frame_id_of(index)
+    camera_on = config.camera is not None
+    skip = (lambda frame_id: _frame_complete(out, frame_id, camera_on)) if resume else None
+    camera: CameraRenderer | None = None
+    for frame in _frames(config, indices, skip, threads):
+        frame_id, scene, renderer = frame_id_of(frame.index), frame.scene, frame.renderer
+        steering, speed = frame_steering(config, frame) if camera_on else (None, None)
         if scene is None:
-            t_ref = index * renderer.sensor.period if config.is_sequence else None
+            t_ref = frame.t_ref if config.is_sequence else None
             pose = renderer.pose_matrix(t_ref).tolist() if t_ref is not None else None
-            results.append(FrameResult(frame_id, t_ref, pose, 0, {}, skipped=True))
+            results.append(FrameResult(frame_id, t_ref, pose, 0, {}, skipped=True, steering=steering, speed=speed))
             continue
-        if spec is not None:
-            write_text(out / "scenes" / f"{frame_id}.json", spec.to_json(), overwrite=True, durable=False)
+        if frame.spec is not None:
+            write_text(out / "scenes" / f"{frame_id}.json", frame.spec.to_json(), overwrite=True, durable=False)
+        if config.camera is not None:
+            if camera is None or camera.renderer is not renderer:
+                camera = CameraRenderer(renderer, config.camera)
+            write_camera_frame(out, camera.render(frame.t_ref, frame_id=frame_id, steering=steering))
         write_kitti_frame(out, scene, frame_id, overwrite=True, durable=False, labelled_set=True)
         counts = Counter(str(c) for c in scene.boxes.labels)
         results.append(FrameResult(frame_id, scene.timestamp,
                                    None if scene.pose is None else np.asarray(scene.pose).tolist(),
-                                   len(scene.points), dict(counts)))
+                                   len(scene.points), dict(counts), steering=steering, speed=speed))
     return results
 
 
@@ -316,11 +429,20 @@ def generate_dataset(
 
     label_counts = _count_labels(root, ids)
     generated = [r for r in results.values() if not r.skipped]
+    images = 0
+    if config.camera is not None:
+        ordered = [results[frame_id] for frame_id in ids]
+        write_text(root / STEERING_FILE, steering_file_text(ordered), overwrite=True)
+        images = sum((root / "image_2" / f"{frame_id}.png").is_file() for frame_id in ids)
+        labels = np.array([float(r.steering or 0.0) for r in ordered])
+        record["camera"] = {"images": images, "size": list(config.camera), "steering": {
+            "min": round(float(labels.min()), 6), "max": round(float(labels.max()), 6),
+            "mean": round(float(labels.mean()), 6), "std": round(float(labels.std()), 6)}}
     summary = GenerationSummary(
         root=root, frames=config.frames, generated=len(generated), resumed=len(results) - len(generated),
         seconds=time.perf_counter() - started,
         points_per_frame=float(np.mean([r.points for r in generated])) if generated else 0.0,
-        label_counts=dict(label_counts),
+        label_counts=dict(label_counts), images=images,
     )
     record.update(complete=True, label_counts=dict(label_counts), points_per_frame=round(summary.points_per_frame))
     write_text(summary_path, json.dumps(record, indent=1), overwrite=True)

@@ -60,6 +60,10 @@ _MATERIALS = (
 )
 #: Materials by name; ``paint`` (vehicle body colour) is per object, see :data:`PAINT_REFLECTIVITY`.
 MATERIALS: dict[str, Material] = {m.name: m for m in _MATERIALS}
+#: Each material's index (a mesh stores it per face, for the camera's visible colours); the
+#: object's own paint (:data:`PAINT_MATERIAL`) is the last.
+MATERIAL_ID: dict[str, int] = {m.name: i for i, m in enumerate(_MATERIALS)}
+PAINT_MATERIAL = len(_MATERIALS)
 
 #: Vehicle paint from black (0.05: carbon-black clear-coated paint reflects 3–8 % diffusely at
 #: 905 nm) to white (0.75).
@@ -94,6 +98,6 @@ def material(name: str) -> Material:
 
 
 __all__ = [
-    "MATERIALS", "OBJECT_SEMANTIC", "PAINT_COLOURS", "PAINT_GLOSS", "PAINT_REFLECTIVITY", "SEMANTIC_CLASSES",
-    "SEMANTIC_ID", "Material", "material", "sample_paint",
+    "MATERIALS", "MATERIAL_ID", "OBJECT_SEMANTIC", "PAINT_COLOURS", "PAINT_GLOSS", "PAINT_MATERIAL",
+    "PAINT_REFLECTIVITY", "SEMANTIC_CLASSES", "SEMANTIC_ID", "Material", "material", "sample_paint",
 ]

@@ -18,7 +18,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 from shapely.geometry import MultiPolygon, Polygon
 
-from lidarfuzz.sim.materials import PAINT_GLOSS, SEMANTIC_ID, material
+from lidarfuzz.sim.materials import MATERIAL_ID, PAINT_GLOSS, PAINT_MATERIAL, SEMANTIC_ID, material
 
 #: Reflectivity placeholder for "the object's own paint", replaced per instance.
 PAINT = -1.0
@@ -27,7 +27,8 @@ PAINT = -1.0
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """Triangles (vertices V×3, faces F×3) with per-face reflectivity, semantic class id,
-    probability of a return and gloss (see :class:`~lidarfuzz.sim.materials.Material`)."""
+    probability of a return, gloss (see :class:`~lidarfuzz.sim.materials.Material`) and material
+    index (:data:`~lidarfuzz.sim.materials.MATERIAL_ID`; the camera's colours)."""
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int32]
@@ -35,12 +36,15 @@ class Mesh:
     semantic: NDArray[np.uint8]
     returns: NDArray[np.float32] = None  # type: ignore[assignment]  # probability of a return; all 1 if None
     gloss: NDArray[np.float32] = None  # type: ignore[assignment]  # all 0 if None
+    material: NDArray[np.uint8] = None  # type: ignore[assignment]  # all paint if None
 
     def __post_init__(self) -> None:
         if self.returns is None:
             object.__setattr__(self, "returns", np.ones(len(self.faces), np.float32))
         if self.gloss is None:
             object.__setattr__(self, "gloss", np.zeros(len(self.faces), np.float32))
+        if self.material is None:
+            object.__setattr__(self, "material", np.full(len(self.faces), PAINT_MATERIAL, np.uint8))
 
     @staticmethod
     def empty() -> Mesh:
@@ -53,13 +57,14 @@ class Mesh:
         n = len(faces)
         returns = 1.0
         if material_name is None:
-            refl, sem, gloss = PAINT, SEMANTIC_ID[semantic or "unlabelled"], PAINT_GLOSS
+            refl, sem, gloss, index = PAINT, SEMANTIC_ID[semantic or "unlabelled"], PAINT_GLOSS, PAINT_MATERIAL
         else:
             mat = material(material_name)
             refl, sem, returns, gloss = mat.reflectivity, SEMANTIC_ID[semantic or mat.semantic], mat.returns, mat.gloss
+            index = MATERIAL_ID[material_name]
         return Mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int32),
                     np.full(n, refl, np.float32), np.full(n, sem, np.uint8), np.full(n, returns, np.float32),
-                    np.full(n, gloss, np.float32))
+                    np.full(n, gloss, np.float32), np.full(n, index, np.uint8))
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -77,6 +82,7 @@ class Mesh:
             np.concatenate([p.semantic for p in parts]),
             np.concatenate([p.returns for p in parts]),
             np.concatenate([p.gloss for p in parts]),
+            np.concatenate([p.material for p in parts]),
         )
 
     def placed(self, x: float, y: float, yaw: float, z: float = 0.0) -> Mesh:
@@ -148,7 +154,8 @@ def box(size: Sequence[float], center: Sequence[float], material_name: str | Non
     if top_material is not False:
         up = np.all(verts[faces][:, :, 2] > 0, axis=1)
         roof = Mesh.of(v, faces[up], top_material if isinstance(top_material, str) else None)
-        sides = Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up], mesh.returns[~up], mesh.gloss[~up])
+        sides = Mesh(v, faces[~up], mesh.reflectivity[~up], mesh.semantic[~up], mesh.returns[~up], mesh.gloss[~up],
+                     mesh.material[~up])
         mesh = Mesh.concat([sides, roof])
     return mesh.placed(center[0], center[1], yaw, center[2])
 
