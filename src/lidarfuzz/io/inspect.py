@@ -2,7 +2,9 @@
 
 Every frame is loaded (or the first ``limit``), so content problems — a bad label
 line, a calib file missing a key, NaN coordinates — are found and listed next to
-the structural ones, each naming its file.
+the structural ones, each naming its file. A camera data set (``modality`` camera, or a
+source that holds only images) is reported by its images instead: their sizes, the steering
+range, how many have a label, depth and a camera matrix.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ import numpy as np
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.common import NonFiniteWarning, Problem
 from lidarfuzz.io.dataset import Log
-from lidarfuzz.io.open import open_dataset, source_kind
+from lidarfuzz.io.open import open_dataset, source_kind, source_modality
 from lidarfuzz.io.options import DatasetOptions
+from lidarfuzz.scene.image import ImageSample
 
 
 @dataclass
@@ -32,6 +35,34 @@ class ChannelStats:
         if values.size:
             self.minimum = min(self.minimum, float(values.min()))
             self.maximum = max(self.maximum, float(values.max()))
+
+
+@dataclass
+class ImageStats:
+    """What the images of a camera data set are like (the inspected ones)."""
+
+    sizes: Counter[tuple[int, int]] = field(default_factory=Counter)  # (height, width) → images
+    steering: ChannelStats = field(default_factory=ChannelStats)
+    labelled: int = 0
+    with_depth: int = 0
+    with_intrinsics: int = 0
+
+    def add(self, sample: ImageSample) -> None:
+        self.sizes[sample.shape] += 1
+        if sample.steering is not None:
+            self.labelled += 1
+            self.steering.update(np.array([sample.steering]))
+        self.with_depth += sample.depth is not None
+        self.with_intrinsics += sample.intrinsics is not None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "sizes": [{"height": h, "width": w, "images": n} for (h, w), n in sorted(self.sizes.items())],
+            "steering": {"min": self.steering.minimum, "max": self.steering.maximum} if self.labelled else None,
+            "labelled": self.labelled,
+            "with_depth": self.with_depth,
+            "with_intrinsics": self.with_intrinsics,
+        }
 
 
 @dataclass
@@ -59,6 +90,8 @@ class DatasetReport:
     dropped_nonfinite: int = 0
     problems: list[Problem] = field(default_factory=list)
     log: dict[str, Any] | None = None
+    modality: str = "lidar"
+    images: ImageStats | None = None  # the camera modality's statistics
 
     @property
     def errors(self) -> list[Problem]:
@@ -88,14 +121,21 @@ class DatasetReport:
                 for p in self.problems
             ],
             "log": self.log,
+            "modality": self.modality,
+            "images": self.images.as_dict() if self.images is not None else None,
         }
 
 
 def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit: int | None = None,
-                   options: DatasetOptions | None = None) -> DatasetReport:
+                   options: DatasetOptions | None = None, modality: str | None = None,
+                   **image_options: Any) -> DatasetReport:
     """Inspect anything :func:`~lidarfuzz.io.open_dataset` opens (with data-set ``options``);
     problems are collected, not raised. Frames without labels in a labelled data set are
     counted (a warning: only AP needs labels); doubts about a layout the user chose are warnings.
+    ``modality`` (``lidar`` or ``camera``) says which sensor's frames to inspect; by default
+    ``options.modality`` when it is ``camera``, else what the source holds (a source of images
+    only, or a log whose topic is an image topic: the camera). ``image_options``: see
+    :func:`~lidarfuzz.io.images.open_image_dataset`.
 
     Raises:
         DataFormatError: Only when the source cannot be opened at all.
@@ -107,6 +147,12 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
         from lidarfuzz.io.logs import inspect_bag
 
         log_info = inspect_bag(path)
+    options = options or DatasetOptions()
+    if modality is None:
+        camera = getattr(options, "modality", None) == "camera" or bool(image_options)
+        modality = "camera" if camera else source_modality(path, topic)
+    if modality == "camera":
+        return _inspect_images(path, kind, log_info, topic=topic, limit=limit, options=options, **image_options)
     dataset = open_dataset(path, topic=topic, strict=False, options=options)
     report = DatasetReport(
         path=str(path), kind=kind, format=dataset.format, frames=len(dataset), ordered=dataset.ordered, log=log_info
@@ -159,4 +205,40 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
         if n == 0:
             report.problems.append(Problem("warning", str(scene.metadata.get("source", path)), "empty point cloud"))
     report.points_min = points_min or 0
+    return report
+
+
+def _inspect_images(path: Path, kind: str, log_info: dict[str, Any] | None, *, topic: str | None,
+                    limit: int | None, options: DatasetOptions, **image_options: Any) -> DatasetReport:
+    """:func:`inspect_source` for the camera modality: each image decoded, its size, label, depth counted."""
+    dataset = open_dataset(path, topic=topic, strict=False, options=options, modality="camera", **image_options)
+    report = DatasetReport(path=str(path), kind=kind, format=dataset.format, frames=len(dataset),
+                           ordered=dataset.ordered, log=log_info, modality="camera", images=ImageStats())
+    report.problems.extend(dataset.problems())
+    if isinstance(dataset, Log) and len(dataset):
+        stamps = dataset.timestamps()
+        report.time_span = (float(stamps.min()), float(stamps.max()))
+        report.has_poses = dataset.poses() is not None
+    stats = report.images
+    assert stats is not None
+    ids = list(dataset.frame_ids())[:limit] if limit is not None else list(dataset.frame_ids())
+    for frame_id in ids:
+        try:
+            sample = dataset.load(frame_id)
+        except DataFormatError as exc:
+            hint = f" ({exc.hint})" if exc.hint else ""
+            where = f"field '{exc.field}': " if exc.field else ""
+            report.problems.append(Problem("error", str(exc.path), where + exc.message + hint, exc.line))
+            report.unreadable += 1
+            continue
+        report.inspected += 1
+        stats.add(sample)
+        report.calibrated_frames += sample.intrinsics is not None
+    if len(stats.sizes) > 1:
+        listed = ", ".join(f"{w}×{h} ({n})" for (h, w), n in stats.sizes.most_common())
+        report.problems.append(Problem("warning", str(path), f"images of {len(stats.sizes)} sizes: {listed} "
+                                       "(allowed: a steering system resizes its input)"))
+    if report.inspected and stats.labelled < report.inspected:
+        report.problems.append(Problem("warning", str(path), f"{report.inspected - stats.labelled} of "
+                                       f"{report.inspected} image(s) have no steering label"))
     return report

@@ -117,7 +117,7 @@ def test_raw_encodings_with_padded_rows(encoding, row, expected):
     # two rows of two pixels, each row padded by 3 bytes that must be ignored
     step = len(row) + 3
     second = [v // 2 for v in row]
-    data = bytes(row + [99, 99, 99] + second + [99, 99, 99])
+    data = bytes([*row, 99, 99, 99, *second, 99, 99, 99])
     image = decode_raw(2, 2, encoding, step, data, "log.bag", "topic /cam, message 0")
     assert image.shape == (2, 2, 3)
     assert image[0].tolist() == expected
