@@ -137,3 +137,18 @@ def test_raw_bad_encoding_step_and_size():
         decode_raw(1, 2, "rgb8", 5, bytes(5), "l.bag", "m")
     with pytest.raises(DataFormatError, match="exceeds"):
         decode_raw(100_000, 100_000, "mono8", 100_000, b"", "l.bag", "m")  # refused before any allocation
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_every_prefix_of_an_image_is_refused(progressive):
+    """No cut point lets a partial file through (OpenCV would decode most of them without a word)."""
+    rng = np.random.default_rng(0)
+    noisy = rng.integers(0, 256, (24, 40, 3), dtype=np.uint8)  # noise: long entropy-coded scans with FF bytes
+    jpeg = cv2.imencode(".jpg", noisy, [cv2.IMWRITE_JPEG_QUALITY, 90,
+                                        cv2.IMWRITE_JPEG_PROGRESSIVE, int(progressive)])[1].tobytes()
+    png = png_bytes(noisy)
+    for data, name in ((jpeg, "a.jpg"), (png, "a.png")):
+        assert decode_image(data, name).shape == (24, 40, 3)
+        for cut in range(len(data)):
+            with pytest.raises(DataFormatError):
+                decode_image(data[:cut], name)

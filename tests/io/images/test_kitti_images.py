@@ -107,6 +107,7 @@ def test_timestamps_make_a_log_and_poses_place_the_camera(tmp_path):
     # camera is at LiDAR (0, -0.06, 0) and its optical axis (z) is LiDAR +x; the LiDAR pose adds x = 5.
     assert np.allclose(pose[:3, 3], [5.0, -0.06, 0.0])
     assert np.allclose(pose[:3, 2], [1, 0, 0]) and np.allclose(pose[:3, 0], [0, -1, 0])
+    assert np.array_equal(ds.poses()[1], pose)  # the log's poses are the samples' ones, in time order
 
 
 def test_not_a_kitti_camera_folder(tmp_path):

@@ -225,6 +225,17 @@ class KittiImages(Dataset[ImageSample]):
         path = self.root / "calib" / f"{frame_id}.txt"
         return KittiCalibration.from_file(path) if path.is_file() else None
 
+    def _camera_pose(self, frame_id: str, calib: KittiCalibration | None = None) -> NDArray[np.float64] | None:
+        """The camera → world pose of a frame: its LiDAR pose (poses.txt) moved to the camera by its calib."""
+        if self._poses is None or frame_id not in self._poses:
+            return None
+        calib = calib or self.load_calib(frame_id)
+        if calib is None:
+            return None
+        lidar_pose = np.eye(4)
+        lidar_pose[:3, :] = self._poses[frame_id].reshape(3, 4)
+        return camera_pose(lidar_pose, calib, np.asarray(getattr(calib, self.projection_key), dtype=np.float64))
+
     def load(self, frame_id: str) -> ImageSample:
         path = self.image_path(frame_id)
         try:
@@ -236,10 +247,8 @@ class KittiImages(Dataset[ImageSample]):
                                     "size": [int(image.shape[0]), int(image.shape[1])]}
         calib = self.load_calib(frame_id)
         intrinsics = None
-        projection: NDArray[np.float64] | None = None
         if calib is not None:
-            projection = np.asarray(getattr(calib, self.projection_key), dtype=np.float64)
-            intrinsics = intrinsics_of(projection)
+            intrinsics = intrinsics_of(np.asarray(getattr(calib, self.projection_key), dtype=np.float64))
         depth = None
         depth_path = self.depth_folder / f"{frame_id}.png"
         if depth_path.is_file():
@@ -256,11 +265,7 @@ class KittiImages(Dataset[ImageSample]):
         timestamp = None
         if self._timestamps is not None and frame_id in self._timestamps:
             timestamp = float(self._timestamps[frame_id][0])
-        pose = None
-        if self._poses is not None and frame_id in self._poses and calib is not None and projection is not None:
-            lidar_pose = np.eye(4)
-            lidar_pose[:3, :] = self._poses[frame_id].reshape(3, 4)
-            pose = camera_pose(lidar_pose, calib, projection)
+        pose = self._camera_pose(frame_id, calib)
         return ImageSample(image, frame_id=frame_id, steering=steering, depth=depth, intrinsics=intrinsics,
                            timestamp=timestamp, pose=pose, metadata=metadata)
 
@@ -280,6 +285,18 @@ class KittiImageLog(KittiImages, Log[ImageSample]):
     def timestamps(self) -> NDArray[np.float64]:
         stamps = self._timestamps or {}
         return np.array([float(stamps[i][0]) for i in self._ids], dtype=np.float64)
+
+    def poses(self) -> NDArray[np.float64] | None:
+        """Camera → world per frame (see :func:`camera_pose`); None unless every frame has a pose and a calib."""
+        if self._poses is None:
+            return None
+        out = np.empty((len(self._ids), 4, 4))
+        for index, frame_id in enumerate(self._ids):
+            pose = self._camera_pose(frame_id)
+            if pose is None:
+                return None
+            out[index] = pose
+        return out
 
 
 def open_kitti_images(path: str | PathLike[str], **kwargs: Any) -> KittiImages:
