@@ -2,7 +2,7 @@
 
 Usage: ``.venv/bin/python benchmarks/operators.py [--repeat N] [--severity S]``
 
-Every registered operator is configured at the given severity (default 3); each
+Every registered LiDAR operator is configured at the given severity (default 3); each
 timing is ``sample`` + ``apply`` on the same simulator frame, median of ``--repeat``
 runs after one warm-up. Baseline measured in the same run: copying the frame's
 point array (``numpy.ndarray.copy``), the least any operator that returns a new
@@ -56,7 +56,8 @@ def main() -> None:
     print("| operator | family | median (ms) | × baseline | target | met |")
     print("|---|---|---:|---:|---:|---|")
     print(f"| baseline: copy the point array | — | {baseline:.3f} | 1.0 | | |")
-    for trial, (name, cls) in enumerate(sorted(available().items(), key=lambda kv: (kv[1].family, kv[0]))):
+    lidar = {name: cls for name, cls in available().items() if cls.modality == "lidar"}  # camera: benchmarks/camera.py
+    for trial, (name, cls) in enumerate(sorted(lidar.items(), key=lambda kv: (kv[1].family, kv[0]))):
         op = cls.at_severity(args.severity)
 
         def run(op=op, trial=trial) -> object:

@@ -72,6 +72,12 @@ def test_translation_moves_column_0_to_column_1_with_black_at_column_0():
     assert out.steering == 0.1 and out.frame_id == "t"
 
 
+def test_a_fractional_translation_interpolates_bilinearly():
+    out = channel(Translation().apply(grey_sample(), TranslationParams(tx=0.5, ty=0)))
+    # output x comes from input x − 0.5: column 2 ← (100 + 200)/2 = 150, column 3 ← (200 + 250)/2 = 225
+    assert out[0, 2] == 150 and out[0, 3] == 225
+
+
 def test_translation_down_blackens_the_top_row():
     out = channel(Translation().apply(grey_sample(), TranslationParams(tx=0, ty=1)))
     assert (out[0] == 0).all() and np.array_equal(out[1:], GREY[:-1])
