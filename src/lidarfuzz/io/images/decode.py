@@ -1,13 +1,13 @@
 """Image bytes → RGB arrays: PNG and JPEG files through OpenCV, raw ``sensor_msgs/Image`` pixels,
 depth PNGs — each checked before anything large is allocated.
 
-OpenCV decodes what it can of a damaged file and says nothing (a truncated JPEG comes back with
-grey rows at the bottom, a truncated PNG as ``None`` or half an image), so the container is walked
-first: a PNG must reach its ``IEND`` chunk and a JPEG its end-of-image marker (``FFD9``) after
-the last scan. The size in the header is checked against :data:`MAX_PIXELS` before decoding, so
-a header claiming 10⁹ pixels is refused instead of allocated; the decoded array must have the
-size the header gave. EXIF orientation is ignored (pixels as stored: the labels and the
-camera matrix refer to them).
+OpenCV says only "no image" for a damaged file (OpenCV 5 returns ``None`` for a cut PNG or JPEG;
+libjpeg in OpenCV 4 returned a cut JPEG's decoded part above grey rows, with a warning on stderr),
+so the container is walked first, and the error says what is wrong: a PNG must reach its ``IEND``
+chunk and a JPEG its end-of-image marker (``FFD9``) after the last scan. The size in the header
+is checked against :data:`MAX_PIXELS` before decoding, so a header claiming 10⁹ pixels is
+refused instead of allocated; the decoded array must have the size the header gave. EXIF
+orientation is ignored (pixels as stored: the labels and the camera matrix refer to them).
 
 Example:
     >>> import cv2
