@@ -110,24 +110,26 @@ def test_shear_moves_each_row_by_sx_times_its_index():
 def test_scale_by_two_about_the_origin_is_table_2s_matrix():
     values = np.array([[0, 40, 80, 120, 160], [40, 80, 120, 160, 200], [80, 120, 160, 200, 240],
                        [120, 160, 200, 240, 240]], dtype=np.uint8)
-    out = channel(Scale().apply(grey_sample(values), ScaleParams(factor=2.0)))
+    out = channel(Scale().apply(grey_sample(values), ScaleParams(factor=2.0, about="origin")))
     # output (x, y) comes from input (x/2, y/2): (2, 2) ← (1, 1) = 80, (4, 2) ← (2, 1) = 120, the
     # origin stays; bilinear between: (1, 0) ← (0.5, 0) = (0 + 40)/2 = 20, (1, 1) ← mean of 0, 40, 40, 80 = 40
     assert out[0, 0] == 0 and out[2, 2] == 80 and out[2, 4] == 120
     assert out[0, 1] == 20 and out[1, 1] == 40
 
 
-def test_scale_about_the_centre_keeps_the_centre():
+def test_scale_about_the_centre_keeps_the_centre_and_is_the_default():
     values = np.arange(25, dtype=np.uint8).reshape(5, 5) * 10
-    out = channel(Scale().apply(grey_sample(values), ScaleParams(factor=2.0, about="centre")))
+    out = channel(Scale().apply(grey_sample(values), ScaleParams(factor=2.0)))
     # centre (2, 2) is fixed; (3, 2) ← (2.5, 2) = (120 + 130)/2 = 125
     assert out[2, 2] == 120 and out[2, 3] == 125
+    assert Scale.at_severity(1).config.about == "centre" and Scale.at_severity(1).harmless()
+    assert not Scale(factor_range=(1.5, 2.0), about="origin").harmless()
 
 
 def test_affine_depth_uses_nearest_neighbour_not_interpolation():
     depth = np.array([[5.0, 50.0], [5.0, 50.0]], dtype=np.float32)
     sample = grey_sample(np.zeros((2, 2), np.uint8), depth=depth)
-    out = Scale().apply(sample, ScaleParams(factor=2.0))
+    out = Scale().apply(sample, ScaleParams(factor=2.0, about="origin"))
     # bilinear would put 27.5 between a car at 5 m and a wall at 50 m; nearest keeps one of them
     assert set(np.unique(out.depth[np.isfinite(out.depth)])) <= {5.0, 50.0}
 

@@ -1,7 +1,8 @@
 """Affine transformations of DeepTest: translation, scale, shear and rotation (Table 2's matrices).
 
 Each builds its 2×3 matrix as Table 2 gives it, in pixel coordinates (x to the right, y down, the
-origin at the centre of the top-left pixel), and warps with :func:`cv2.warpAffine` (bilinear
+origin at the centre of the top-left pixel; rotation and scale about the image centre, i.e.
+Table 2's matrix between a shift to the centre and back), and warps with :func:`cv2.warpAffine` (bilinear
 interpolation, constant black border: what the moved picture does not cover is black, as in
 DeepTest's OpenCV calls). The depth map moves with the pixels (nearest neighbour, ``inf`` where
 uncovered) and the camera matrix becomes ``A·K`` (:func:`~lidarfuzz.operators.camera.common.warp_affine`);
@@ -93,13 +94,13 @@ SCALES = [1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0]
 
 class ScaleConfig(Config):
     factor_range: Range = Field((1.5, 2.0), description="zoom factor (sx = sy; below 1: smaller)")
-    about: Literal["origin", "centre"] = Field("origin", description="fixed point: the top-left pixel (Table 2's "
-                                               "matrix) or the image centre")
+    about: Literal["centre", "origin"] = Field("centre", description="fixed point: the image centre, or the "
+                                               "top-left pixel (Table 2's matrix as printed)")
 
 
 class ScaleParams(Params):
     factor: float = Field(gt=0)
-    about: Literal["origin", "centre"] = "origin"
+    about: Literal["centre", "origin"] = "centre"
 
     def is_identity(self) -> bool:
         return self.factor == 1
@@ -107,15 +108,18 @@ class ScaleParams(Params):
 
 class Scale(Operator[ImageSample, ScaleConfig, ScaleParams]):
     """The picture zoomed by s: Table 2's ``[[sx, 0, 0], [0, sy, 0]]`` with sx = sy = s, about the
-    top-left pixel (so a zoom keeps the top-left 1/s of the picture, as Table 2's matrix does), or
-    about the image centre with ``about: centre``.
+    image centre ((W−1)/2, (H−1)/2) by default — as the rotation turns about it — or, with
+    ``about: origin``, about the top-left pixel as Table 2 prints it. About the origin even the
+    mildest zoom keeps only the top-left 1/1.5 of the picture: on a frame whose horizon is
+    mid-height (the built-in world's) that is sky and little road, and the steering label
+    cannot be meant to survive it; about the centre the road ahead stays in view, as through a
+    longer lens.
 
     Table 4: (sx, sy) = (1.5, 1.5), (2, 2), …, (6, 6). Severity s draws the factor uniformly between
     the (2s−1)-th and 2s-th values: 1: 1.5–2, 2: 2.5–3, 3: 3.5–4, 4: 4.5–5, 5: 5.5–6. Bilinear
     interpolation; a factor below 1 leaves a black border. Invariant up to severity 1 (see the
-    module docstring) as DeepTest assumes; on a KITTI-shaped frame even severity 1 about the origin
-    keeps little of the road below the horizon (seen on KITTI image_2/000000.png), so a violation
-    at severity 1 is worth a look before it is called a bug. Moves depth and K with the pixels.
+    module docstring), as DeepTest assumes, about the centre; a config ``about: origin`` is
+    checked at no severity (:meth:`harmless`). Moves depth and K with the pixels.
     """
 
     name = "image_scale"
@@ -124,13 +128,17 @@ class Scale(Operator[ImageSample, ScaleConfig, ScaleParams]):
     modality = CAMERA
     relation = Relation.INVARIANT
     harmless_up_to = 1
-    harmless_because = ("DeepTest's assumption for its mildest zoom (at most 2x): the label is kept, though about "
-                        "the top-left corner even this crops away much of the road")
+    harmless_because = ("a zoom of at most 2x about the centre keeps the road ahead in view, as a longer lens "
+                        "would (DeepTest's mildest scaling)")
     targets = IMAGE
     ConfigModel = ScaleConfig
     ParamsModel = ScaleParams
     IDENTITY: ClassVar = {"factor_range": (1.0, 1.0)}
     SEVERITIES: ClassVar = {s: {"factor_range": r} for s, r in table_pairs(SCALES).items()}
+
+    def harmless(self) -> bool:
+        """As the severity table says, about the centre only (about the origin the road leaves the picture)."""
+        return super().harmless() and (self.config.about == "centre" or self.config.factor_range == (1.0, 1.0))
 
     def sample(self, rng: np.random.Generator, sample: ImageSample) -> ScaleParams:
         return ScaleParams(factor=uniform(rng, self.config.factor_range), about=self.config.about)
