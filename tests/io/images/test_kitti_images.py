@@ -44,6 +44,7 @@ def test_frames_match_the_lidar_frames_and_intrinsics_are_p2s_left_3x3(tmp_path)
     assert sample.intrinsics.tolist() == [[700, 0, 600], [0, 710, 180], [0, 0, 1]]
     assert sample.steering is None and sample.depth is None
     assert ds.problems() == []
+    assert ds.image_sizes() == {(2, 3): 2}
 
 
 def test_image_3_uses_p3(tmp_path):

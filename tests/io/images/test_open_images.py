@@ -82,3 +82,12 @@ def test_info_on_kitti_with_modality_camera(tmp_path):
     assert report["modality"] == "camera" and report["images"]["with_intrinsics"] == 2
     lidar = runner.invoke(app, ["info", str(root), "--json", "-"])
     assert json.loads(lidar.output)["modality"] == "lidar"
+
+
+def test_several_csvs_beside_images_say_which_to_open(tmp_path):
+    root = plain(tmp_path, ["frames/a.png,0.1,3"])
+    (root / "other.csv").write_text("x\n")
+    assert source_kind(root) == "images"
+    result = runner.invoke(app, ["info", str(root)])  # the entry point prints the error as one line
+    assert isinstance(result.exception, DataFormatError)
+    assert "2 CSV files (labels.csv, other.csv): which one lists the images?" in str(result.exception)

@@ -21,6 +21,7 @@ a LiDAR frame (or the reverse) are warnings too.
 from __future__ import annotations
 
 import csv
+from collections import Counter
 from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
@@ -32,7 +33,7 @@ from numpy.typing import NDArray
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.io.common import Problem
 from lidarfuzz.io.dataset import Dataset, Log
-from lidarfuzz.io.images.decode import decode_depth, decode_image
+from lidarfuzz.io.images.decode import decode_depth, decode_image, image_header
 from lidarfuzz.io.images.tabular import number
 from lidarfuzz.io.kitti.dataset import _read_keyed_lines
 from lidarfuzz.scene.calib import KittiCalibration
@@ -220,6 +221,14 @@ class KittiImages(Dataset[ImageSample]):
         if frame_id not in self._files:
             raise KeyError(f"{self.root}: no frame with id {frame_id!r}")
         return self._files[frame_id]
+
+    def image_sizes(self) -> Counter[tuple[int, int]]:
+        """How many images have each (height, width), from their headers (images may differ in size)."""
+        sizes: Counter[tuple[int, int]] = Counter()
+        for path in self._files.values():
+            _, height, width = image_header(path.read_bytes(), path)
+            sizes[height, width] += 1
+        return sizes
 
     def load_calib(self, frame_id: str) -> KittiCalibration | None:
         path = self.root / "calib" / f"{frame_id}.txt"

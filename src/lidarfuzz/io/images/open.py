@@ -74,7 +74,8 @@ def is_image_source(path: str | PathLike[str]) -> bool:
     try:
         layout, _ = detect_layout(path)
     except DataFormatError:
-        return False
+        # several CSVs beside the images: the camera reader's error says which to open
+        return path.is_dir() and len(list(path.glob("*.csv"))) > 1
     if layout == "log":
         return False
     if layout == "kitti":
