@@ -55,7 +55,7 @@ def main() -> None:
     world, _ = build_world(args.out / "world", args.frames, 0)
     operators = []
     for name, cls in sorted(available().items()):
-        if cls.harmless_up_to <= 0 or name == "frame_average":
+        if cls.harmless_up_to <= 0 or name == "frame_average" or cls.modality != "lidar":
             continue
         same = cls.at_severity(1).spec() == cls.at_severity(cls.harmless_up_to).spec()  # a mirror: one setting
         severities = [1] if same else sorted({1, cls.harmless_up_to})

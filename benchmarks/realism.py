@@ -27,6 +27,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -111,9 +112,14 @@ def print_frames(frames: Sequence[Frame]) -> None:
     print()
 
 
+def lidar_operators() -> dict[str, Any]:
+    """The registered operators that mutate point clouds (the camera ones take images)."""
+    return {name: cls for name, cls in available().items() if cls.modality == "lidar"}
+
+
 def run_operators(frames: Sequence[Frame], severities: Sequence[int], seed: int) -> dict[tuple[str, int, str], Change]:
     results: dict[tuple[str, int, str], Change] = {}
-    for name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+    for name, cls in sorted(lidar_operators().items(), key=lambda kv: (kv[1].family, kv[0])):
         for severity in severities:
             op = cls.at_severity(severity)
             for frame in frames:
@@ -127,7 +133,7 @@ def print_operators(frames: Sequence[Frame], severities: Sequence[int],
     print("## Points lost / moved / added, % of the source frame\n")
     print("| operator | severity | " + " | ".join(f.name for f in frames) + " |")
     print("|---|---:|" + "---|" * len(frames))
-    for name, cls in sorted(available().items(), key=lambda kv: (kv[1].family, kv[0])):
+    for name, cls in sorted(lidar_operators().items(), key=lambda kv: (kv[1].family, kv[0])):
         for severity in severities:
             cells = []
             for frame in frames:
