@@ -66,6 +66,11 @@ class Preprocess(BaseModel):
 
     def apply(self, image: NDArray[np.uint8]) -> NDArray[np.float32]:
         """One H×W×3 uint8 RGB frame → ``height`` × ``width`` × 3 float32."""
+        return self.scaled(self.pixels(image))
+
+    def pixels(self, image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """Steps 1–3 (crop, resize, colour space): ``height`` × ``width`` × 3 uint8, what a training
+        set caches (8 bits a value instead of 32)."""
         image = np.asarray(image)
         if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
             raise ValueError(f"image must be H×W×3 uint8 RGB, got {image.dtype} of shape {image.shape}")
@@ -77,7 +82,11 @@ class Preprocess(BaseModel):
             pixels = cv2.cvtColor(pixels, cv2.COLOR_RGB2YUV)
         elif self.color == "bgr":
             pixels = np.ascontiguousarray(pixels[:, :, ::-1])
-        out = pixels.astype(np.float32) * np.float32(self.scale)
+        return pixels
+
+    def scaled(self, pixels: NDArray[np.uint8]) -> NDArray[np.float32]:
+        """Step 4 on the output of :meth:`pixels` (any leading shape): ``value · scale + offset``."""
+        out = np.asarray(pixels).astype(np.float32) * np.float32(self.scale)
         if self.offset:
             out += np.float32(self.offset)
         return out
