@@ -98,6 +98,8 @@ def info(
                                                      "filename, path, ...).")] = None,
     steering_column: Annotated[str | None, typer.Option(help="Steering column of a CSV of images (default: "
                                                         "steering, angle, ...).")] = None,
+    steering_topic: Annotated[str | None, typer.Option(help="Topic of a log whose messages carry the steering "
+                                                       "angle of its images (e.g. /vehicle/steering_report).")] = None,
 ) -> None:
     """Summarise a frame, data set or log: counts, channels and ranges, classes, problems found.
 
@@ -115,7 +117,8 @@ def info(
         raise typer.BadParameter(f"expected lidar or camera, got {modality!r}", param_hint="--modality")
     options = options_from_flags(layout, allow_unlabelled)
     given = {key: value for key, value in (("camera", camera), ("image_column", image_column),
-                                           ("steering_column", steering_column)) if value is not None}
+                                           ("steering_column", steering_column),
+                                           ("steering_topic", steering_topic)) if value is not None}
     if given and modality == "lidar":
         raise typer.BadParameter(f"--{next(iter(given)).replace('_', '-')} applies to the camera modality",
                                  param_hint="--modality")

@@ -29,7 +29,7 @@ def header(store: Any, stamp_ns: int) -> Any:
     types = store.types
     time = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
     fields: dict[str, Any] = {"stamp": time, "frame_id": "camera_front"}
-    if store is ROS1:
+    if "seq" in [name for name, _ in store.fielddefs["std_msgs/msg/Header"][1]]:  # ROS 1 headers have one
         fields["seq"] = 0
     return types["std_msgs/msg/Header"](**fields)
 
@@ -143,3 +143,68 @@ def test_an_image_only_log_opens_as_the_camera_modality(tmp_path):
     with pytest.raises(DataFormatError, match="no sensor_msgs/PointCloud2 messages"):
         open_dataset(path)  # the LiDAR reader's own message, unchanged
     assert len(open_dataset(path, modality="camera")) == 1
+
+
+STEERING_REPORT = "dbw_mkz_msgs/msg/SteeringReport"
+
+
+def test_steering_from_a_vendor_topic_is_interpolated_at_each_image(tmp_path):
+    """Udacity-style: a SteeringReport type no reference store knows, defined only inside the bag."""
+    from rosbags.typesys import get_types_from_msg
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    store.register(get_types_from_msg("std_msgs/Header header\nfloat32 steering_wheel_angle\nfloat32 speed\n",
+                                      STEERING_REPORT))
+    path = tmp_path / "drive.bag"
+    with Ros1Writer(path) as writer:
+        images = writer.add_connection("/center_camera/image_color", IMAGE, typestore=store)
+        steering = writer.add_connection("/vehicle/steering_report", STEERING_REPORT, typestore=store)
+        for i in range(3):  # images at T, T + 0.1 s, T + 0.2 s
+            time = STAMP + i * 100_000_000
+            writer.write(images, time, store.serialize_ros1(bgr8_padded(store, time), IMAGE))
+        for offset, angle in ((50_000_000, 0.125), (150_000_000, 0.375)):  # steering at T + 0.05 s, T + 0.15 s
+            report = store.types[STEERING_REPORT](header=header(store, 0), steering_wheel_angle=angle, speed=8.0)
+            writer.write(steering, STAMP + offset, store.serialize_ros1(report, STEERING_REPORT))
+
+    log = open_image_dataset(path, topic="/center_camera/image_color", steering_topic="/vehicle/steering_report")
+    # T + 0.1 s lies halfway between the two reports: (0.125 + 0.375) / 2 = 0.25; T and T + 0.2 s lie
+    # outside them: unlabelled, not extrapolated
+    assert [s.steering for s in log] == [None, 0.25, None]
+    assert log[1].metadata["steering_topic"] == "/vehicle/steering_report"
+    assert [p.message for p in log.problems()] == [
+        "2 of 3 image(s) lie outside the messages of /vehicle/steering_report: unlabelled"]
+    with pytest.raises(DataFormatError, match=r"field 'steering_field': topic '/vehicle/steering_report' "
+                                              r"\(dbw_mkz_msgs/msg/SteeringReport\) has no field 'wheel'; its "
+                                              r"fields: header, steering_wheel_angle, speed"):
+        open_image_dataset(path, steering_topic="/vehicle/steering_report", steering_field="wheel")
+
+
+def _float_topic(path: Path, values: list[float]) -> Path:
+    with open(path, "wb") as stream:
+        writer = McapWriter(stream)
+        writer.start(profile="ros2", library="test")
+        for topic, msgtype in (("/cam", COMPRESSED), ("/steering", "std_msgs/msg/Float64")):
+            text, _ = ROS2.generate_msgdef(msgtype, ros_version=2)
+            schema = writer.register_schema(msgtype, "ros2msg", text.encode())
+            channel = writer.register_channel(topic, "cdr", schema)
+            if topic == "/cam":
+                for i in range(2):
+                    time = STAMP + i * 100_000_000
+                    writer.add_message(channel, log_time=time, publish_time=time,
+                                       data=ROS2.serialize_cdr(compressed(ROS2, time), COMPRESSED))
+            else:
+                for i, value in enumerate(values):  # at T and T + 0.1 s
+                    time = STAMP + i * 100_000_000
+                    msg = ROS2.types[msgtype](data=value)
+                    writer.add_message(channel, log_time=time, publish_time=time, data=ROS2.serialize_cdr(msg, msgtype))
+        writer.finish()
+    return path
+
+
+def test_steering_from_a_float64_topic_and_bad_values(tmp_path):
+    log = open_image_dataset(_float_topic(tmp_path / "a.mcap", [-0.5, 0.5]), steering_topic="/steering")
+    assert [s.steering for s in log] == [-0.5, 0.5] and log.steering.field == "data"
+    with pytest.raises(DataFormatError, match=r"field 'data': topic /steering, message 1: nan is not a finite number"):
+        open_image_dataset(_float_topic(tmp_path / "b.mcap", [0.0, float("nan")]), steering_topic="/steering")
+    with pytest.raises(DataFormatError, match=r"field 'steering_topic': no topic '/wheel'; topics: /cam, /steering"):
+        open_image_dataset(tmp_path / "a.mcap", steering_topic="/wheel")

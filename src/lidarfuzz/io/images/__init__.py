@@ -11,7 +11,8 @@ layout                    what is read
 ``kitti``                 ``image_2/`` beside ``velodyne/``: ``calib/`` P2 → intrinsics,
                           ``depth_2/`` (uint16, metres × 256), ``steering.csv``
 ``log``                   ``sensor_msgs/Image`` / ``CompressedImage`` topics of ROS 1 bags,
-                          ROS 2 bags and MCAP files
+                          ROS 2 bags and MCAP files; steering from a companion topic
+                          (:mod:`~lidarfuzz.io.images.steering`)
 ========================= ================================================================
 
 Entry point: :func:`open_image_dataset` (also reached through

@@ -10,17 +10,21 @@ timestamps header stamps (the log time where a stamp is zero).
 * ``CompressedImage``: PNG or JPEG data (recognised by its bytes; ``format`` is kept in the
   metadata), checked complete before decoding (:mod:`lidarfuzz.io.images.decode`).
 
-Samples carry no steering label: steering lives on another topic (a vehicle report with its own
-message type and time base), which this reader does not pair with the images; no depth and no
-intrinsics either (``sensor_msgs/CameraInfo`` is not read).
+Steering labels come from a companion topic when one is named (``steering_topic``, e.g. Udacity's
+``/vehicle/steering_report``): linear interpolation at each image's log time
+(:mod:`lidarfuzz.io.images.steering`); images outside that topic's span are unlabelled (a warning).
+No depth and no intrinsics (``sensor_msgs/CameraInfo`` is not read).
 """
 
 from __future__ import annotations
 
+from os import PathLike
 from typing import Any, ClassVar
 
-from lidarfuzz.errors import DataFormatError
+from lidarfuzz.errors import DataFormatError, LidarfuzzError
+from lidarfuzz.io.common import Problem
 from lidarfuzz.io.images.decode import decode_image, decode_raw
+from lidarfuzz.io.images.steering import SteeringTrack, read_steering
 from lidarfuzz.io.logs.messages import NS, typestore
 from lidarfuzz.io.logs.reader import TopicLog
 from lidarfuzz.scene.image import ImageSample
@@ -35,6 +39,10 @@ class ImageLog(TopicLog[ImageSample]):
     Args:
         path: A ``.bag`` file, a ROS 2 bag directory (or its ``metadata.yaml``), or an ``.mcap`` file.
         topic: The image topic; may be left out when the log has only one.
+        steering_topic: A topic whose messages carry the steering angle (see
+            :mod:`lidarfuzz.io.images.steering`); without one the images are unlabelled.
+        steering_field: The field of those messages that holds it (``drive.steering_angle``);
+            by default the first of :data:`~lidarfuzz.io.images.steering.STEERING_FIELDS`.
         name: Display name (defaults to the file name).
 
     Each sample's metadata holds ``source``, ``format`` (``ros1``/``ros2``/``mcap``), ``topic``,
@@ -44,6 +52,19 @@ class ImageLog(TopicLog[ImageSample]):
 
     msgtypes: ClassVar[tuple[str, ...]] = (IMAGE, COMPRESSED_IMAGE)
     what: ClassVar[str] = "sensor_msgs/Image or sensor_msgs/CompressedImage"
+
+    def __init__(self, path: str | PathLike[str], topic: str | None = None, *, steering_topic: str | None = None,
+                 steering_field: str | None = None, name: str | None = None) -> None:
+        super().__init__(path, topic, name=name)
+        self.steering: SteeringTrack | None = None
+        if steering_field is not None and steering_topic is None:
+            raise LidarfuzzError(f"{self.path}: steering_field={steering_field!r} needs a steering_topic")
+        if steering_topic is not None:
+            self.steering = read_steering(self.path, self._kind, steering_topic, steering_field)
+            outside = sum(1 for entry in self._entries if self.steering.at(entry.log_time) is None)
+            if outside:
+                self._problems.append(Problem("warning", str(self.path), f"{outside} of {len(self._entries)} "
+                                              f"image(s) lie outside the messages of {steering_topic}: unlabelled"))
 
     def _sample(self, index: int, log_time: int, raw: bytes | memoryview) -> ImageSample:
         encoding = self._topic.encoding
@@ -68,8 +89,12 @@ class ImageLog(TopicLog[ImageSample]):
                 raise DataFormatError(self.path, f"{where}: {exc.message}", field="data", hint=exc.hint) from None
             metadata["compression"] = str(msg.format)
         metadata["size"] = [int(image.shape[0]), int(image.shape[1])]
-        return ImageSample(image, frame_id=f"{index:06d}", timestamp=(stamp if stamp else log_time) / NS,
-                           metadata=metadata)
+        steering = None
+        if self.steering is not None:
+            steering = self.steering.at(log_time)
+            metadata["steering_topic"] = self.steering.topic
+        return ImageSample(image, frame_id=f"{index:06d}", steering=steering,
+                           timestamp=(stamp if stamp else log_time) / NS, metadata=metadata)
 
 
 def image_topics(path: Any) -> tuple[list[str], list[str]]:

@@ -92,6 +92,8 @@ def open_image_dataset(
     topic: str | None = None,
     image_column: str | None = None,
     steering_column: str | None = None,
+    steering_topic: str | None = None,
+    steering_field: str | None = None,
     strict: bool = True,
 ) -> Dataset[ImageSample]:
     """Open a camera data set: Udacity, a driving log, a CSV of images, KITTI ``image_2/`` or an image topic.
@@ -103,6 +105,8 @@ def open_image_dataset(
             (default) or ``image_3`` for KITTI.
         topic: The image topic of a log (default: the only one).
         image_column, steering_column: The columns of a plain CSV (default: found by name).
+        steering_topic, steering_field: A log's steering topic and the field holding the angle
+            (:class:`~lidarfuzz.io.images.logs.ImageLog`).
         strict: Raise on bad rows and files; when False they are listed in ``problems()``.
 
     Raises:
@@ -115,13 +119,14 @@ def open_image_dataset(
     chosen = layout or found
     if chosen in ("udacity", "driving_log", "csv") and Path(path).is_dir() and source == Path(path):
         raise DataFormatError(path, f"the {chosen} layout needs a CSV; none found here")
-    if topic is not None and chosen != "log":
-        raise LidarfuzzError(f"{path}: topic={topic!r} applies to logs, not the {chosen} layout")
+    for option, value in (("topic", topic), ("steering_topic", steering_topic), ("steering_field", steering_field)):
+        if value is not None and chosen != "log":
+            raise LidarfuzzError(f"{path}: {option}={value!r} applies to logs, not the {chosen} layout")
     if chosen == "log":
         if camera is not None:
             raise LidarfuzzError(f"{path}: camera={camera!r} does not apply to a log; choose the image topic "
                                  "with topic=...")
-        return ImageLog(path, topic)
+        return ImageLog(path, topic, steering_topic=steering_topic, steering_field=steering_field)
     if chosen == "kitti":
         return open_kitti_images(path, camera=camera, strict=strict)
     return open_table(source, layout=chosen, camera=camera, image_column=image_column,

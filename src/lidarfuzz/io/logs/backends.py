@@ -51,6 +51,10 @@ class Backend:
         """First and last log time (ns), or ``None`` for an empty log."""
         raise NotImplementedError
 
+    def definition(self, topic: str) -> tuple[str, str] | None:
+        """The message definition the log stores for a topic, as ``(text, "msg" or "idl")``, or None."""
+        raise NotImplementedError
+
     def message_count(self) -> int:
         raise NotImplementedError
 
@@ -119,6 +123,16 @@ class _RosbagsBackend(Backend):
             return
         for _, log_time, raw in self.reader.messages(connections=connections, start=start, stop=stop):
             yield log_time, raw
+
+    def definition(self, topic: str) -> tuple[str, str] | None:
+        # rosbags is slow to import: loaded only when a log is touched
+        from rosbags.interfaces import MessageDefinitionFormat
+
+        for connection in self.reader.connections:
+            if connection.topic == topic and connection.msgdef.data:
+                fmt = "idl" if connection.msgdef.format == MessageDefinitionFormat.IDL else "msg"
+                return str(connection.msgdef.data), fmt
+        return None
 
     def time_range(self) -> tuple[int, int] | None:
         if not self.reader.message_count:
@@ -225,6 +239,14 @@ class _McapBackend(Backend):
             bounds[upper] = stop
         for _, _, message in self.reader.iter_messages(topics=[topic], **bounds):
             yield message.log_time, message.data
+
+    def definition(self, topic: str) -> tuple[str, str] | None:
+        for channel in self.channels.values():
+            schema = self.schemas.get(channel.schema_id)
+            if channel.topic == topic and schema is not None and schema.data:
+                fmt = "idl" if schema.encoding in ("ros2idl", "omgidl") else "msg"
+                return bytes(schema.data).decode("utf-8", "replace"), fmt
+        return None
 
     def time_range(self) -> tuple[int, int] | None:
         return self.range
