@@ -61,7 +61,9 @@ class ImageLog(TopicLog[ImageSample]):
             raise LidarfuzzError(f"{self.path}: steering_field={steering_field!r} needs a steering_topic")
         if steering_topic is not None:
             self.steering = read_steering(self.path, self._kind, steering_topic, steering_field)
-            outside = sum(1 for entry in self._entries if self.steering.at(entry.log_time) is None)
+            times = self.steering.times
+            outside = sum(1 for entry in self._entries
+                          if not len(times) or not times[0] <= entry.log_time <= times[-1])
             if outside:
                 self._problems.append(Problem("warning", str(self.path), f"{outside} of {len(self._entries)} "
                                               f"image(s) lie outside the messages of {steering_topic}: unlabelled"))
