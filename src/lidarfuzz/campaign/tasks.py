@@ -38,21 +38,24 @@ from lidarfuzz.store.models import Dataset, Model, Status, Subtask, Task
 from lidarfuzz.store.store import Store
 
 
-def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None) -> Dataset:
+def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None, *, modality: str = "lidar") -> Dataset:
     """The data set a campaign names: a registered one, or a path (registered now, with
-    ``options``). Options that change how a registered data set is read are refused: register
-    it again under another name (lidarfuzz datasets add)."""
+    ``options``, read as ``modality``'s data). Options that change how a registered data set is
+    read are refused: register it again under another name (lidarfuzz datasets add)."""
     from lidarfuzz.io.open import open_dataset
     from lidarfuzz.store.inventory import dataset_options
 
     given = (options or DatasetOptions()).resolved()
+    if given.modality != modality:
+        given = given.model_copy(update={"modality": modality})
     row = s.scalar(select(Dataset).where(Dataset.name == ref))
     if row is None:
         path = Path(ref).expanduser()
         if not path.exists():
             raise StoreError(f"{ref}: neither a registered data set (lidarfuzz datasets list) nor a path")
         resolved = path.resolve()
-        row = s.scalar(select(Dataset).where(Dataset.path == str(resolved)).order_by(Dataset.id))
+        rows = s.scalars(select(Dataset).where(Dataset.path == str(resolved)).order_by(Dataset.id))
+        row = next((r for r in rows if dataset_options(r).modality == modality), None)
         if row is None:
             dataset = open_dataset(resolved, options=given)
             frames = len(dataset.frame_ids())
@@ -67,6 +70,9 @@ def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None) -> Dat
             s.flush()
             return row
     stored = dataset_options(row)
+    if stored.modality != modality:
+        raise ConflictError(f"data set {row.name!r} holds {stored.modality} frames; a {modality} campaign needs "
+                            f"{modality} data (register it with lidarfuzz datasets add --modality {modality})")
     for field in ("layout", "intensity_scale", "roi_map"):
         value = getattr(given, field)
         if value is not None and value != getattr(stored, field):
@@ -89,16 +95,22 @@ def unlabelled_frames(dataset: Any, frame_ids: list[str], allow: bool, path: str
     return missing
 
 
-def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = False) -> Model:
+def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = False, modality: str = "lidar") -> Model:
     """The model a campaign runs: a registered one by name, else one registered for ``ref`` and
     ``options`` now. Either way the system is built and fingerprinted: when its code (or weights)
     changed since it was registered, another row holds the new fingerprint, so the old rows'
     fingerprint, and with it the old code's cached outputs, is never reused. ``sequence``: the
-    system consumes logs in order (:func:`~lidarfuzz.suts.registry.create_sequence` builds it)."""
-    from lidarfuzz.suts.registry import create, create_sequence
+    system consumes logs in order (:func:`~lidarfuzz.suts.registry.create_sequence` builds it);
+    ``modality`` ``camera``: a steering system (:func:`~lidarfuzz.suts.registry.create_camera`)."""
+    from lidarfuzz.suts.registry import create, create_camera, create_sequence
     from lidarfuzz.suts.specs import SutSpecError
 
     def build(spec: str, **given: Any) -> Any:
+        if modality == "camera":
+            try:
+                return create_camera(spec, **given)
+            except LidarfuzzError as exc:  # the user's choice: a bad input
+                raise SutSpecError(f"sut: {exc} (a camera campaign needs a steering system, e.g. dave2)") from None
         if not sequence:
             return create(spec, **given)
         try:
@@ -147,15 +159,18 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
     from lidarfuzz.store.inventory import dataset_options as stored_options
     from lidarfuzz.store.inventory import open_registered
 
-    logs = task_kind(spec.kind).consumes_logs
+    row = task_kind(spec.kind)
+    logs = row.consumes_logs
     with store.session() as s:
-        dataset = _dataset_row(s, spec.dataset, dataset_options)
-        model = _model_row(s, spec.sut, dict(sut_options or {}), sequence=logs)
+        dataset = _dataset_row(s, spec.dataset, dataset_options, modality=row.modality)
+        model = _model_row(s, spec.sut, dict(sut_options or {}), sequence=logs, modality=row.modality)
         opened = open_registered(dataset)
         frame_ids = select_frames(opened.frame_ids(), spec.frames, spec.frame_order, spec.seed)
         allow = stored_options(dataset).allow_unlabelled or bool(dataset_options and dataset_options.allow_unlabelled)
-        # a log is replayed whole and judged by decisions, not AP: its labels are not required
-        unlabelled = [] if logs else unlabelled_frames(opened, frame_ids, allow, dataset.path)
+        # a log is replayed whole and judged by decisions, not AP, and an image's label is a steering
+        # angle (an unlabelled image is left out of Eq. 2, see lidarfuzz.campaign.camera): no 3D labels needed
+        unlabelled = [] if logs or row.modality == "camera" else unlabelled_frames(opened, frame_ids, allow,
+                                                                                    dataset.path)
         options = TaskOptions(kind=spec.kind, frame_ids=frame_ids, trials=spec.trials, isolate=isolate,
                               timeout=timeout, save_mutants=save_mutants, unlabelled_frames=unlabelled,
                               pilot=pilot)
@@ -166,7 +181,7 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
         task = _add_task(s, planned, spec.name, dataset, model, options)
         as_reference = options.model_copy(update={"reference_of": task.id, "pilot": None})
         references = [_add_task(s, spec, f"{spec.name or 'campaign'}: reference {ref}", dataset,
-                                _model_row(s, ref, {}), as_reference)
+                                _model_row(s, ref, {}, sequence=logs, modality=row.modality), as_reference)
                       for ref in spec.reference]
         if references:
             task.options = task.options.model_copy(update={"references": [r.id for r in references]})

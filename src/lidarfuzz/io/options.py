@@ -10,6 +10,8 @@ reports, the web app):
   labels; AP is then scored on the labelled frames only;
 * ``intensity_scale``: the intensity reading of the strongest return (1.0 or 255.0), when the
   layout's is wrong for this data;
+* ``modality``: ``lidar`` (the default) reads point clouds, ``camera`` the images of the same
+  source (a KITTI folder's ``image_2/``) or of a camera data set (:mod:`lidarfuzz.io.images`);
 * ``roi_map``: a GeoJSON drivable-area map for the whole data set, used for every frame that has
   no map of its own (``roi/<id>.json``). Its polygons are in the LiDAR frame (the same for every
   frame), or — with ``"frame": "world"`` at the top level or in its ``properties`` — in the
@@ -63,6 +65,9 @@ class DatasetOptions(BaseModel):
     roi_map: str | None = Field(default=None, description="GeoJSON drivable-area map for every frame without "
                                                           "its own, or 'estimate' for the region estimated from "
                                                           "each frame's points")
+    modality: Literal["lidar", "camera"] = Field(
+        default="lidar", description="which sensor's frames to read: point clouds, or the camera's images "
+                                     "(lidarfuzz.io.images: a KITTI folder's image_2/, Udacity, images + CSV, bags)")
 
     @field_validator("layout")
     @classmethod

@@ -64,12 +64,14 @@ def options_at(store: Store, path: str | PathLike[str]) -> DatasetOptions:
         return dataset_options(row) if row is not None else DatasetOptions()
 
 
-def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None = None, notes: str = "") -> Model:
+def add_model(store: Store, name: str, spec: str, options: dict[str, Any] | None = None, notes: str = "", *,
+              modality: str = "lidar") -> Model:
     """Build the system a spec names (so a bad spec fails now, not mid-campaign) and record it
-    with its fingerprint."""
-    from lidarfuzz.suts.registry import create
+    with its fingerprint; ``modality`` ``camera``: a steering system
+    (:func:`~lidarfuzz.suts.registry.create_camera`)."""
+    from lidarfuzz.suts.registry import create, create_camera
 
-    system = create(spec, **(options or {}))
+    system = (create_camera if modality == "camera" else create)(spec, **(options or {}))
     with store.session() as s:
         if s.scalar(select(Model).where(Model.name == name)) is not None:
             raise ConflictError(f"a model called {name!r} exists already (lidarfuzz models list)")
