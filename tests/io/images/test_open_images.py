@@ -15,6 +15,7 @@ from lidarfuzz.io.images import KittiImages, TableImages
 from lidarfuzz.io.kitti import KittiDataset
 from lidarfuzz.io.open import open_dataset, source_kind, source_modality
 from lidarfuzz.io.options import DatasetOptions
+from tests.io.images.test_image_logs import ROS2, STAMP, compressed, write_mcap
 from tests.io.images.test_kitti_images import kitti
 from tests.io.images.test_tables import plain, udacity
 
@@ -91,3 +92,15 @@ def test_several_csvs_beside_images_say_which_to_open(tmp_path):
     result = runner.invoke(app, ["info", str(root)])  # the entry point prints the error as one line
     assert isinstance(result.exception, DataFormatError)
     assert "2 CSV files (labels.csv, other.csv): which one lists the images?" in str(result.exception)
+
+
+def test_info_on_a_log_of_images(tmp_path):
+    path = write_mcap(tmp_path / "cam.mcap", {"/cam": [compressed(ROS2, STAMP), compressed(ROS2, STAMP + 10**8)]})
+    result = runner.invoke(app, ["info", str(path), "--json", "-"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert report["modality"] == "camera" and report["format"] == "mcap" and report["frames"] == 2
+    assert report["time_span"] == [1_700_000_000.25, 1_700_000_000.35]
+    assert [t["name"] for t in report["log"]["topics"]] == ["/cam"]
+    assert report["images"]["labelled"] == 0
+    assert [p["message"] for p in report["problems"]] == ["2 of 2 image(s) have no steering label"]

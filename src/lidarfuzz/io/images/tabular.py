@@ -291,8 +291,7 @@ def sniff_layout(source: Path) -> TableLayout:
         return "udacity"
     if source.name == DRIVING_LOG_FILE:
         return "driving_log"
-    records = _records(source)[:1]
-    first = [cell.strip().lower() for cell in records[0][1]] if records else []
+    first = [cell.strip().lower() for cell in _first_record(source)]
     if all(column in first for column in UDACITY_COLUMNS):
         return "udacity"
     if first[:4] == list(DRIVING_LOG_COLUMNS[:4]):
@@ -300,6 +299,15 @@ def sniff_layout(source: Path) -> TableLayout:
     if len(first) == 7 and all(_is_number(cell) for cell in first[3:]):
         return "driving_log"
     return "csv"
+
+
+def _first_record(source: Path) -> list[str]:
+    """The first non-empty record of a CSV (the rest is not read: this runs on every folder opened)."""
+    try:
+        with open(source, newline="", encoding="utf-8-sig") as handle:
+            return next((cells for cells in csv.reader(handle) if any(cell.strip() for cell in cells)), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []  # opening it as a data set names what is wrong
 
 
 def _is_number(text: str) -> bool:
