@@ -149,7 +149,7 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
         log_info = inspect_bag(path)
     options = options or DatasetOptions()
     if modality is None:
-        camera = getattr(options, "modality", None) == "camera" or bool(image_options)
+        camera = options.modality == "camera" or bool(image_options)
         modality = "camera" if camera else source_modality(path, topic)
     if modality == "camera":
         return _inspect_images(path, kind, log_info, topic=topic, limit=limit, options=options, **image_options)

@@ -128,7 +128,7 @@ def open_dataset(
             (see :func:`~lidarfuzz.io.images.open_image_dataset`).
     """
     options = options or DatasetOptions()
-    if (modality or getattr(options, "modality", None)) == "camera":
+    if (modality or options.modality) == "camera":
         return _open_images(Path(path), options, topic=topic, strict=strict, **kitti_options)
     layout = options.point_layout()
     path = _data_folder(Path(path))
