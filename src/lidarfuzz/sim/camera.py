@@ -16,7 +16,7 @@ user is posed at that instant):
    per pixel towards the sun (Embree occlusion queries); glass mirrors the sky;
 3. **sky**: a gradient from a pale, hazy horizon to a blue zenith, a glow around the sun; far
    surfaces fade into the horizon haze (aerial perspective);
-4. an exposure and an sRGB encoding into 8 bits.
+4. a film-like exposure curve and sRGB's encoding into 8 bits.
 
 The sun's direction is drawn from the scene's seed (:func:`lighting_of`), so a sequence keeps
 its light and every render is deterministic.
@@ -353,7 +353,7 @@ class CameraRenderer:
     """
 
     def __init__(self, renderer: Renderer, size: tuple[int, int] = DEFAULT_IMAGE_SIZE, *,
-                 lighting: Lighting | None = None, exposure: float = 0.9) -> None:
+                 lighting: Lighting | None = None, exposure: float = 0.8) -> None:
         width, height = size
         if width < 8 or height < 8 or width > 8192 or height > 8192:
             raise ValueError(f"image size: {width}x{height} is outside 8x8 … 8192x8192")
@@ -383,6 +383,9 @@ class CameraRenderer:
         self._static_normal = (np.ascontiguousarray(static_normal[:, 0]), np.ascontiguousarray(static_normal[:, 1]),
                                np.ascontiguousarray(static_normal[:, 2]))
         self._world_faces = len(world.static)
+        tops = [float(m.vertices[:, 2].max()) for m in (world.static, still) if len(m)]
+        tallest = max((a.size[2] for a in world.actors), default=0.0)
+        self._top = max(tops, default=0.0) + tallest + 2.0  # moving road users stand on the ground below it
         self._sky_row = len(self._static_material) - 1
         colours = np.zeros((len(world.actors) + 1, 3), np.float32)
         skins = np.zeros((len(world.actors) + 1, 3), np.float32)
@@ -418,11 +421,11 @@ class CameraRenderer:
         return self._render(t_ref, keep_layers=True)
 
     def encode(self, radiance: NDArray[np.float32]) -> NDArray[np.uint8]:
-        """Linear radiance → 8-bit sRGB: exposure, a soft shoulder (x / (1 + x/4): the sky and
-        sunlit white paint do not clip), sRGB's curve (by a 4096-entry table)."""
-        x = radiance * np.float32(self.exposure)
-        x = np.clip(x / (np.float32(1.0) + np.float32(0.25) * x), 0.0, 1.0)
-        return _srgb_table()[(x * np.float32(4095.0) + np.float32(0.5)).astype(np.intp)]
+        """Linear radiance → 8-bit sRGB: a film-like exposure curve ``1 − exp(−exposure · L)``
+        (linear in the shadows, a soft shoulder: sunlit white paint and the sky do not clip),
+        then sRGB's curve (by a 4096-entry table)."""
+        x = np.float32(1.0) - np.exp(radiance * np.float32(-self.exposure))
+        return _srgb_table()[(np.clip(x, 0.0, 1.0) * np.float32(4095.0) + np.float32(0.5)).astype(np.intp)]
 
     # ------------------------------------------------------------------ a frame
     def _render(self, t_ref: float, *, keep_layers: bool) -> CameraLayers:
@@ -549,8 +552,10 @@ class CameraRenderer:
                 todo = np.flatnonzero(~blocked)
                 if scene is None or not len(todo):
                     continue
+                # Nothing stands higher than the top of the world: a shadow ray can stop there.
+                reach = (np.float32(self._top + 0.1) - start[todo, 2]) / sz
                 occluded = scene.run(np.take(start, todo, axis=0), np.take(towards, todo, axis=0),
-                                     dists=np.full(len(todo), FAR, np.float32), query="OCCLUDED")
+                                     dists=np.maximum(reach, np.float32(0.05)), query="OCCLUDED")
                 blocked[todo[occluded >= 0]] = True
             sunlit[lit[blocked]] = 0.0
 
