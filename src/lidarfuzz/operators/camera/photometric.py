@@ -55,7 +55,8 @@ class Brightness(Operator[ImageSample, BrightnessConfig, BrightnessParams]):
     modality = CAMERA
     relation = Relation.INVARIANT
     harmless_up_to = 3
-    harmless_because = "adding at most 60 of 255 to every pixel keeps the road, its markings and the edges visible"
+    harmless_because = ("adding at most 60 of 255 saturates little of the road (1 % in the built-in world, 7 % of a "
+                        "sunlit KITTI pavement), so its markings and edges stay visible")
     targets = IMAGE
     ConfigModel = BrightnessConfig
     ParamsModel = BrightnessParams
@@ -94,7 +95,8 @@ class Contrast(Operator[ImageSample, ContrastConfig, ContrastParams]):
     brightens, and bright regions (sky) saturate first. Table 4, contrast α: 1.2, 1.4, …, 3.0.
     Severity s draws α uniformly between the (2s−1)-th and 2s-th values: 1: 1.2–1.4, 2: 1.6–1.8,
     3: 2.0–2.2, 4: 2.4–2.6, 5: 2.8–3.0; ``gain_range`` takes any interval (below 1: lower contrast).
-    Changes the image only; depth, camera matrix and label are kept.
+    Changes the image only; depth, camera matrix and label are kept. Invariant up to severity 1:
+    from a gain of 1.6 on, a third of a sunlit pavement (KITTI image_2/000000.png) is pure white.
     """
 
     name = "image_contrast"
@@ -102,8 +104,9 @@ class Contrast(Operator[ImageSample, ContrastConfig, ContrastParams]):
     family = "photometric"
     modality = CAMERA
     relation = Relation.INVARIANT
-    harmless_up_to = 2
-    harmless_because = "a gain of at most 1.8 saturates the sky but keeps the road and its markings apart"
+    harmless_up_to = 1
+    harmless_because = ("a gain of at most 1.4 saturates little of the road (1 % in the built-in world, 17 % of a "
+                        "sunlit KITTI pavement) and keeps lane markings apart from it")
     targets = IMAGE
     ConfigModel = ContrastConfig
     ParamsModel = ContrastParams
