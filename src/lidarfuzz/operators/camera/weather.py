@@ -12,9 +12,10 @@ a flat plane ``camera_height`` below a level camera, so a row v below the horizo
 (K's principal point, else the image centre) is at ``z = f_y·h / (v − v_h)``, at most
 ``horizon_distance`` (60 m by default); rows at or above the horizon (buildings, trees, sky) are
 all put at ``horizon_distance``: a photo says nothing of how far they are, and 60 m, a street's
-far side, fogs them little in light fog and hides them in dense fog, as it should. Without K
-the prior assumes a ``fov``-degree horizontal field of view. Pixels of unknown depth (``nan``)
-get the prior too. The params say which (``depth_source``).
+far side, fogs them little in light fog and hides them in dense fog, as it should. A sample
+without K (with or without depth) is taken as a centred pinhole camera with a ``fov``-degree
+horizontal field of view. Pixels of unknown depth (``nan``) get the prior too. The params say
+which (``depth_source``).
 
 **Rain.** Seeded drops drawn as short lines (:func:`cv2.polylines`) at a wind angle,
 smeared along that angle by a motion-blur kernel (:func:`cv2.filter2D`), and blended as light
