@@ -33,6 +33,7 @@ def source_kind(path: str | PathLike[str]) -> str:
     """``log``, ``kitti``, ``folder``, ``frame`` or ``images`` (a folder or CSV of camera images
     only, :func:`lidarfuzz.io.images.is_image_source`) — or a DataFormatError saying why none fits."""
     from lidarfuzz.io.images.open import is_image_source
+
     path = Path(path)
     if not path.exists():
         raise DataFormatError(path, "no such file or folder")
