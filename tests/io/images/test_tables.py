@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.io.dataset import Log
@@ -181,3 +184,28 @@ def test_same_stem_in_two_folders_gets_path_ids(tmp_path):
     write_png(tmp_path / "run2" / "0001.png")
     (tmp_path / "labels.csv").write_text("filename,angle\nrun1/0001.png,0\nrun2/0001.png,1\n")
     assert list(open_image_dataset(tmp_path).frame_ids()) == ["run1/0001", "run2/0001"]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(angles=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=6),
+       bad=st.one_of(st.none(), st.sampled_from(["nan", "-inf", "0.1.2", "1e", "abc", "--1"])))
+def test_angles_round_trip_exactly_and_a_bad_one_is_named(tmp_path, angles, bad):
+    with tempfile.TemporaryDirectory(dir=tmp_path) as folder:
+        root = Path(folder)
+        write_png(root / "img.png")
+        rows = [f"img.png,{angle!r}" for angle in angles[:1]]  # one image: each row below names a copy
+        for i, angle in enumerate(angles[1:], start=1):
+            write_png(root / f"img{i}.png")
+            rows.append(f"img{i}.png,{angle!r}")
+        if bad is not None:
+            rows.insert(len(rows) // 2, f"img.png,{bad}")  # a bad angle (checked before the repeated image)
+        (root / "labels.csv").write_text("image,steering\n" + "\n".join(rows) + "\n")
+        if bad is None:
+            ds = open_image_dataset(root)
+            assert [ds[i].steering for i in range(len(ds))] == angles  # repr → float is exact
+        else:
+            line = 2 + rows.index(f"img.png,{bad}")  # the header is line 1
+            with pytest.raises(DataFormatError) as info:
+                open_image_dataset(root)
+            assert info.value.line == line and info.value.field == "steering"
+            assert str(info.value).startswith(f"{root / 'labels.csv'}:{line}: field 'steering': {bad!r} is not")
