@@ -405,6 +405,11 @@ class _CameraRun:
                 break
             with self.connection.begin():
                 n = 0
+                if records and records[0].role == "seed":  # DeepTest's baseline: the seed images' coverage
+                    state = {**dict(self.original.state or {}), "seed_coverage": search.coverage()}
+                    self.connection.execute(update(Subtask).where(Subtask.id == self.original.id).values(
+                        state=state))
+                    self.original.state = state
                 for record in records:
                     if record.role == "seed":
                         continue  # the originals' subtask holds the seed images already
@@ -512,7 +517,7 @@ def kind_summary(store: Store, task: Task) -> dict[str, Any]:
     original = next(sub for sub in task.subtasks if sub.name == ORIGINAL)
     state = dict(original.state or {})
     return {"modality": "camera", "mse_orig": state.get("mse_orig"), "labelled": state.get("labelled", 0),
-            "images": len(task.options.frame_ids)}
+            "images": len(task.options.frame_ids), "seed_coverage": state.get("seed_coverage", {})}
 
 
 __all__ = ["DEFAULT_TRANSFORMATIONS", "GUIDED", "SEARCH_POOL", "UNFILTERED", "CameraSearch", "CameraSetupError",

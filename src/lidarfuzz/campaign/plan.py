@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 
 ORIGINAL = "original"
+#: Subtasks holding a search's tests: named after the search, not an operator.
+SEARCHES = ("guided", "fuzz")
 
 
 def operator_key(spec: dict[str, Any] | None) -> str:
@@ -45,8 +47,10 @@ def subtask_label(name: str, severity: int) -> str:
 
         >>> subtask_label("fog", 3), subtask_label("rotate_z", 0), subtask_label("greedy_edges+HGT", 0)
         ('fog@3', 'rotate_z (config)', 'greedy_edges+HGT')
+        >>> subtask_label("guided", 0)
+        'guided'
     """
-    if name == ORIGINAL or not name.isidentifier():
+    if name in (ORIGINAL, *SEARCHES) or not name.isidentifier():
         return name
     return f"{name}@{severity}" if severity else f"{name} (config)"
 

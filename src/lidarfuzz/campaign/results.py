@@ -197,7 +197,7 @@ def deeptest_table(subtasks: Sequence[SubtaskSummary]) -> DeepTestTable | None:
     for entry, e in zip(entries, errors, strict=True):
         rows.append(DeepTestRow(label=entry.label, operator=entry.operator, severity=entry.severity, mse=e.mse,
                                 difference=e.mse - e.mse_orig, objects=e.objects, mutants=e.mutants,
-                                violated=e.violated, kept=e.kept))
+                                violated=e.violated, kept=e.kept, filtered=e.filtered))
     first = errors[0]
     return DeepTestTable.model_validate({**table.to_dict(), "configured_lambda": first.configured_lambda,
                                          "configured_epsilon": first.configured_epsilon,

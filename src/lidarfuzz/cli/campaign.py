@@ -25,7 +25,7 @@ from lidarfuzz.cli.common import (
     print_table,
 )
 from lidarfuzz.cli.compare import print_comparisons
-from lidarfuzz.cli.reporting import print_summary, reports_dir, write_report
+from lidarfuzz.cli.reporting import print_tables, reports_dir, write_report
 from lidarfuzz.errors import LidarfuzzError
 
 #: ``--kind``'s help, from the table of task kinds (a new row shows here without a change).
@@ -100,12 +100,7 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
     if outcome.status == Status.CANCELLED:
         console.print(f"task {task_id} cancelled; what is done is stored (lidarfuzz resume {task_id} finishes it)")
         return 1
-    if task.options.kind == "structural":  # no AP, no operators: its coverage tables instead
-        from lidarfuzz.cli.structural import print_structural
-
-        print_structural(store, task_id)
-    else:
-        print_summary(store, task_id)
+    print_tables(store, task_id)
     if report:
         print_comparisons(store, task_id)
     code = 0

@@ -42,6 +42,24 @@ def write_report(store: Any, task_id: int, out: Path, gates: list[str], baseline
     return 0
 
 
+def print_tables(store: Any, task_id: int) -> None:
+    """A task's tables as its kind has them: a structural task's coverage, a camera task's DeepTest
+    figures, else AP and violations."""
+    from lidarfuzz.campaign.tasks import get_task
+
+    kind = get_task(store, task_id).options.kind
+    if kind == "structural":  # no AP, no operators: its coverage tables instead
+        from lidarfuzz.cli.structural import print_structural
+
+        print_structural(store, task_id)
+    elif kind == "camera":  # a steering system: MSE, Eq. 2 and 3, Table 7, the search
+        from lidarfuzz.cli.camera import print_camera
+
+        print_camera(store, task_id)
+    else:
+        print_summary(store, task_id)
+
+
 def print_summary(store: Any, task_id: int, difficulty: str = "moderate") -> None:
     """The thesis's AP table (3D, BEV and bbox AP|R40) and the violation summary."""
     from rich.table import Table
@@ -181,7 +199,7 @@ def report(
     """Write a task's report (self-contained HTML, JSON, CSV, JUnit XML) and print its tables."""
     store = open_store(workspace)
     if not quiet:
-        print_summary(store, task)
+        print_tables(store, task)
         from lidarfuzz.cli.compare import print_comparisons
 
         print_comparisons(store, task, baseline)

@@ -28,8 +28,9 @@ def _column(table: DeepTestTable, value: float) -> int | None:
     return next((i for i, v in enumerate(table.epsilons) if math.isclose(v, value)), None)
 
 
-def deeptest_view(table: DeepTestTable | None) -> dict[str, Any] | None:
-    """What the report's DeepTest section shows (None: no subtask checked ``deeptest_tolerance``)."""
+def deeptest_view(table: DeepTestTable | None, *, steering: bool = False) -> dict[str, Any] | None:
+    """What the report's DeepTest section shows (None: no subtask checked ``deeptest_tolerance``);
+    ``steering``: a camera task's (errors of steering angles against labels, not of object centres)."""
     if table is None:
         return None
     lam, eps = table.configured_lambda, table.configured_epsilon
@@ -40,6 +41,7 @@ def deeptest_view(table: DeepTestTable | None) -> dict[str, Any] | None:
         rows.append({"lambda": f"{value:g}", "counts": counts, "unfiltered": unfiltered,
                      "configured": math.isclose(value, lam)})
     return {
+        "steering": steering,
         "mse_orig": fmt_mse(table.mse_orig),
         "lambda": f"{lam:g}" if math.isfinite(lam) else DASH,
         "epsilon": f"{eps:g}" if math.isfinite(eps) else DASH,
@@ -47,7 +49,8 @@ def deeptest_view(table: DeepTestTable | None) -> dict[str, Any] | None:
         "configured_column": eps_at,
         "rows": rows,
         "transformations": [{"label": t.label, "mse": fmt_mse(t.mse), "difference": fmt_mse(t.difference),
-                             "objects": t.objects, "mutants": t.mutants, "violated": t.violated, "kept": t.kept}
+                             "objects": t.objects, "mutants": t.mutants, "violated": t.violated, "kept": t.kept,
+                             "filtered": t.filtered}
                             for t in table.transformations],
         "notes": list(table.notes),
     }

@@ -323,11 +323,13 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
             comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = ()) -> dict[str, Any]:
     """Everything the template shows, formatted."""
     from lidarfuzz import __version__
+    from lidarfuzz.report.camera import is_camera
     from lidarfuzz.report.comparison import comparison_view
     from lidarfuzz.report.structural import structural_view
 
     task = summary.task
-    drawn = charts(summary) if chart_pngs is None else chart_pngs
+    camera = is_camera(summary)
+    drawn = {} if camera else charts(summary) if chart_pngs is None else chart_pngs
     subtasks = summary.subtasks
     unfinished = task.status != "done" or any(s.status != "done" for s in subtasks)
     title = f"lidarfuzz report — task {task.id}" + (f": {task.name}" if task.name else "")
@@ -346,7 +348,8 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
         "charts": {name: data_uri(png) for name, png in drawn.items()},
         "robustness": _robustness(summary),
         "violations": _violations(summary),
-        "deeptest": deeptest_view(summary.deeptest),
+        "deeptest": deeptest_view(summary.deeptest, steering=camera),
+        "camera": camera,
         "structural": structural_view(summary),
         "failures": _failures(summary),
         "findings": _findings(summary, images),

@@ -408,6 +408,7 @@ class DeepTestRow(Contract):
     mutants: int = 0
     violated: int = 0
     kept: bool = False
+    filtered: bool = True  # False: composite (fog, rain, a search's chains): never filtered by Eq. 3
 
 
 class DeepTestTable(Contract):
