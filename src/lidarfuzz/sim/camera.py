@@ -263,10 +263,11 @@ def _textures() -> tuple[NDArray[np.float32], NDArray[np.float32]]:
 
 def _lookup(texture: NDArray[np.float32], size: int, u: NDArray[np.float32], v: NDArray[np.float32],
             cell: float) -> NDArray[np.float32]:
-    """``texture`` (``size``² texels of ``cell`` metres, tiling) at world coordinates (u, v)."""
-    iu = np.floor(u * np.float32(1 / cell)).astype(np.int64) & (size - 1)
-    iv = np.floor(v * np.float32(1 / cell)).astype(np.int64) & (size - 1)
-    return texture[iu * size + iv]  # type: ignore[no-any-return]
+    """``texture`` (``size``² texels of ``cell`` metres, tiling) at world coordinates (u, v), both
+    positive (the frame's texture offset sees to it): truncation is then the floor."""
+    iu = (u * np.float32(1 / cell)).astype(np.int32) & np.int32(size - 1)
+    iv = (v * np.float32(1 / cell)).astype(np.int32) & np.int32(size - 1)
+    return texture[iu * np.int32(size) + iv]  # type: ignore[no-any-return]
 
 
 def _stripes(coordinate: NDArray[np.float32], period: float, width: float) -> NDArray[np.bool_]:
@@ -274,10 +275,17 @@ def _stripes(coordinate: NDArray[np.float32], period: float, width: float) -> ND
     return np.mod(coordinate, np.float32(period)) < np.float32(width)  # type: ignore[no-any-return]
 
 
+#: Radiance steps of the encoding table (:func:`_encoding_table`): 16384 up to radiance 8.
+_ENCODE_STEPS, _ENCODE_TOP = 16384, 8.0
+
+
 @cache
-def _srgb_table() -> NDArray[np.uint8]:
-    """8-bit sRGB of 4096 evenly spaced linear values in [0, 1] (encoding by lookup)."""
-    x = np.linspace(0.0, 1.0, 4096)
+def _encoding_table(exposure: float) -> NDArray[np.uint8]:
+    """8-bit sRGB of ``1 − exp(−exposure · L)`` for :data:`_ENCODE_STEPS` radiances ``L`` evenly
+    spaced in [0, :data:`_ENCODE_TOP`] (encoding by lookup; a step is under 1.5 levels even
+    in the darkest shadows)."""
+    radiance = np.linspace(0.0, _ENCODE_TOP, _ENCODE_STEPS)
+    x = 1.0 - np.exp(-exposure * radiance)
     srgb = np.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055)
     return np.round(srgb * 255.0).astype(np.uint8)  # type: ignore[no-any-return]
 
@@ -395,7 +403,8 @@ class CameraRenderer:
                 paint_colour(self.seed, actor.index, actor.cls)
             skins[actor.index] = skin
         self._actor_colour, self._actor_skin = colours, skins
-        offset = np.random.default_rng(np.random.SeedSequence([self.seed, 0x7E7])).uniform(0.0, 1.0e4, 2)
+        # Texture coordinates are world coordinates shifted by 20–30 km: positive in any world.
+        offset = np.random.default_rng(np.random.SeedSequence([self.seed, 0x7E7])).uniform(2.0e4, 3.0e4, 2)
         self._texture_offset = offset.astype(np.float32)
 
     @property
@@ -424,8 +433,9 @@ class CameraRenderer:
         """Linear radiance → 8-bit sRGB: a film-like exposure curve ``1 − exp(−exposure · L)``
         (linear in the shadows, a soft shoulder: sunlit white paint and the sky do not clip),
         then sRGB's curve (by a 4096-entry table)."""
-        x = np.float32(1.0) - np.exp(radiance * np.float32(-self.exposure))
-        return _srgb_table()[(np.clip(x, 0.0, 1.0) * np.float32(4095.0) + np.float32(0.5)).astype(np.intp)]
+        scale = np.float32((_ENCODE_STEPS - 1) / _ENCODE_TOP)
+        index = np.clip(radiance * scale + np.float32(0.5), 0.0, np.float32(_ENCODE_STEPS - 1)).astype(np.int32)
+        return _encoding_table(self.exposure)[index]
 
     # ------------------------------------------------------------------ a frame
     def _render(self, t_ref: float, *, keep_layers: bool) -> CameraLayers:
@@ -433,7 +443,8 @@ class CameraRenderer:
         instant = self._instant(t_ref)
         n = width * height
         threads = self.renderer.threads if n >= 40_000 else 1
-        rows = np.linspace(0, height, threads + 1).astype(int)
+        rows = np.linspace(0, height, threads + 1).astype(int) // 2 * 2  # bands start on even rows (shadows)
+        rows[-1] = height
         bands = [slice(a * width, b * width) for a, b in itertools.pairwise(rows)]
         if threads == 1:
             parts = [self._band(instant, band, keep_layers) for band in bands]
@@ -541,23 +552,39 @@ class CameraRenderer:
         # Sunlight: the cosine, and a shadow ray towards the sun from every surface facing it.
         sx, sy, sz = (np.float32(c) for c in light.sun)
         sunlit = np.maximum(nx * sx + ny * sy + nz * sz, np.float32(0.0))
-        lit = np.flatnonzero(sunlit > 0)
-        if len(lit):
-            lift = np.float32(0.02)
-            start = np.stack([px[lit] + nx[lit] * lift, py[lit] + ny[lit] * lift, pz[lit] + nz[lit] * lift], axis=1)
-            towards = np.empty_like(start)
-            towards[:] = (sx, sy, sz)
-            blocked = np.zeros(len(lit), bool)
-            for scene in (static, instant.moving):
-                todo = np.flatnonzero(~blocked)
-                if scene is None or not len(todo):
-                    continue
-                # Nothing stands higher than the top of the world: a shadow ray can stop there.
-                reach = (np.float32(self._top + 0.1) - start[todo, 2]) / sz
-                occluded = scene.run(np.take(start, todo, axis=0), np.take(towards, todo, axis=0),
-                                     dists=np.maximum(reach, np.float32(0.05)), query="OCCLUDED")
-                blocked[todo[occluded >= 0]] = True
-            sunlit[lit[blocked]] = 0.0
+        lit = sunlit > 0
+        if lit.any():
+            points, normals = (px, py, pz), (nx, ny, nz)
+            # Every other row and column first; a pixel between four of them that agree (and show
+            # the same material as it) takes their answer, the others (shadow edges) are traced.
+            width = self.size[0]
+            rows = n // width
+            coarse = np.zeros((rows, width), bool)
+            coarse[::2, ::2] = True
+            coarse = coarse.ravel() & lit
+            blocked = np.zeros(n, bool)
+            first = np.flatnonzero(coarse)
+            blocked[first] = self._occluded(instant, points, normals, first)
+            state = np.where(coarse, blocked.astype(np.int8), np.int8(-1)).reshape(rows, width)[::2, ::2]
+            kind = material.reshape(rows, width)[::2, ::2]
+            # Pixel (r, c)'s coarse neighbours are (r//2, c//2) … ((r+1)//2, (c+1)//2): the coarse
+            # grid doubled (padded with "unknown" at the far edges) and shifted by one pixel.
+            state = np.pad(state, ((0, 1), (0, 1)), constant_values=-1).repeat(2, axis=0).repeat(2, axis=1)
+            kind = np.pad(kind, ((0, 1), (0, 1))).repeat(2, axis=0).repeat(2, axis=1)
+            here = material.reshape(rows, width)
+            first_state = state[:rows, :width]
+            agree = first_state >= 0
+            for dr, dc in ((0, 0), (0, 1), (1, 0), (1, 1)):
+                agree &= kind[dr:dr + rows, dc:dc + width] == here
+                if dr or dc:
+                    agree &= state[dr:dr + rows, dc:dc + width] == first_state
+            agree = agree.ravel()
+            between = lit & ~coarse
+            inherit = between & agree
+            blocked[inherit] = first_state.reshape(-1)[inherit] == 1
+            rest = np.flatnonzero(between & ~agree)
+            blocked[rest] = self._occluded(instant, points, normals, rest)
+            sunlit[blocked] = 0.0
 
         albedo = self._albedo(material, owner, px, py, pz, nx, ny, nz, distance)
         ambient = np.float32(0.75) + np.float32(0.25) * nz
@@ -568,12 +595,14 @@ class CameraRenderer:
             channels.append(c)
         shiny = np.flatnonzero(_MIRROR[material] > 0)
         if len(shiny):
+            # The sky in the mirror direction (its height above the horizon is all the gradient needs).
             along = dx[shiny] * nx[shiny] + dy[shiny] * ny[shiny] + dz[shiny] * nz[shiny]
-            reflected = np.stack([dx[shiny] - 2 * along * nx[shiny], dy[shiny] - 2 * along * ny[shiny],
-                                  dz[shiny] - 2 * along * nz[shiny]], axis=1)
-            sky = sky_radiance(reflected, light) * _MIRROR[material[shiny]][:, None]
+            up = np.clip(dz[shiny] - 2 * along * nz[shiny], 0.0, 1.0)
+            mix = np.sqrt(np.minimum(up * np.float32(1 / 0.7), np.float32(1.0)))
+            share = _MIRROR[material[shiny]]
             for k in range(3):
-                channels[k][shiny] += sky[:, k]
+                sky = np.float32(light.horizon[k]) + np.float32(light.zenith[k] - light.horizon[k]) * mix
+                channels[k][shiny] += share * sky
         haze = np.float32(1.0) - np.exp(-distance * np.float32(1.0 / light.haze_distance))
         for k in range(3):
             channels[k] += (np.float32(light.horizon[k]) - channels[k]) * haze
@@ -592,21 +621,47 @@ class CameraRenderer:
                        normal=np.stack([nx, ny, nz], axis=1) * hit[:, None])
         return out
 
+    def _occluded(self, instant: _Instant, points: tuple[NDArray[np.float32], ...],
+                  normals: tuple[NDArray[np.float32], ...], which: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Whether the way to the sun from the surface points ``which`` is blocked (Embree occlusion
+        queries against the static scene, then the moving road users)."""
+        sun = self.lighting.sun
+        lift = np.float32(0.02)  # off the surface, so it does not shade itself
+        start = np.stack([points[k][which] + normals[k][which] * lift for k in range(3)], axis=1)
+        towards = np.empty_like(start)
+        towards[:] = sun
+        # Nothing stands higher than the top of the world: a shadow ray can stop there.
+        reach = np.maximum((np.float32(self._top) - start[:, 2]) / np.float32(sun[2]), np.float32(0.05))
+        blocked = np.zeros(len(which), bool)
+        for scene in (self.renderer._static(), instant.moving):
+            todo = np.flatnonzero(~blocked)
+            if scene is None or not len(todo):
+                continue
+            if len(todo) == len(which):
+                occluded = scene.run(start, towards, dists=reach, query="OCCLUDED")
+            else:
+                occluded = scene.run(np.take(start, todo, axis=0), np.take(towards, todo, axis=0),
+                                     dists=reach[todo], query="OCCLUDED")
+            blocked[todo[occluded >= 0]] = True
+        return blocked
+
     def _albedo(self, material: NDArray[np.uint8], owner: NDArray[np.int64], px: NDArray[np.float32],
                 py: NDArray[np.float32], pz: NDArray[np.float32], nx: NDArray[np.float32], ny: NDArray[np.float32],
                 nz: NDArray[np.float32], distance: NDArray[np.float32]) -> list[NDArray[np.float32]]:
         """Visible albedo (three channels) of each pixel's surface with its procedural texture."""
         albedo = [table[material] for table in _ALBEDO]
-        for mask, colours in ((material == PAINT_MATERIAL, self._actor_colour),
-                              (material == MATERIAL_ID["cloth"], self._actor_colour),
-                              (material == MATERIAL_ID["skin"], self._actor_skin)):
-            chosen = np.flatnonzero(mask)
-            if len(chosen):
+        actor = np.flatnonzero(owner >= 0)
+        if len(actor):
+            kind = material[actor]
+            for mask, colours in ((kind == PAINT_MATERIAL, self._actor_colour),
+                                  (kind == MATERIAL_ID["cloth"], self._actor_colour),
+                                  (kind == MATERIAL_ID["skin"], self._actor_skin)):
+                chosen = actor[mask]
                 for k in range(3):
                     albedo[k][chosen] = colours[owner[chosen], k]
         # Texture coordinates: the ground plane for flat faces, (along the wall, height) for walls.
         flat = np.abs(nz) > 0.7
-        horizontal = np.maximum(np.hypot(nx, ny), np.float32(1e-6))
+        horizontal = np.maximum(np.sqrt(nx * nx + ny * ny), np.float32(1e-6))
         u = np.where(flat, px, (py * nx - px * ny) / horizontal) + self._texture_offset[0]
         v = np.where(flat, py, pz) + self._texture_offset[1]
         grain_texture, patch_texture = _textures()
@@ -617,10 +672,13 @@ class CameraRenderer:
         fade = np.clip(np.float32(1.5) - footprint * np.float32(1 / GRAIN_CELL), np.float32(0.25), np.float32(1.0))
         gain = (np.float32(1.0) + _GRAIN_AMP[material] * fade * grain) * (
             np.float32(1.0) + np.float32(2.0) * _PATCH_AMP[material] * patch)
-        wither = _WITHER_AMP[material] * (patch + np.float32(0.5)) * np.float32(0.6)
         for k in range(3):
-            albedo[k] = albedo[k] * gain
-            albedo[k] += wither * (np.float32(_WITHERED[k]) - albedo[k])
+            albedo[k] *= gain
+        green = np.flatnonzero(_WITHER_AMP[material] > 0)  # vegetation: patches dry towards yellow-brown
+        if len(green):
+            wither = _WITHER_AMP[material[green]] * (patch[green] + np.float32(0.5)) * np.float32(0.6)
+            for k in range(3):
+                albedo[k][green] += wither * (np.float32(_WITHERED[k]) - albedo[k][green])
         self._joints(albedo, material, u, v, footprint)
         return albedo
 
