@@ -159,6 +159,8 @@ def _open_images(path: Path, options: DatasetOptions, *, topic: str | None, stri
     if options.layout is not None:
         raise DataFormatError(path, f"a point layout ({options.layout}) does not apply to camera images",
                               field="layout")
+    if options.camera is not None:
+        image_options.setdefault("camera", options.camera)
     dataset = open_image_dataset(path, topic=topic, strict=strict, **image_options)
     dataset.configure(options)
     return dataset

@@ -11,7 +11,8 @@ reports, the web app):
 * ``intensity_scale``: the intensity reading of the strongest return (1.0 or 255.0), when the
   layout's is wrong for this data;
 * ``modality``: ``lidar`` (the default) reads point clouds, ``camera`` the images of the same
-  source (a KITTI folder's ``image_2/``) or of a camera data set (:mod:`lidarfuzz.io.images`);
+  source (a KITTI folder's ``image_2/``) or of a camera data set (:mod:`lidarfuzz.io.images`), and
+  ``camera`` which of its cameras (``image_3``; Udacity's ``left``);
 * ``roi_map``: a GeoJSON drivable-area map for the whole data set, used for every frame that has
   no map of its own (``roi/<id>.json``). Its polygons are in the LiDAR frame (the same for every
   frame), or — with ``"frame": "world"`` at the top level or in its ``properties`` — in the
@@ -68,6 +69,9 @@ class DatasetOptions(BaseModel):
     modality: Literal["lidar", "camera"] = Field(
         default="lidar", description="which sensor's frames to read: point clouds, or the camera's images "
                                      "(lidarfuzz.io.images: a KITTI folder's image_2/, Udacity, images + CSV, bags)")
+    camera: str | None = Field(default=None, description="camera modality: which camera of the source (image_2 or "
+                                                         "image_3 of a KITTI folder; center, left or right of a "
+                                                         "Udacity one); the source's default when not given")
 
     @field_validator("layout")
     @classmethod
