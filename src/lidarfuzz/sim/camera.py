@@ -267,7 +267,7 @@ def _lookup(texture: NDArray[np.float32], size: int, u: NDArray[np.float32], v: 
     positive (the frame's texture offset sees to it): truncation is then the floor."""
     iu = (u * np.float32(1 / cell)).astype(np.int32) & np.int32(size - 1)
     iv = (v * np.float32(1 / cell)).astype(np.int32) & np.int32(size - 1)
-    return texture[iu * np.int32(size) + iv]  # type: ignore[no-any-return]
+    return np.take(texture, iu * np.int32(size) + iv)  # take: faster than indexing with int32
 
 
 def _stripes(coordinate: NDArray[np.float32], period: float, width: float) -> NDArray[np.bool_]:
@@ -542,8 +542,9 @@ class CameraRenderer:
                 row[near[nearer]] = self._sky_row + 1 + found["primID"][nearer]
                 distance[near[nearer]] = found["tfar"][nearer]
         hit = row != self._sky_row
-        material, owner = instant.material[row], instant.owner[row]
-        nx, ny, nz = (c[row] for c in instant.normal)
+        # np.take: several times faster than fancy indexing for these 1-D gathers.
+        material, owner = np.take(instant.material, row), np.take(instant.owner, row)
+        nx, ny, nz = (np.take(c, row) for c in instant.normal)
         flip = np.where(nx * dx + ny * dy + nz * dz > 0, np.float32(-1.0), np.float32(1.0))  # face the camera
         nx, ny, nz = nx * flip, ny * flip, nz * flip
         px, py, pz = (instant.origin[0] + dx * distance, instant.origin[1] + dy * distance,
@@ -593,13 +594,13 @@ class CameraRenderer:
             c = albedo[k] * (sunlit * np.float32(light.sun_irradiance[k]) + ambient * np.float32(
                 light.sky_irradiance[k]))
             channels.append(c)
-        shiny = np.flatnonzero(_MIRROR[material] > 0)
+        shiny = np.flatnonzero(np.take(_MIRROR, material) > 0)
         if len(shiny):
             # The sky in the mirror direction (its height above the horizon is all the gradient needs).
             along = dx[shiny] * nx[shiny] + dy[shiny] * ny[shiny] + dz[shiny] * nz[shiny]
             up = np.clip(dz[shiny] - 2 * along * nz[shiny], 0.0, 1.0)
             mix = np.sqrt(np.minimum(up * np.float32(1 / 0.7), np.float32(1.0)))
-            share = _MIRROR[material[shiny]]
+            share = np.take(_MIRROR, material[shiny])
             for k in range(3):
                 sky = np.float32(light.horizon[k]) + np.float32(light.zenith[k] - light.horizon[k]) * mix
                 channels[k][shiny] += share * sky
@@ -611,13 +612,15 @@ class CameraRenderer:
             sky = sky_radiance(np.take(directions, missed, axis=0), light)
             for k in range(3):
                 channels[k][missed] = sky[:, k]
-        radiance = np.stack(channels, axis=1)
+        image = np.empty((n, 3), np.uint8)
+        for k in range(3):
+            image[:, k] = self.encode(channels[k])
         out: dict[str, NDArray[Any]] = {
-            "image": self.encode(radiance),
+            "image": image,
             "depth": np.where(hit, distance * self._depth_per_metre[band], np.float32(np.inf)).astype(np.float32),
         }
         if keep_layers:
-            out.update(radiance=radiance, material=material, owner=owner, sunlit=sunlit,
+            out.update(radiance=np.stack(channels, axis=1), material=material, owner=owner, sunlit=sunlit,
                        normal=np.stack([nx, ny, nz], axis=1) * hit[:, None])
         return out
 
@@ -649,7 +652,7 @@ class CameraRenderer:
                 py: NDArray[np.float32], pz: NDArray[np.float32], nx: NDArray[np.float32], ny: NDArray[np.float32],
                 nz: NDArray[np.float32], distance: NDArray[np.float32]) -> list[NDArray[np.float32]]:
         """Visible albedo (three channels) of each pixel's surface with its procedural texture."""
-        albedo = [table[material] for table in _ALBEDO]
+        albedo = [np.take(table, material) for table in _ALBEDO]
         actor = np.flatnonzero(owner >= 0)
         if len(actor):
             kind = material[actor]
@@ -670,13 +673,13 @@ class CameraRenderer:
         # A pixel covers distance / f metres: grain finer than a pixel fades to a quarter (no shimmer).
         footprint = distance * np.float32(1.0 / self.calib.P2[0, 0])
         fade = np.clip(np.float32(1.5) - footprint * np.float32(1 / GRAIN_CELL), np.float32(0.25), np.float32(1.0))
-        gain = (np.float32(1.0) + _GRAIN_AMP[material] * fade * grain) * (
-            np.float32(1.0) + np.float32(2.0) * _PATCH_AMP[material] * patch)
+        gain = (np.float32(1.0) + np.take(_GRAIN_AMP, material) * fade * grain) * (
+            np.float32(1.0) + np.float32(2.0) * np.take(_PATCH_AMP, material) * patch)
         for k in range(3):
             albedo[k] *= gain
-        green = np.flatnonzero(_WITHER_AMP[material] > 0)  # vegetation: patches dry towards yellow-brown
+        green = np.flatnonzero(np.take(_WITHER_AMP, material) > 0)  # vegetation: patches dry towards yellow-brown
         if len(green):
-            wither = _WITHER_AMP[material[green]] * (patch[green] + np.float32(0.5)) * np.float32(0.6)
+            wither = np.take(_WITHER_AMP, material[green]) * (patch[green] + np.float32(0.5)) * np.float32(0.6)
             for k in range(3):
                 albedo[k][green] += wither * (np.float32(_WITHERED[k]) - albedo[k][green])
         self._joints(albedo, material, u, v, footprint)
