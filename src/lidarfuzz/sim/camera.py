@@ -483,13 +483,13 @@ class CameraRenderer:
 
     def _pixels_towards(self, mesh: Mesh, owner: NDArray[np.int32], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Pixels inside the image rectangle of each road user of ``mesh`` (2 pixels wider): its
-        bounding box in the camera frame, cut by the plane 5 cm ahead of the camera, projected."""
+        bounding box in the camera frame, cut by the plane 0.5 m ahead of the camera, projected."""
         width, height = self.size
         camera = (mesh.vertices - pose[:3, 3]) @ pose[:3, :3]  # world → camera axes
         intrinsic = self.calib.P2[:, :3]
         covered = np.zeros((height, width), bool)
-        near = 0.05
-        index_of_vertex = np.zeros(len(camera), np.int64)
+        near = 0.5  # nothing but the ego itself comes within 0.5 m ahead of the camera inside its view
+        index_of_vertex = np.full(len(camera), -1, np.int64)  # vertices no face uses belong to no one
         index_of_vertex[mesh.faces.ravel()] = np.repeat(owner, 3)
         for index in np.unique(owner):
             vertices = camera[index_of_vertex == index]
