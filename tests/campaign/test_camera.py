@@ -129,3 +129,19 @@ def test_the_guided_search_is_deterministic_for_a_seed(tmp_path: Path, images: P
         runs.append(sorted((f, t, str(p), math.floor(o["steering"] * 1e9) if o else None) for f, t, p, o in rows))
     assert runs[0] == runs[1]
     assert sum(1 for _, trial, params, _ in runs[0] if "sequence" in params) == 8  # the budget's tests, as chains
+
+
+def test_a_finding_replays_from_its_stored_params(tmp_path: Path, images: Path) -> None:
+    from lidarfuzz.campaign.camera import replay_camera
+
+    store, task_id = run(tmp_path, images, epsilon=0.05)
+    _, errors50, _ = expected(50)
+    with store.session() as s:
+        finding = s.query(Finding).filter(Finding.task_id == task_id).order_by(Finding.id).first()
+        assert finding is not None
+        finding_id = finding.id
+    result = replay_camera(store, finding_id)
+    assert result.reproduced and result.deterministic and result.same_system
+    k = LABELS.index(result.label)  # which of the four images (labels read back exactly from the CSV)
+    assert result.now[1] == pytest.approx(min(VALUES[k] + 50, 255) / 255 - 0.5)
+    assert result.outcomes_now[0].stats["squared_errors"][0] == pytest.approx(errors50[k])

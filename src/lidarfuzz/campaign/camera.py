@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -496,6 +497,144 @@ def _tool_errors(failures: Iterable[FailureRecord | None]) -> dict[str, int]:
     return out
 
 
+# -- replaying a finding -----------------------------------------------------------------
+#: Largest difference of two steering answers (the label's unit) for them to be the same.
+STEERING_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class SteeringReplay:
+    """A camera finding run again: the original and transformed image rebuilt (the stored params,
+    no random number drawn), the system rebuilt from its spec, each image answered twice.
+
+    Attributes:
+        finding: What was recorded (id, task, kind, message, frame, operator).
+        fingerprint_recorded / fingerprint_now: The system's identity then and now.
+        label: The image's label (None: unlabelled).
+        recorded / now / again: Steering on (original, transformed) as recorded, now, and a second time
+            now (None where the system failed or there is no transformed image).
+        outcomes_now: The relation checked on the answers of now.
+        failure_now: The system's failure now, if it failed.
+    """
+
+    finding: dict[str, Any]
+    fingerprint_recorded: str
+    fingerprint_now: str
+    label: float | None
+    recorded: tuple[float | None, float | None]
+    now: tuple[float | None, float | None]
+    again: tuple[float | None, float | None]
+    outcomes_now: list[OutcomeRecord]
+    failure_now: FailureRecord | None
+
+    @staticmethod
+    def _same(a: tuple[float | None, float | None], b: tuple[float | None, float | None]) -> bool:
+        return all((x is None and y is None) or (x is not None and y is not None and abs(x - y) <= STEERING_TOLERANCE)
+                   for x, y in zip(a, b, strict=True))
+
+    @property
+    def same_system(self) -> bool:
+        return self.fingerprint_now == self.fingerprint_recorded
+
+    @property
+    def outputs_match(self) -> bool:
+        return self._same(self.recorded, self.now)
+
+    @property
+    def deterministic(self) -> bool:
+        return self._same(self.now, self.again)
+
+    @property
+    def violated_now(self) -> bool:
+        if self.finding["relation"]:
+            return any(o.applicable and not o.holds for o in self.outcomes_now)
+        return self.failure_now is not None and self.failure_now.kind == self.finding["kind"]
+
+    @property
+    def reproduced(self) -> bool:
+        return self.outputs_match and self.violated_now
+
+    @property
+    def verdict(self) -> str:
+        if self.reproduced:
+            return "reproduced"
+        reasons = []
+        if not self.outputs_match:
+            reasons.append(f"steering differs from the record ({self.recorded} recorded, {self.now} now)")
+        if not self.violated_now:
+            reasons.append("the relation is not violated now" if self.finding["relation"]
+                           else "the system does not fail the same way now")
+        if not self.deterministic:
+            reasons.append("the system answers differently to the same image (non-deterministic or stateful)")
+        if not self.same_system:
+            reasons.append("the system changed since (another fingerprint)")
+        return "not reproduced: " + "; ".join(reasons)
+
+
+def replay_camera(store: Store, finding_id: int) -> SteeringReplay:
+    """Re-run a camera task's finding in this process, twice, and compare with the record."""
+    from lidarfuzz.oracles.relations.base import Pair
+    from lidarfuzz.oracles.relations.registry import from_spec as relation_from_spec
+    from lidarfuzz.report.camera import finding_pair
+    from lidarfuzz.suts.registry import create_camera
+
+    pair = finding_pair(store, finding_id)
+    with store.session() as s:
+        finding = s.get(Finding, finding_id)
+        assert finding is not None
+        row = s.get(FrameResult, finding.frame_result_id)
+        assert row is not None
+        sub = s.get(Subtask, row.subtask_id)
+        task = s.get(Task, finding.task_id)
+        assert sub is not None and task is not None
+        original_state = next((x.state for x in task.subtasks if x.name == ORIGINAL), {}) or {}
+        replay = finding.replay
+        info = {"id": finding.id, "task_id": task.id, "kind": finding.kind, "message": finding.message,
+                "frame_id": row.frame_id, "trial": row.trial, "subtask": sub.name, "severity": sub.severity,
+                "relation": replay.relation}
+    system = create_camera(replay.sut, **dict(replay.options))
+    system.load()
+    try:
+        runs = []
+        for _ in range(2):
+            answers: list[float | None] = []
+            failure: FailureRecord | None = None
+            outputs: list[Any] = []
+            for image in (pair["original"], pair["transformed"] if replay.operator else None):
+                if image is None:
+                    answers.append(None)
+                    outputs.append(None)
+                    continue
+                output: Any = None
+                try:
+                    output = system.detect(image)
+                    problem = system.validate(output)
+                    if problem is not None:
+                        failure, output = FailureRecord(kind="invalid_output", message=problem), None
+                except Exception as exc:  # the system's crash is a result
+                    failure, output = FailureRecord(kind="crash", message=f"{type(exc).__name__}: {exc}"), None
+                outputs.append(output)
+                answers.append(None if output is None else float(output.steering))
+            runs.append((tuple(answers), outputs, failure))
+        fingerprint_now = system.fingerprint()
+    finally:
+        system.close()
+    (now, outputs, failure), (again, _, _) = runs
+    outcomes: list[OutcomeRecord] = []
+    if replay.relation and outputs[1] is not None:
+        mse = original_state.get("mse_orig")
+        reference = {"mse_orig": math.nan if mse is None else float(mse),
+                     "filtered": 0.0 if sub.name in UNFILTERED or sub.name == GUIDED else 1.0}
+        relation = relation_from_spec(replay.relation)
+        outcomes.append(OutcomeRecord.of(relation(Pair(pair["original"], pair["transformed"], outputs[0], outputs[1],
+                                                       reference=reference))))
+    recorded = (pair["before"], pair["after"] if replay.operator else None)
+    return SteeringReplay(info, replay.fingerprint, fingerprint_now, pair["label"],
+                          (None if recorded[0] is None else float(recorded[0]),
+                           None if recorded[1] is None else float(recorded[1])),
+                          now, again, outcomes, failure)  # type: ignore[arg-type]
+
+
 # -- the kind's hooks (lidarfuzz.campaign.lifecycle.KindImplementation) ----------------
 counted_below: int | None = None
 
@@ -520,5 +659,6 @@ def kind_summary(store: Store, task: Task) -> dict[str, Any]:
             "images": len(task.options.frame_ids), "seed_coverage": state.get("seed_coverage", {})}
 
 
-__all__ = ["DEFAULT_TRANSFORMATIONS", "GUIDED", "SEARCH_POOL", "UNFILTERED", "CameraSearch", "CameraSetupError",
-           "camera_relations", "check_spec", "counted_below", "describe", "kind_summary", "plan", "start"]
+__all__ = ["DEFAULT_TRANSFORMATIONS", "GUIDED", "SEARCH_POOL", "STEERING_TOLERANCE", "UNFILTERED", "CameraSearch",
+           "CameraSetupError", "SteeringReplay", "camera_relations", "check_spec", "counted_below", "describe",
+           "kind_summary", "plan", "replay_camera", "start"]

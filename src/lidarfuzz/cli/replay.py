@@ -15,7 +15,11 @@ def replay(finding: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     from lidarfuzz.campaign.replay import replay_finding
 
     start = time.perf_counter()
-    result = replay_finding(open_store(workspace), finding)
+    store = open_store(workspace)
+    if _is_camera(store, finding):
+        _replay_camera(store, finding, start)
+        return
+    result = replay_finding(store, finding)
     f = result.finding
     console.print(f"finding {f['id']} of task {f['task_id']}: [bold]{f['kind']}[/] {f['class']} on frame "
                   f"{f['frame_id']} under {f['subtask']}@{f['severity']}\n  recorded: {escape(f['message'])}")
@@ -57,3 +61,41 @@ def describe(boxes: Any) -> str:
 
     labels, counts = np.unique(boxes.labels, return_counts=True)
     return ", ".join(f"{n} {label}" for label, n in zip(labels, counts, strict=True))
+
+
+def _is_camera(store: Any, finding: int) -> bool:
+    from lidarfuzz.store.models import Finding, Task
+
+    with store.session() as s:
+        row = s.get(Finding, finding)
+        task = s.get(Task, row.task_id) if row is not None else None
+        return task is not None and task.options.kind == "camera"
+
+
+def _replay_camera(store: Any, finding: int, start: float) -> None:
+    """A camera finding: the steering on the original and transformed image, recorded and now."""
+    from rich.table import Table
+
+    from lidarfuzz.campaign.camera import replay_camera
+
+    result = replay_camera(store, finding)
+    f = result.finding
+    console.print(f"finding {f['id']} of task {f['task_id']}: [bold]{f['kind']}[/] on image {f['frame_id']} under "
+                  f"{f['subtask']}@{f['severity']}\n  recorded: {escape(f['message'])}")
+    console.print("system: the same" if result.same_system else
+                  f"[yellow]system: changed since (fingerprint {result.fingerprint_now[:12]}, recorded "
+                  f"{result.fingerprint_recorded[:12]})[/]")
+    console.print(f"label: {'none' if result.label is None else f'{result.label:+.6f}'}")
+    table = Table("steering on", "recorded", "now", "answered again")
+    for k, what in enumerate(("the original image", "the transformed image")):
+        table.add_row(what, *[("–" if v[k] is None else f"{v[k]:+.6f}") for v in
+                              (result.recorded, result.now, result.again)])
+    print_table(table)
+    if result.failure_now is not None:
+        console.print(f"system failure now: {result.failure_now.kind}: {escape(result.failure_now.message)}")
+    for outcome in result.outcomes_now:
+        console.print(f"  {outcome.relation}: {'holds' if outcome.holds else 'violated'}")
+        for v in outcome.violations:
+            console.print(f"    - {escape(v.message)}")
+    colour = "red" if result.reproduced else "green"
+    console.print(f"[{colour}]{escape(result.verdict)}[/] in {time.perf_counter() - start:.1f} s")
