@@ -22,7 +22,7 @@ from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.store.contracts import TaskSummary
 
 #: Arrow colours (RGB): the label, the prediction on the original, on the transformed image.
-LABEL, ORIGINAL, TRANSFORMED = (40, 200, 70), (60, 140, 255), (235, 50, 50)
+LABEL, ORIGINAL, TRANSFORMED = (60, 220, 90), (90, 160, 255), (255, 70, 70)
 WIDTH = 480  # pixels of each image in a picture
 
 
@@ -74,13 +74,20 @@ def _arrow(image: NDArray[np.uint8], angle: float, colour: tuple[int, int, int],
     cv2.arrowedLine(image, start, end, colour, thickness, cv2.LINE_AA, tipLength=0.12)
 
 
-def _text(image: NDArray[np.uint8], lines: Sequence[tuple[str, tuple[int, int, int]]]) -> None:
+def _text(image: NDArray[np.uint8], lines: Sequence[tuple[str, tuple[int, int, int]]], *,
+          backdrop: bool = True) -> None:
+    """Lines of text at the top left, one pass each (a thicker outline pass would advance wider
+    than the text itself and blur it), on a darkened box so they read on any picture."""
     import cv2
 
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.5
+    if backdrop and lines:
+        width = max(cv2.getTextSize(text, font, scale, 1)[0][0] for text, _ in lines) + 10
+        height = 18 * len(lines) + 8
+        box = image[:height, :width]
+        box[:] = (box.astype(np.float32) * 0.45).astype(np.uint8)
     for k, (text, colour) in enumerate(lines):
-        y = 18 + 18 * k
-        cv2.putText(image, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(image, text, (6, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+        cv2.putText(image, text, (5, 17 + 18 * k), font, scale, colour, 1, cv2.LINE_AA)
 
 
 def _fit(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -111,9 +118,28 @@ def pair_picture(original: NDArray[np.uint8], transformed: NDArray[np.uint8], *,
             lines.append((f"predicted {prediction:+.4f}", colour))
         _text(image, lines)
     strip = np.full((26, 2 * WIDTH + 4, 3), 250, np.uint8)
-    _text(strip, [(title[:110], (30, 30, 30))])
+    _text(strip, [(title[:110], (30, 30, 30))], backdrop=False)
     body = np.concatenate([left, np.full((left.shape[0], 4, 3), 255, np.uint8), right], axis=1)
     return np.concatenate([strip, body], axis=0)
+
+
+def frame_picture(image: NDArray[np.uint8], *, label: float | None, width: int | None = None,
+                  caption: str | None = None) -> NDArray[np.uint8]:
+    """One image (RGB) with its label's arrow (green) and value, as the pairs draw it; ``width``:
+    resized to that many pixels first (a thumbnail), ``caption``: a first line of text."""
+    import cv2
+
+    picture = np.ascontiguousarray(image).copy()
+    if width is not None and width != picture.shape[1]:
+        height = max(1, round(picture.shape[0] * width / picture.shape[1]))
+        picture = np.ascontiguousarray(cv2.resize(picture, (width, height), interpolation=cv2.INTER_AREA))
+    lines = [] if caption is None else [(caption, (255, 255, 255))]
+    if label is not None and math.isfinite(label):
+        _arrow(picture, label, LABEL, max(1, picture.shape[1] // 160))
+        lines.append((f"label {label:+.4f}", LABEL))
+    if lines and picture.shape[1] >= 120:  # no text on a tiny thumbnail: the page writes the value
+        _text(picture, lines)
+    return picture
 
 
 def png_bytes(image: NDArray[np.uint8]) -> bytes:
@@ -164,7 +190,7 @@ def finding_pair(store: Any, finding_id: int, datasets: dict[str, Any] | None = 
 
 def finding_png(store: Any, finding_id: int, datasets: dict[str, Any] | None = None) -> bytes:
     pair = finding_pair(store, finding_id, datasets)
-    title = f"finding #{finding_id} · {pair['kind']} · frame {pair['frame_id']} · {pair['operator']}"
+    title = f"finding #{finding_id} | {pair['kind']} | frame {pair['frame_id']} | {pair['operator']}"
     return png_bytes(pair_picture(pair["original"].image.copy(), pair["transformed"].image.copy(),
                                   label=pair["label"], before=pair["before"], after=pair["after"], title=title))
 
@@ -181,4 +207,5 @@ def finding_images(store: Any, finding_ids: Sequence[int], *, limit: int = 12) -
     return images
 
 
-__all__ = ["finding_images", "finding_pair", "finding_png", "headline", "is_camera", "pair_picture", "png_bytes"]
+__all__ = ["finding_images", "finding_pair", "finding_png", "frame_picture", "headline", "is_camera", "pair_picture",
+           "png_bytes"]
