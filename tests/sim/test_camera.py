@@ -147,8 +147,8 @@ def test_lidar_points_project_onto_the_pixels_that_show_them(moving):
     error = np.abs(depth - (z[inside] + calib.P2[2, 3]))
     assert np.isfinite(depth).all() and np.all(layers.material[row[inside], column[inside]] != SKY)
     # Points on an object's outline may round onto the pixel beside it: most, not all, agree.
-    assert np.median(error) < 0.05 and np.mean(error < 0.2) > (0.85 if moving else 0.95)
-    assert np.mean(layers.owner[row[inside], column[inside]] >= 0) > (0.85 if moving else 0.95)
+    assert np.median(error) < 0.05 and np.mean(error < 0.2) > (0.85 if moving else 0.92)
+    assert np.mean(layers.owner[row[inside], column[inside]] >= 0) > (0.85 if moving else 0.92)
 
 
 def test_vehicle_paint_follows_the_paint_draw():
