@@ -135,7 +135,7 @@ def frame_picture(image: NDArray[np.uint8], *, label: float | None, width: int |
         picture = np.ascontiguousarray(cv2.resize(picture, (width, height), interpolation=cv2.INTER_AREA))
     lines = [] if caption is None else [(caption, (255, 255, 255))]
     if label is not None and math.isfinite(label):
-        _arrow(picture, label, LABEL, max(1, picture.shape[1] // 160))
+        _arrow(picture, label, LABEL, max(2, picture.shape[1] // 160))
         lines.append((f"label {label:+.4f}", LABEL))
     if lines and picture.shape[1] >= 120:  # no text on a tiny thumbnail: the page writes the value
         _text(picture, lines)

@@ -97,11 +97,13 @@ def relations(ctx: Web) -> dict[str, Any]:
 
 @router.get("/suts")
 def suts(ctx: Web) -> dict[str, Any]:
-    """The built-in and plugin systems under test (``lidarfuzz suts``), for the model form."""
-    from lidarfuzz.suts.registry import available
+    """The built-in and plugin systems under test (``lidarfuzz suts``), for the model form: those
+    detecting objects in point clouds (``modality`` lidar), then the steering systems (camera)."""
+    from lidarfuzz.suts.registry import available, available_camera
 
-    return {"items": [{"name": name, "description": _doc(cls)[0], "version": cls.version}
-                      for name, cls in sorted(available().items())],
+    return {"items": [{"name": name, "description": _doc(cls)[0], "version": cls.version, "modality": modality}
+                      for modality, group in (("lidar", available()), ("camera", available_camera()))
+                      for name, cls in sorted(group.items())],
             "forms": ["NAME", "NAME?key=value", "module:callable (installed plugins)", "onnx file (upload)",
                       "open3d checkpoint (upload)"]}
 

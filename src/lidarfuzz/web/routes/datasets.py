@@ -6,7 +6,13 @@ Uploads are stored under ``<workspace>/uploads/<generated id>/`` and never execu
   every member is checked (:func:`lidarfuzz.web.security.extract_zip`);
 * point-cloud files, with KITTI label and calibration files for ``.bin`` frames (sorted into
   ``velodyne/``, ``label_2/`` and ``calib/`` by content) — or frames of any format alone;
-* one ROS1 bag or MCAP file.
+* one ROS1 bag or MCAP file;
+* camera images (``.png``, ``.jpg``) with one CSV of steering angles (an image column and a
+  steering column), kept side by side.
+
+``modality`` says which sensor's frames a data set is read as: ``lidar`` (point clouds), ``camera``
+(images: a KITTI folder's ``image_2/``, Udacity, images + CSV, the image topic of a bag), or by
+default what the data holds (images only: the camera; anything with point clouds: LiDAR).
 
 Before it is recorded the data is inspected as ``lidarfuzz info`` does; any error makes the
 upload a 422 that lists every problem with its file (relative to the upload) and line.
@@ -37,6 +43,7 @@ Web = Annotated[WebContext, Depends(web)]
 
 FRAME_SUFFIXES = (".bin", ".pcd", ".ply", ".las", ".laz", ".npy", ".npz")
 LOG_SUFFIXES = (".bag", ".mcap")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
     "type": "object", "required": ["name", "files"],
     "properties": {"name": {"type": "string", "description": "a name for the data set"},
@@ -45,15 +52,20 @@ UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-dat
                                                                "… or columns such as x,y,z,intensity,ring:f4"},
                    "allow_unlabelled": {"type": "boolean", "description": "campaigns may run frames without "
                                                                           "labels (AP from the labelled ones)"},
+                   "modality": {"type": "string", "enum": ["", "lidar", "camera"],
+                                "description": "read the data as point clouds (lidar) or images (camera); "
+                                               "default: what it holds"},
                    "files": {"type": "array", "items": {"type": "string", "format": "binary"},
                              "description": "one .zip; or frames (+ KITTI label and calib files); or one "
-                                            ".bag / .mcap"}}}}}}}
+                                            ".bag / .mcap; or images + one CSV of steering angles"}}}}}}}
 
 
 def dataset_row(row: Any, uploads: Path) -> dict[str, Any]:
+    options = dict(row.options or {})
     return {"name": row.name, "status": "ready", "format": row.format, "frame_count": row.frame_count,
             "path": row.path, "notes": row.notes, "added_at": iso(row.added_at),
-            "uploaded": within(Path(row.path), uploads), "options": dict(row.options or {})}
+            "uploaded": within(Path(row.path), uploads), "options": options,
+            "modality": options.get("modality", "lidar")}
 
 
 @router.get("/datasets")
@@ -103,6 +115,31 @@ async def _save(upload: UploadFile, target: Path) -> None:
             out.write(chunk)
 
 
+async def _store_images(files: list[UploadFile], names: list[str], suffixes: list[str], folder: Path) -> Path:
+    """Camera images and their CSV of steering angles, side by side in one folder (the CSV names
+    the images relative to itself)."""
+    other = [n for n, s in zip(names, suffixes, strict=True) if s not in (*IMAGE_SUFFIXES, ".csv")]
+    if other:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{other[0]}: images go with one CSV of steering angles, nothing else; upload other "
+                            "layouts as one .zip")
+    tables = [n for n, s in zip(names, suffixes, strict=True) if s == ".csv"]
+    if len(tables) != 1:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"files: images need exactly one CSV of steering angles beside them, got {len(tables)}"
+                            + (f" ({', '.join(tables)})" if tables else ""))
+    root = folder / "data"
+    root.mkdir()
+    seen: set[str] = set()
+    for upload, name in zip(files, names, strict=True):
+        target = safe_component(name)
+        if target in seen:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: uploaded twice")
+        seen.add(target)
+        await _save(upload, root / target)
+    return root
+
+
 def _is_calib(path: Path) -> bool:
     head = path.read_bytes()[:4096].decode("utf-8", "replace")
     return "Tr_velo_to_cam" in head or head.lstrip().startswith(("P0:", "P2:", "R0_rect:"))
@@ -128,6 +165,8 @@ async def _store_files(ctx: WebContext, files: list[UploadFile], folder: Path) -
         target = folder / f"log{suffixes[0]}"
         await _save(files[0], target)
         return target, names
+    if any(s in IMAGE_SUFFIXES or s == ".csv" for s in suffixes):
+        return await _store_images(files, names, suffixes, folder), names
     unknown = [n for n, s in zip(names, suffixes, strict=True) if s not in (*FRAME_SUFFIXES, ".txt")]
     if unknown:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -196,6 +235,30 @@ def _options(form: Any) -> Any:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace("--layout", "layout", 1)) from None
 
 
+def _modality(form: Any) -> str | None:
+    """The upload form's ``modality``: ``lidar``, ``camera`` or None (what the data holds)."""
+    value = str(form.get("modality") or "").strip().lower()
+    if value not in ("", "lidar", "camera"):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"modality: expected lidar or camera (or nothing: what the data holds), got {value!r}")
+    return value or None
+
+
+def _with_modality(options: Any, root: Path, modality: str | None) -> Any:
+    """``options`` reading ``root`` as ``modality``'s data (by default what it holds)."""
+    from lidarfuzz.io.open import source_modality
+
+    if modality is None:
+        try:
+            modality = source_modality(root)
+        except DataFormatError:
+            modality = "lidar"  # inspecting it says what is wrong
+    if modality == "camera" and options.layout is not None:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "layout: a point layout is for LiDAR scans; camera images have none")
+    return options.model_copy(update={"modality": modality})
+
+
 def _problem_line(problem: dict[str, Any]) -> str:
     where = problem["file"] + (f":{problem['line']}" if problem["line"] is not None else "")
     return f"{where}: {problem['message']}"
@@ -210,6 +273,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     name = str(form.get("name") or "")
     _name_free(ctx, name)
     options = _options(form)
+    modality = _modality(form)
     files = [f for f in form.getlist("files") + form.getlist("file") if isinstance(f, UploadFile)]
     if not files:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "files: no file uploaded")
@@ -218,6 +282,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     try:
         root, names = await _store_files(ctx, files, folder)
         base = root if root.is_dir() else root.parent
+        options = _with_modality(options, root, modality)
         problems, report = await run_in_threadpool(_inspect, root, base, options)
         errors = [p for p in problems if p["severity"] == "error"]
         if errors:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Query, status
@@ -56,16 +57,68 @@ def findings_list(ctx: Web, task_id: int, relation: str | None = None, operator:
                        "class": sorted({f[2] for f in facets})}}
 
 
+def task_modality(ctx: WebContext, task_id: int) -> str:
+    """``lidar`` or ``camera``: what the data of a task's kind holds."""
+    from lidarfuzz.campaign.kinds import find_kind
+
+    kind = find_kind(get_task(ctx.store, task_id).options.kind)
+    return kind.modality if kind is not None else "lidar"
+
+
+def _neighbours(s: Any, finding: Finding) -> tuple[int | None, int | None]:
+    """The ids of the task's findings just before and after this one (id order, as the list)."""
+    before = s.scalar(select(func.max(Finding.id)).where(Finding.task_id == finding.task_id, Finding.id < finding.id))
+    after = s.scalar(select(func.min(Finding.id)).where(Finding.task_id == finding.task_id, Finding.id > finding.id))
+    return before, after
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+def steering_figures(finding: Finding, subtask: Subtask) -> dict[str, Any]:
+    """What a camera finding's page shows: the label and both predictions, the squared error against
+    λ·MSE_orig (Eq. 2) and the transformation's MSE_t against MSE_orig at ε (Eq. 3's verdict:
+    ``kept``, ``filtered_out`` or ``not_filtered`` for a composite transformation or a search's chain)."""
+    stats = dict((finding.detail or {}).get("stats") or {})
+    errors = [e for e in stats.get("squared_errors") or [] if isinstance(e, int | float)]
+    lam, mse_orig = _number(stats.get("lambda")), _number(stats.get("mse_orig"))
+    out: dict[str, Any] = {
+        "label": _number(stats.get("label")), "prediction": _number(stats.get("prediction")),
+        "original_prediction": _number(stats.get("original_prediction")),
+        "squared_error": _number(errors[0]) if errors else None, "lambda": lam, "mse_orig": mse_orig,
+        "threshold": lam * mse_orig if lam is not None and mse_orig is not None else None,
+        "epsilon": _number(stats.get("epsilon")), "mse_t": None, "difference": None, "eq3": None}
+    deeptest = subtask.results.deeptest
+    if deeptest is not None:
+        mse = _number(deeptest.mse)
+        out["mse_t"] = mse
+        out["difference"] = mse - mse_orig if mse is not None and mse_orig is not None else None
+        out["eq3"] = ("not_filtered" if not deeptest.filtered else "kept" if deeptest.kept else "filtered_out")
+    elif "filtered" in stats:
+        out["eq3"] = None if stats["filtered"] else "not_filtered"
+    return out
+
+
 @router.get("/findings/{finding_id}")
 def findings_detail(ctx: Web, finding_id: int) -> dict[str, Any]:
-    """One finding: what was violated (its detail), and its replay record (seed, operator spec and
-    params, frame, system and fingerprint); ``lidarfuzz replay ID`` re-runs it."""
+    """One finding: what was violated (its detail), its replay record (seed, operator spec and
+    params, frame, system and fingerprint; ``lidarfuzz replay ID`` re-runs it), the ids of the task's
+    previous and next findings, and where its pictures are: ``frames`` (the LiDAR frames, LFZ1) or,
+    for a camera task, ``picture`` (original | transformed, PNG) and ``steering`` (the figures Eq. 2
+    and Eq. 3 judged, :func:`steering_figures`)."""
     with ctx.store.session() as s:
-        row = s.execute(_base().where(Finding.id == finding_id)).first()
+        row = s.execute(_base().add_columns(Subtask).where(Finding.id == finding_id)).first()
         if row is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no finding {finding_id}")
-        out = _row(*row)
-        finding = row[0]
+        out = _row(*row[:5])
+        finding, subtask = row[0], row[5]
+        previous, following = _neighbours(s, finding)
+        modality = task_modality(ctx, finding.task_id)
         out.update(detail=finding.detail, replay=finding.replay.dump(), replay_command=f"lidarfuzz replay {finding.id}",
-                   frames=f"/api/findings/{finding.id}/frames")
+                   modality=modality, previous=previous, next=following,
+                   frames=f"/api/findings/{finding.id}/frames" if modality == "lidar" else None)
+        if modality == "camera":
+            out.update(picture=f"/api/findings/{finding.id}/pair.png", steering=steering_figures(finding, subtask),
+                       operator_params=finding.replay.params, chain=subtask.name == "guided")
     return out

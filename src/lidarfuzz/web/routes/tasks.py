@@ -12,7 +12,7 @@ from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.spec import parse_campaign
 from lidarfuzz.campaign.tasks import count_tasks, create_task, delete_task, get_task, list_tasks, subtask_label
-from lidarfuzz.store.contracts import APRecord, RateRow, TaskSummary, summary_schema
+from lidarfuzz.store.contracts import APRecord, DeepTestErrors, RateRow, SearchProgress, TaskSummary, summary_schema
 from lidarfuzz.store.inventory import list_datasets, list_models
 from lidarfuzz.store.models import Status, Subtask, Task
 from lidarfuzz.web.context import WebContext, web
@@ -69,6 +69,9 @@ class SubtaskRow(Reply):
     violations: list[RateRow]
     failures: int
     frames: int
+    deeptest: DeepTestErrors | None = Field(
+        default=None, description="a camera task's transformation: its MSE_t, Eq. 2 violations and Eq. 3's verdict")
+    search: SearchProgress | None = Field(default=None, description="a search's coverage and counters so far")
 
 
 class RunningSubtask(Reply):
@@ -99,6 +102,10 @@ class TaskDetail(TaskRow):
     subtasks: list[SubtaskRow]
     summary: TaskSummary | None
     queued: bool
+    modality: str = Field(description="what its data holds: lidar (point clouds) or camera (images)")
+    camera: dict[str, Any] | None = Field(
+        default=None, description="a camera task's MSE_orig, labelled and tested images and the seed images' "
+                                  "coverage (lidarfuzz.campaign.camera.kind_summary), as soon as the originals ran")
 
 
 def task_schema() -> dict[str, Any]:
@@ -140,7 +147,16 @@ def _subtask_row(sub: Subtask) -> SubtaskRow:
     return SubtaskRow(id=sub.id, name=sub.name, label=subtask_label(sub.name, sub.severity), severity=sub.severity,
                       status=sub.status, done=sub.done, total=sub.total, operator=sub.operator,
                       relations=sub.plan.relation_names, ap_moderate=_moderate(results.ap), ap=results.ap,
-                      violations=results.violations_total, failures=results.failures, frames=results.frames)
+                      violations=results.violations_total, failures=results.failures, frames=results.frames,
+                      deeptest=results.deeptest, search=results.search)
+
+
+def _camera_figures(ctx: WebContext, task: Task) -> dict[str, Any] | None:
+    from lidarfuzz.campaign.camera import kind_summary
+
+    if not any(sub.name == "original" for sub in task.subtasks):
+        return None
+    return kind_summary(ctx.store, task)
 
 
 @router.get("/tasks")
@@ -202,18 +218,24 @@ async def tasks_create(ctx: Web, body: Annotated[dict[str, Any], Body(examples=[
 
 @router.get("/tasks/{task_id}", responses={200: {"model": TaskDetail}})
 def tasks_detail(ctx: Web, task_id: int) -> dict[str, Any]:
-    """A task, its subtasks (with AP), the subtask running now, its summary and error (the reply's
-    JSON Schema: ``GET /api/schemas/task``)."""
+    """A task, its subtasks (with AP; a camera task's: MSE_t and Eq. 3, and the search's coverage), the
+    subtask running now, its summary and error, what its data holds (``modality``) and a camera task's
+    MSE_orig (the reply's JSON Schema: ``GET /api/schemas/task``)."""
+    from lidarfuzz.campaign.kinds import find_kind
+
     task = get_task(ctx.store, task_id)
     progress = progress_snapshot(ctx.store, task_id) or {}
     options = task.options
+    kind = find_kind(options.kind)
+    modality = kind.modality if kind is not None else "lidar"
     detail = TaskDetail.model_validate({
         **_row_fields(task), "dataset_path": task.dataset.path, "model_spec": task.model.spec,
         "fingerprint": task.model.fingerprint, "relations": task.relations, "operators": task.operators,
         "trials": options.trials, "frames": len(options.frame_ids), "search": options.kind_options or None,
         "worker": task.worker, "heartbeat_at": iso(task.heartbeat_at), "running": progress.get("running"),
         "subtasks": [_subtask_row(sub) for sub in task.subtasks], "summary": task.summary,
-        "queued": ctx.workers.is_active(task_id)})
+        "queued": ctx.workers.is_active(task_id), "modality": modality,
+        "camera": _camera_figures(ctx, task) if modality == "camera" else None})
     return detail.model_dump(mode="json", by_alias=True)
 
 
