@@ -145,3 +145,16 @@ def test_a_finding_replays_from_its_stored_params(tmp_path: Path, images: Path) 
     k = LABELS.index(result.label)  # which of the four images (labels read back exactly from the CSV)
     assert result.now[1] == pytest.approx(min(VALUES[k] + 50, 255) / 255 - 0.5)
     assert result.outcomes_now[0].stats["squared_errors"][0] == pytest.approx(errors50[k])
+
+
+def test_the_report_shows_deeptest_s_figures_and_pictures_not_ap(tmp_path: Path, images: Path) -> None:
+    from lidarfuzz.report import write_report
+
+    store, task_id = run(tmp_path, images, epsilon=0.05)
+    files = write_report(store, task_id, tmp_path / "report", images=2)
+    html = files.html.read_text()
+    assert 'id="deeptest"' in html and 'id="ap"' not in html and 'id="robustness"' not in html
+    assert html.count('<img src="data:image/png;base64,') == 2  # two findings drawn as image pairs
+    assert "3 of 4 findings" in " ".join(html.split())  # at most three per kind and transformation
+    mse_orig, _, _ = expected(50)
+    assert f"MSE_orig) is {mse_orig:.4g}" in html
