@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any
 
 import numpy as np
@@ -290,6 +290,18 @@ def _encoding_table(exposure: float) -> NDArray[np.uint8]:
     return np.round(srgb * 255.0).astype(np.uint8)  # type: ignore[no-any-return]
 
 
+@lru_cache(maxsize=4)
+def _pixel_rays(intrinsic: bytes, size: tuple[int, int]) -> tuple[NDArray[np.float32], ...]:
+    """Every pixel centre's unit ray in the camera frame (x, y, z components, row-major), and the
+    z-depth per metre along it (frames of one data set share them)."""
+    width, height = size
+    matrix = np.frombuffer(intrinsic, np.float64).reshape(3, 3)
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    rays = np.linalg.solve(matrix, np.stack([u.ravel(), v.ravel(), np.ones(u.size)]))  # third row: (0, 0, 1)
+    length = np.linalg.norm(rays, axis=0)
+    return (*(np.ascontiguousarray(c / length, np.float32) for c in rays), (1.0 / length).astype(np.float32))
+
+
 def _unit_face_normals(mesh: Mesh) -> NDArray[np.float32]:
     if not len(mesh):
         return np.zeros((0, 3), np.float32)
@@ -373,13 +385,8 @@ class CameraRenderer:
         self.lighting = lighting or lighting_of(self.seed)
         self.exposure = float(exposure)
         self._camera_to_lidar = lidar_from_camera(self.calib)
-        # Every pixel centre's unit ray in the camera frame; z-depth = distance along it × cos.
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        pixels = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
-        rays = np.linalg.solve(self.calib.P2[:, :3], pixels)  # the third row of P2's left block is (0, 0, 1)
-        length = np.linalg.norm(rays, axis=0)
-        self._rays = tuple(np.ascontiguousarray(c / length, np.float32) for c in rays)
-        self._depth_per_metre = (1.0 / length).astype(np.float32)
+        *rays, self._depth_per_metre = _pixel_rays(self.calib.P2[:, :3].tobytes(), self.size)
+        self._rays = (rays[0], rays[1], rays[2])
         # Per-face material, owner and unit normal of the static scene (the world, then the
         # still road users), then a row for the sky; a frame appends its moving road users'.
         still = renderer._still_mesh
