@@ -10,12 +10,14 @@ from lidarfuzz.cli.common import Column, JsonOption, LayoutOption, PlainOption, 
 
 def suts_command(as_json: JsonOption = False, plain: PlainOption = False) -> None:
     """List the built-in and plugin systems under test and the spec forms that name others: systems
-    that detect frame by frame, and systems that consume logs in order (controllers)."""
-    from lidarfuzz.suts.registry import available, available_sequences
+    that detect frame by frame, systems that consume logs in order (controllers), and steering
+    systems that answer camera images (the camera task's)."""
+    from lidarfuzz.suts.registry import available, available_camera, available_sequences
 
     rows: list[list[str]] = []
     records: list[dict[str, Any]] = []
-    kinds: list[tuple[str, dict[str, Any]]] = [("frames", available()), ("logs", available_sequences())]
+    kinds: list[tuple[str, dict[str, Any]]] = [("frames", available()), ("logs", available_sequences()),
+                                               ("images", available_camera())]
     for kind, systems in kinds:
         for name, cls in sorted(systems.items()):
             doc = (cls.__doc__ or "").strip().splitlines()
@@ -27,7 +29,9 @@ def suts_command(as_json: JsonOption = False, plain: PlainOption = False) -> Non
                       "[cyan]subprocess:'COMMAND {points} {output}'[/], [cyan]worker:COMMAND[/], "
                       "[cyan]onnx:PATH[/]; options as [cyan]NAME?key=value&…[/]. Protocol: docs/suts.md. Systems that "
                       "consume logs: a registered name, [cyan]module:callable[/] or [cyan]worker:COMMAND[/] "
-                      "answering resets (docs/structural.md)"))
+                      "answering resets (docs/structural.md). Steering systems (images): a registered name, "
+                      "[cyan]onnx:PATH[/], [cyan]worker:COMMAND[/] or [cyan]module:name[/] (a torch module or "
+                      "SteeringSystem; docs/camera.md)"))
 
 
 def detect_command(
