@@ -237,6 +237,22 @@ def test_gen_camera_writes_images_depth_and_steering(camera_set):
     assert scene.ego.position[1] != -1.75 or scene.ego.yaw != 0.0  # moved off its lane
 
 
+def test_frames_in_memory_are_the_frames_on_disk(camera_set):
+    from lidarfuzz.sim.dataset import render_camera_frames
+
+    config = GenerationConfig(frames=2, seed=4, sensor="VLP-16", camera=(160, 120))
+    rows = {r.split(",")[0]: r.split(",") for r in (camera_set / "steering.csv").read_text().splitlines()[1:]}
+    for scene, sample in render_camera_frames(config):
+        on_disk = cv2.imread(str(camera_set / "image_2" / f"{sample.frame_id}.png"), cv2.IMREAD_COLOR)[:, :, ::-1]
+        assert np.array_equal(sample.image, on_disk) and scene.frame_id == sample.frame_id
+        assert sample.steering == pytest.approx(float(rows[sample.frame_id][1]), abs=1e-6)
+        assert sample.metadata["speed"] == pytest.approx(float(rows[sample.frame_id][2]), abs=1e-4)
+        depth = cv2.imread(str(camera_set / "depth_2" / f"{sample.frame_id}.png"), cv2.IMREAD_UNCHANGED)
+        near = np.isfinite(sample.depth) & (sample.depth < 255)
+        assert np.allclose(depth[near] / 256.0, sample.depth[near], atol=1 / 512 + 1e-6)
+        assert np.all(depth[~near] == 0)
+
+
 def test_gen_camera_resumes_missing_images(camera_set, tmp_path):
     import shutil
 
