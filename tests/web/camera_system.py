@@ -22,7 +22,8 @@ class Net(torch.nn.Module):
         self.head = torch.nn.Linear(4, 1)
         with torch.no_grad():
             self.conv.weight.copy_(torch.rand(self.conv.weight.shape, generator=generator) / 75.0)
-            self.conv.bias.copy_(torch.tensor([-0.1, -0.2, -0.3, -0.4]))
+            self.conv.bias.copy_(  # type: ignore[union-attr]
+                torch.tensor([-0.1, -0.2, -0.3, -0.4]))
             self.head.weight.copy_(torch.tensor([[3.0, 2.0, 1.0, 0.5]]))
             self.head.bias.fill_(-0.63)
 

@@ -441,7 +441,7 @@ def test_a_data_set_frame_as_binary(client: TestClient, world: Path) -> None:
     from lidarfuzz.io.open import open_dataset
 
     listing = client.get("/api/datasets/world/frames").json()
-    assert listing == {"name": "world", "total": 2, "frame_ids": ["000000", "000001"]}
+    assert listing == {"name": "world", "modality": "lidar", "total": 2, "frame_ids": ["000000", "000001"]}
     assert client.get("/api/datasets/world/frames", params={"offset": 1, "limit": 5}).json()["frame_ids"] == [
         "000001"]
     reply = client.get("/api/datasets/world/frames/000001")

@@ -23,7 +23,7 @@ const routes = [
   [/^\/datasets$/, () => datasetsPage, "datasets"],
   [/^\/models$/, () => modelsPage, "models"],
   [/^\/browse$/, () => (root) => browsePage(root, null), "browse"],
-  [/^\/browse\/([^/]+)$/, (m) => (root) => browsePage(root, decodeURIComponent(m[1])), "browse"],
+  [/^\/browse\/([^/]+)$/, (m) => (root, q) => browsePage(root, decodeURIComponent(m[1]), q), "browse"],
   [
     /^\/browse\/([^/]+)\/([^/]+)$/,
     (m) => (root) => frameViewerPage(root, decodeURIComponent(m[1]), decodeURIComponent(m[2])),

@@ -33,7 +33,7 @@ export async function datasetsPage(root) {
           "tr",
           { testid: "dataset-row", dataset: { name: ds.name } },
           h("td", {}, h("a", { href: `#/browse/${encodeURIComponent(ds.name)}` }, ds.name), status),
-          h("td", {}, ds.format ?? "—"),
+          h("td", {}, ds.format ?? "—", ds.modality === "camera" ? h("span", { class: "badge", testid: "dataset-modality" }, " camera") : null),
           h("td", { class: "num" }, generating && ds.total ? progressBar(ds.done ?? 0, ds.total) : (ds.frame_count ?? ds.frames ?? "—")),
           h("td", { class: "path" }, ds.path ?? ""),
           h("td", {}, formatTime(ds.added_at ?? ds.created_at)),
@@ -67,6 +67,13 @@ export async function datasetsPage(root) {
   // -- upload --
   const uploadName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "upload-name" });
   const uploadFiles = h("input", { name: "files", type: "file", multiple: true, required: true, testid: "upload-files" });
+  const uploadModality = h(
+    "select",
+    { name: "modality", testid: "upload-modality" },
+    h("option", { value: "" }, "what the data holds"),
+    h("option", { value: "lidar" }, "LiDAR point clouds"),
+    h("option", { value: "camera" }, "camera images (steering labels)"),
+  );
   const uploadMessage = h("div", { testid: "upload-message" });
   const uploadProgress = h("div");
   const uploadButton = h("button", { type: "submit", class: "primary", testid: "upload-submit" }, "Upload");
@@ -80,6 +87,7 @@ export async function datasetsPage(root) {
         clear(uploadMessage);
         const form = new FormData();
         form.append("name", uploadName.value.trim());
+        if (uploadModality.value) form.append("modality", uploadModality.value);
         for (const file of uploadFiles.files) form.append("files", file, file.name);
         uploadButton.disabled = true;
         try {
@@ -105,10 +113,12 @@ export async function datasetsPage(root) {
       "p",
       { class: "hint" },
       "One .zip in KITTI layout (velodyne/, label_2/, calib/ …); or point-cloud files (.bin, .pcd, .ply, .las, .npy …) ",
-      "with their KITTI label files; or one ROS bag / MCAP file. Every problem is listed with its file and line.",
+      "with their KITTI label files; or one ROS bag / MCAP file; or camera images (.png, .jpg) with one CSV of steering angles ",
+      "(a zip for KITTI image_2/, Udacity or driving_log layouts). Every problem is listed with its file and line.",
     ),
     h("label", {}, "Name ", uploadName),
     h("label", {}, "Files ", uploadFiles),
+    h("label", {}, "Read as ", uploadModality),
     uploadButton,
     uploadProgress,
     uploadMessage,

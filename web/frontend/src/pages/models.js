@@ -47,7 +47,7 @@ export async function modelsPage(root) {
           "tr",
           { testid: "model-row", dataset: { name: model.name } },
           h("td", {}, model.name),
-          h("td", {}, h("code", {}, model.spec ?? "")),
+          h("td", {}, h("code", {}, model.spec ?? ""), model.modality === "camera" ? h("span", { class: "badge", testid: "model-modality-badge" }, " camera") : null),
           h("td", {}, h("code", { class: "muted" }, options)),
           h("td", {}, h("code", { title: model.fingerprint ?? "" }, (model.fingerprint ?? "").slice(0, 12))),
           h("td", {}, formatTime(model.added_at ?? model.created_at)),
@@ -85,13 +85,22 @@ export async function modelsPage(root) {
     h("option", { value: "plugin" }, "plugin spec (module:callable)"),
   );
   const name = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "model-name" });
+  const modality = h(
+    "select",
+    { testid: "model-modality" },
+    h("option", { value: "lidar" }, "LiDAR: detects objects in point clouds"),
+    h("option", { value: "camera" }, "camera: a steering system on images"),
+  );
   const spec = h("input", { required: true, placeholder: "classic", list: "builtin-suts", testid: "model-spec" });
   const options = h("textarea", { rows: 3, placeholder: "key=value per line (optional)", testid: "model-options" });
   const specMessage = h("div", { testid: "model-message" });
   const datalist = h("datalist", { id: "builtin-suts" }, BUILT_INS.map((n) => h("option", { value: n })));
-  kind.addEventListener("change", () => {
-    spec.placeholder = kind.value === "builtin" ? "classic" : "my_package.detectors:build";
-  });
+  const placeholder = () => {
+    if (kind.value !== "builtin") spec.placeholder = modality.value === "camera" ? "my_package.steering:Net" : "my_package.detectors:build";
+    else spec.placeholder = modality.value === "camera" ? "dave2" : "classic";
+  };
+  kind.addEventListener("change", placeholder);
+  modality.addEventListener("change", placeholder);
   const specForm = h(
     "form",
     {
@@ -110,7 +119,7 @@ export async function modelsPage(root) {
         try {
           await api("/api/models", {
             method: "POST",
-            body: { name: name.value.trim(), spec: spec.value.trim(), options: parsed },
+            body: { name: name.value.trim(), spec: spec.value.trim(), options: parsed, modality: modality.value },
           });
           specMessage.append(notice("ok", `Registered ${name.value.trim()}.`));
           specForm.reset();
@@ -122,8 +131,9 @@ export async function modelsPage(root) {
       },
     },
     h("h2", {}, "Register a system under test"),
-    h("p", { class: "hint" }, "A built-in name (lidarfuzz suts) or an installed plugin's module:callable."),
+    h("p", { class: "hint" }, "A built-in name (lidarfuzz suts: classic, pillars …; steering systems dave2, epoch, chauffeur) or an installed plugin's module:callable."),
     h("label", {}, "Kind ", kind),
+    h("label", {}, "Modality ", modality),
     h("label", {}, "Name ", name),
     h("label", {}, "Spec ", spec),
     datalist,
@@ -138,6 +148,7 @@ export async function modelsPage(root) {
     { name: "kind", testid: "model-file-kind" },
     h("option", { value: "onnx" }, "ONNX model (.onnx)"),
     h("option", { value: "open3d" }, "Open3D-ML checkpoint (.pth / .pt)"),
+    h("option", { value: "onnx-steering" }, "ONNX steering network (.onnx; camera tasks)"),
   );
   const fileName = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+" });
   const file = h("input", { type: "file", required: true, accept: ".onnx,.pth,.pt,.ckpt", testid: "model-file" });
@@ -154,7 +165,8 @@ export async function modelsPage(root) {
         clear(fileMessage);
         const form = new FormData();
         form.append("name", fileName.value.trim());
-        form.append("kind", fileKind.value);
+        form.append("kind", fileKind.value === "onnx-steering" ? "onnx" : fileKind.value);
+        if (fileKind.value === "onnx-steering") form.append("modality", "camera");
         try {
           form.append("options", JSON.stringify(parseOptions(fileOptions.value)));
         } catch (exc) {

@@ -1,7 +1,8 @@
 // The New task dialog: operators grouped by family (description, severity table, before/after
 // preview), severities or explicit parameters checked against the params schema, relations,
 // data set and model pickers, seed; a structural task's logs, sequence system, code targets,
-// heuristics and strategies instead (./structural.js); the server's 422 errors are shown at the
+// heuristics and strategies instead (./structural.js); a camera task's image transformations, camera
+// data sets and steering systems and its search budget; the server's 422 errors are shown at the
 // field they name.
 import { api, fetchBlob, listOf } from "../api.js";
 import { clear, go, h, notice } from "../dom.js";
@@ -75,7 +76,7 @@ function firstParagraph(text) {
   return String(text ?? "").split(/\n\s*\n/)[0].replace(/``/g, "").replace(/\s+/g, " ").trim();
 }
 
-function operatorRow(op, previews) {
+function operatorRow(op, previews, withPreview = true) {
   const check = h("input", { type: "checkbox", class: "op-check", testid: `op-${op.name}`, value: op.name });
   const levels = severityLevels(op);
   const severityChecks = levels.map((s) =>
@@ -118,11 +119,11 @@ function operatorRow(op, previews) {
   previewSeverity.addEventListener("change", loadPreview);
   const details = h(
     "details",
-    { class: "op-details", ontoggle: (e) => e.target.open && !image.src && loadPreview() },
-    h("summary", {}, "description, severities, preview"),
+    { class: "op-details", ontoggle: (e) => withPreview && e.target.open && !image.src && loadPreview() },
+    h("summary", {}, withPreview ? "description, severities, preview" : "description, severities"),
     h("p", { class: "op-doc" }, firstParagraph(op.description ?? op.doc)),
     severityTable(op),
-    h("div", { class: "preview-box" }, previewSeverity, previewMessage, image),
+    withPreview ? h("div", { class: "preview-box" }, previewSeverity, previewMessage, image) : null,
   );
   const aliases = (op.aliases ?? []).length ? ` (${op.aliases.join(", ")})` : "";
   const relation = op.relation ?? op.relation_kind ?? "";
@@ -181,8 +182,9 @@ function showFieldError(element, message) {
 
 export async function newTaskPage(root) {
   root.append(h("div", { class: "page-head" }, h("h1", {}, "New task")), h("p", { class: "muted" }, "Loading the catalogue…"));
-  const [operators, relations, datasets, models, sequenceSystems] = await Promise.all([
+  const [operators, cameraOperators, relations, datasets, models, sequenceSystems] = await Promise.all([
     api("/api/operators"),
+    api("/api/operators?modality=camera").catch(() => ({ families: [] })),
     api("/api/relations").catch(() => []),
     api("/api/datasets"),
     api("/api/models"),
@@ -192,20 +194,26 @@ export async function newTaskPage(root) {
   const previews = new Map();
 
   const name = h("input", { name: "name", placeholder: "optional", testid: "task-name" });
-  const dataset = h(
-    "select",
-    { name: "dataset", required: true, testid: "task-dataset" },
-    listOf(datasets, "datasets").map((d) => h("option", { value: d.name }, `${d.name}${d.frame_count ? ` (${d.frame_count} frames)` : ""}`)),
-  );
-  const sut = h(
-    "select",
-    { name: "sut", required: true, testid: "task-model" },
-    listOf(models, "models").map((m) => h("option", { value: m.name }, `${m.name} — ${m.spec ?? ""}`)),
-  );
+  // a camera task lists camera data sets and steering systems; the other kinds LiDAR ones
+  const datasetItems = listOf(datasets, "datasets");
+  const modelItems = listOf(models, "models");
+  const dataset = h("select", { name: "dataset", required: true, testid: "task-dataset" });
+  const sut = h("select", { name: "sut", required: true, testid: "task-model" });
+  function fillPickers(modality) {
+    const keep = [dataset.value, sut.value];
+    const ofModality = (item) => (item.modality ?? "lidar") === modality;
+    dataset.replaceChildren(...datasetItems.filter(ofModality).map((d) => h("option", { value: d.name }, `${d.name}${d.frame_count ? ` (${d.frame_count} frames)` : ""}`)));
+    sut.replaceChildren(...modelItems.filter(ofModality).map((m) => h("option", { value: m.name }, `${m.name} — ${m.spec ?? ""}`)));
+    for (const [select, value] of [[dataset, keep[0]], [sut, keep[1]]]) {
+      if ([...select.options].some((o) => o.value === value)) select.value = value;
+    }
+  }
+  fillPickers("lidar");
   const seed = h("input", { name: "seed", type: "number", value: 0, min: 0, step: 1, required: true, testid: "task-seed" });
   const trials = h("input", { name: "trials", type: "number", value: 1, min: 1, max: 100, step: 1, testid: "task-trials" });
   const frames = h("input", { name: "frames", type: "number", min: 1, step: 1, placeholder: "all", testid: "task-frames" });
-  const kind = h("select", { name: "kind", testid: "task-kind" }, ["mutation", "guided", "fuzz", "structural"].map((k) => h("option", { value: k }, k)));
+  const kind = h("select", { name: "kind", testid: "task-kind" }, ["mutation", "guided", "fuzz", "structural", "camera"].map((k) => h("option", { value: k }, k)));
+  const budget = h("input", { name: "budget", type: "number", value: 0, min: 0, max: 100000, step: 1, testid: "task-budget" });
   const search = h("textarea", { rows: 2, placeholder: '{"budget": 50, "criteria": ["nc:0.2"]}', hidden: true });
   const structural = structuralFields(sequenceSystems);
 
@@ -219,6 +227,19 @@ export async function newTaskPage(root) {
       group.append(row.row);
     }
     families.append(group);
+  }
+
+  // a camera task's image transformations (DeepTest's nine), without previews (those are drawn from above)
+  const cameraRows = [];
+  const cameraFamilies = h("div", { class: "families", testid: "camera-operators", hidden: true });
+  for (const [family, ops] of operatorsByFamily(cameraOperators)) {
+    const group = h("fieldset", { class: "family", dataset: { family } }, h("legend", {}, family));
+    for (const op of ops) {
+      const row = operatorRow(op, previews, false);
+      cameraRows.push(row);
+      group.append(row.row);
+    }
+    cameraFamilies.append(group);
   }
 
   const relationList = listOf(relations, "relations");
@@ -242,9 +263,12 @@ export async function newTaskPage(root) {
 
   const message = h("div", { testid: "task-message" });
   const submit = h("button", { type: "submit", class: "primary", testid: "task-submit" }, "Create task");
-  const detectionFields = { name, dataset, sut, seed, trials, frames, kind, relations: relationsField, search };
+  const budgetLabel = h("label", { hidden: true, title: "tests Algorithm 1 generates after the transformations (0: no search)" }, "Search budget ", budget);
+  const detectionFields = { name, dataset, sut, seed, trials, frames, kind, relations: relationsField, search, "search.budget": budgetLabel, budget: budgetLabel };
   const structuralTopFields = { name, seed, kind, ...structural.fields };
   const isStructural = () => kind.value === "structural";
+  const isCamera = () => kind.value === "camera";
+  const operatorRows = () => (isCamera() ? cameraRows : rows);
 
   // what a detection campaign (mutation, guided, fuzz) shows and a structural one does not
   const detectionOnly = [
@@ -253,13 +277,22 @@ export async function newTaskPage(root) {
     h("label", {}, "Trials ", trials),
     h("label", {}, "Frames ", frames),
   ];
-  const detectionSections = [h("h2", {}, "Operators"), families, h("h2", {}, "Relations"), relationsField];
+  const operatorsHeading = h("h2", {}, "Operators");
+  const relationsHeading = h("h2", {}, "Relations");
+  const detectionSections = [operatorsHeading, families, cameraFamilies, relationsHeading, relationsField];
   const structuralSection = h("div", { hidden: true }, h("h2", {}, "Logs and code"), structural.element);
   let logsLoaded = false;
   function syncKind() {
     for (const element of [...detectionOnly, ...detectionSections]) element.hidden = isStructural();
     structuralSection.hidden = !isStructural();
-    search.hidden = kind.value === "mutation" || isStructural();
+    search.hidden = kind.value === "mutation" || isStructural() || isCamera();
+    // a camera task: image transformations, DeepTest's relation on the steering angle, a search budget
+    families.hidden = isStructural() || isCamera();
+    cameraFamilies.hidden = !isCamera();
+    relationsHeading.hidden = relationsField.hidden = isStructural() || isCamera();
+    operatorsHeading.textContent = isCamera() ? "Image transformations (none checked: DeepTest's nine at severities 1, 3, 5)" : "Operators";
+    budgetLabel.hidden = !isCamera();
+    fillPickers(isCamera() ? "camera" : "lidar");
     if (isStructural() && !logsLoaded) {
       logsLoaded = true;
       structural.load();
@@ -278,6 +311,7 @@ export async function newTaskPage(root) {
       detectionOnly.slice(0, 2),
       h("label", {}, "Seed ", seed),
       detectionOnly.slice(2),
+      budgetLabel,
       search,
     ),
     detectionSections,
@@ -314,7 +348,7 @@ export async function newTaskPage(root) {
   form.addEventListener("submit", async (event) => {
     event.preventDefault();
     clearErrors();
-    const chosen = isStructural() ? [] : rows.filter((r) => r.checked());
+    const chosen = isStructural() ? [] : operatorRows().filter((r) => r.checked());
     const body = { dataset: dataset.value, sut: sut.value, kind: kind.value };
     if (name.value.trim()) body.name = name.value.trim();
     let ok = true;
@@ -348,12 +382,17 @@ export async function newTaskPage(root) {
         else body.operators.push(result.choice);
       }
       if (kind.value === "mutation" && !chosen.length) fail(families, "pick at least one operator");
-      if (choose.checked) {
+      if (isCamera()) {
+        const value = Number(budget.value || 0);
+        if (!Number.isInteger(value) || value < 0) fail(budgetLabel, "search budget: a whole number ≥ 0");
+        else if (value > 0) body.search = { budget: value };
+        body.relations = "auto";
+      } else if (choose.checked) {
         const picked = relationChecks.filter((r) => r.input.checked).map((r) => r.name);
         if (!picked.length) fail(relationsField, "pick at least one relation, or auto");
         body.relations = picked;
       } else body.relations = "auto";
-      if (kind.value !== "mutation" && search.value.trim()) {
+      if (kind.value !== "mutation" && !isCamera() && search.value.trim()) {
         try {
           body.search = JSON.parse(search.value);
         } catch {
