@@ -103,14 +103,14 @@ def p_text(p: float) -> str:
 
 
 # -- data -------------------------------------------------------------------------------------------
-def world_root(seed: int, frames: int) -> Path:
-    return DATA / f"scenes-{seed}-{frames}"
+def world_root(seed: int, frames: int, size: str = IMAGE_SIZE) -> Path:
+    return DATA / (f"scenes-{seed}-{frames}" + ("" if size == IMAGE_SIZE else f"-{size}"))
 
 
 def ensure_world(seed: int = WORLD_SEED, frames: int = WORLD_FRAMES, size: str = IMAGE_SIZE,
                  root: Path | None = None) -> Path:
     """The test world (rendered with ``lidarfuzz gen --camera`` unless already complete)."""
-    root = root or world_root(seed, frames)
+    root = root or world_root(seed, frames, size)
     labels = root / "steering.csv"
     if labels.is_file() and len(labels.read_text().splitlines()) == frames + 1:
         return root
@@ -269,8 +269,10 @@ Results are reported as they came out.
 """
 
 
-def write_section(name: str, title: str, body: str, command: str, seconds: float, page: Path = PAGE) -> str:
-    """Replace (or add) ``name``'s section of the page, keep the others and the hand-written notes."""
+def write_section(name: str, title: str, body: str, command: str, seconds: float, page: Path | None = None) -> str:
+    """Replace (or add) ``name``'s section of the page (default :data:`PAGE`), keep the others and the
+    hand-written notes."""
+    page = page or PAGE
     start, end = f"<!-- {name} -->", f"<!-- /{name} -->"
     section = (f"{start}\n## {title}\n\nRegenerate: `{command}` ({seconds:.0f} s).\n\n{body.strip()}\n{end}")
     old = page.read_text() if page.exists() else ""
@@ -321,7 +323,7 @@ def rq1_rows(angles: NDArray[np.float64], nc: NDArray[np.float64]) -> dict[str, 
 
 def table5(args: argparse.Namespace) -> str:
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     models = [load_model(m) for m in args.models]
     rows = []
     for model in models:
@@ -377,7 +379,7 @@ def fig5(args: argparse.Namespace) -> str:
     from scipy.stats import wilcoxon
 
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     models = [load_model(m) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     tests = simple_transformations(world, seeds, args.run_seed)
@@ -492,7 +494,7 @@ def mse_of(angles: NDArray[np.float64], labels: NDArray[np.float64]) -> float:
 
 def table6(args: argparse.Namespace) -> str:
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     models = [load_model(m) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     tests = simple_transformations(world, seeds, args.run_seed)
@@ -619,7 +621,7 @@ def table8(args: argparse.Namespace) -> str:
     from lidarfuzz.report.camera import pair_picture, png_bytes
 
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     models = [load_model(m) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     results = {m.name: judge(m, world, args.severities, args.run_seed) for m in models}
@@ -714,7 +716,7 @@ def fig6(args: argparse.Namespace) -> str:
     from scipy.stats import wilcoxon
 
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     models = [load_model(m) for m in args.models]
     labels = world.labels
     rows, boxes, names = [], [], []
@@ -773,7 +775,7 @@ def table9(args: argparse.Namespace) -> str:
     from lidarfuzz.suts.steering.training import Frames, TrainConfig, mse, predict, read_frames, train_network
 
     start = time.perf_counter()
-    world = open_world(ensure_world(args.seed, args.frames), args.seed)
+    world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
     model = load_model("epoch")
     preprocess = PREPROCESS["epoch"]
     missing = [r for r in args.train_data if not (Path(r) / "steering.csv").is_file()]
@@ -856,6 +858,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("command", choices=[*RUNNERS, "all"])
     parser.add_argument("--frames", type=int, default=WORLD_FRAMES, help="frames of the test world")
     parser.add_argument("--seed", type=int, default=WORLD_SEED, help="the test world's seed")
+    parser.add_argument("--image-size", default=IMAGE_SIZE, help="the test world's camera image size")
     parser.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
     parser.add_argument("--seeds", type=int, default=20, help="seed images for fig5, table6 and the guided search")
     parser.add_argument("--run-seed", type=int, default=0, help="seeds the draws, transformations and searches")
@@ -866,7 +869,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--review", type=int, default=8, help="violating pairs written for manual review")
     parser.add_argument("--review-dir", default=str(DOCS / "deeptest_camera_review"))
     parser.add_argument("--train-data", nargs="+", default=list(DEFAULT_TRAIN), help="table9: training data sets")
-    parser.add_argument("--epochs", type=int, default=12, help="table9: training epochs")
+    parser.add_argument("--epochs", type=int, default=6, help="table9: training epochs")
     parser.add_argument("--threads", type=int, default=2, help="table9: training threads")
     args = parser.parse_args(argv)
     raw = list(sys.argv[2:] if argv is None else argv[1:])
