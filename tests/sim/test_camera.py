@@ -160,6 +160,24 @@ def test_vehicle_paint_follows_the_paint_draw():
     assert painted.any() and np.all(layers.owner[painted] >= 0)
 
 
+def test_wheels_are_solid_not_speckled_with_paint():
+    """A tyre's outer face lies in the plane of the car's side (Embree returns either): the
+    pixels around a wheel's centre show tyre throughout."""
+    from lidarfuzz.sim.camera import _wheel_discs
+
+    size = (3.9, 1.63, 1.53)
+    # Parked in the oncoming lane ahead: its right side (y = 1.75 − |y| of the wheel faces) faces the camera.
+    scene = street(actors=[{"class": "Car", "position": [9.0, 1.75], "size": list(size), "parked": True}])
+    camera = camera_of(scene, (640, 480))
+    layers = camera.layers(0.0)
+    wheels = [w for w in _wheel_discs("Car", size) if w[2] > 0]
+    assert len(wheels) == 4
+    for x, z, _radius, side in wheels:
+        row, column = pixel_of(camera, (9.0 + x, 1.75 - side, z))
+        patch = layers.material[row - 3:row + 4, column - 1:column + 2]  # seen obliquely: a narrow ellipse
+        assert np.all(patch == MATERIAL_ID["tyre"]), patch
+
+
 # ------------------------------------------------------------------ steering labels
 def test_a_route_bending_left_steers_left_and_right_steers_right():
     for side, sign in ((1.0, 1.0), (-1.0, -1.0)):

@@ -33,8 +33,7 @@ that show them.
 
 Example:
     >>> from lidarfuzz.sim.generate import generate_scene
-    >>> from lidarfuzz.sim.meshes import Mesh
-from lidarfuzz.sim.render import Renderer, _thread_pool
+    >>> from lidarfuzz.sim.render import Renderer
     >>> from lidarfuzz.sim.world import compile_world
     >>> camera = CameraRenderer(Renderer(compile_world(generate_scene(3))), (64, 48))
     >>> sample = camera.render(0.0)
@@ -56,9 +55,12 @@ from numpy.typing import NDArray
 
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.image import ImageSample
+from lidarfuzz.sim.actors import actor_mesh
 from lidarfuzz.sim.materials import MATERIAL_ID, MATERIALS, PAINT_COLOURS, PAINT_MATERIAL
 from lidarfuzz.sim.meshes import Mesh
 from lidarfuzz.sim.render import Renderer, _thread_pool
+from lidarfuzz.sim.terrain import frame_from_slopes
+from lidarfuzz.sim.world import TILTING_CLASSES
 
 #: Image sizes (width, height) the data set generator offers by name.
 IMAGE_SIZES: dict[str, tuple[int, int]] = {"640x480": (640, 480), "1242x375": (1242, 375)}
@@ -197,7 +199,7 @@ def camera_calibration(calib: KittiCalibration, size: tuple[int, int]) -> KittiC
 
     >>> calibration = camera_calibration(KittiCalibration.default(), (640, 480))
     >>> calibration.P2[:, :3].round(2).tolist(), calibration.image_shape
-    ([[371.79, 0.0, 314.1], [0.0, 371.79, 232.53], [0.0, 0.0, 1.0]], (480, 640))
+    ([[371.81, 0.0, 314.1], [0.0, 371.81, 232.45], [0.0, 0.0, 1.0]], (480, 640))
     """
     width, height = size
     height0, width0 = calib.image_shape
@@ -302,6 +304,27 @@ def _pixel_rays(intrinsic: bytes, size: tuple[int, int]) -> tuple[NDArray[np.flo
     return (*(np.ascontiguousarray(c / length, np.float32) for c in rays), (1.0 / length).astype(np.float32))
 
 
+_MAX_WHEELS = 8
+
+
+@lru_cache(maxsize=1024)
+def _wheel_discs(cls: str, size: tuple[float, float, float]) -> NDArray[np.float64]:
+    """The outer faces of a vehicle's wheels in its own frame: rows (x, z, radius, |y|) of the
+    tyres of :func:`~lidarfuzz.sim.actors.actor_mesh` (zero rows pad to :data:`_MAX_WHEELS`)."""
+    mesh = actor_mesh(cls, size)
+    faces = mesh.faces[mesh.material == MATERIAL_ID["tyre"]]
+    # Each wheel is its own cylinder: a run of vertices no other wheel shares.
+    faces = faces[np.argsort(faces.min(axis=1), kind="stable")]
+    reach = np.maximum.accumulate(faces.max(axis=1))
+    starts = np.flatnonzero(faces.min(axis=1)[1:] > reach[:-1]) + 1
+    out = np.zeros((_MAX_WHEELS, 4))
+    for row, wheel in enumerate(np.split(faces, starts)[:_MAX_WHEELS]):
+        v = mesh.vertices[np.unique(wheel)]
+        out[row] = ((v[:, 0].min() + v[:, 0].max()) / 2, (v[:, 2].min() + v[:, 2].max()) / 2,
+                    (v[:, 2].max() - v[:, 2].min()) / 2, np.abs(v[:, 1]).max())
+    return out
+
+
 def _unit_face_normals(mesh: Mesh) -> NDArray[np.float32]:
     if not len(mesh):
         return np.zeros((0, 3), np.float32)
@@ -356,6 +379,8 @@ class _Instant:
     owner: NDArray[np.int64]
     normal: tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
     moving_pixels: NDArray[np.bool_]  # pixels whose rays may meet a moving road user
+    actor_origin: NDArray[np.float64]  # every road user's place (its bottom centre) and rotation
+    actor_rotation: NDArray[np.float64]
 
 
 class CameraRenderer:
@@ -410,6 +435,13 @@ class CameraRenderer:
                 paint_colour(self.seed, actor.index, actor.cls)
             skins[actor.index] = skin
         self._actor_colour, self._actor_skin = colours, skins
+        self._wheels = np.zeros((len(world.actors) + 1, _MAX_WHEELS, 4))
+        for actor in world.actors:
+            if actor.cls in TILTING_CLASSES:
+                self._wheels[actor.index] = _wheel_discs(actor.cls, actor.size)
+        self._still_actor_poses = np.zeros((len(world.actors) + 1, 6))
+        for index, still_pose in renderer._still_poses.items():
+            self._still_actor_poses[index] = still_pose
         # Texture coordinates are world coordinates shifted by 20–30 km: positive in any world.
         offset = np.random.default_rng(np.random.SeedSequence([self.seed, 0x7E7])).uniform(2.0e4, 3.0e4, 2)
         self._texture_offset = offset.astype(np.float32)
@@ -474,8 +506,12 @@ class CameraRenderer:
         material, owner, normal = self._static_material, self._static_owner, self._static_normal
         moving_scene = None
         moving_pixels = np.zeros(self.size[0] * self.size[1], bool)
+        actor_poses = self._still_actor_poses
         if renderer._moving:
-            mesh, mesh_owner, _ = renderer._moving_mesh(np.full(len(renderer.world.actors), t_ref))
+            mesh, mesh_owner, moving_poses = renderer._moving_mesh(np.full(len(renderer.world.actors), t_ref))
+            actor_poses = actor_poses.copy()
+            moving = [a.index for a in renderer._moving]
+            actor_poses[moving] = moving_poses[moving]
             if len(mesh):
                 moving_scene = rtcore_scene.EmbreeScene(renderer._device)
                 TriangleMesh(moving_scene, mesh.vertices.astype(np.float32), mesh.faces)
@@ -485,8 +521,9 @@ class CameraRenderer:
                 normal = (np.concatenate([normal[0], faces[:, 0]]), np.concatenate([normal[1], faces[:, 1]]),
                           np.concatenate([normal[2], faces[:, 2]]))
                 moving_pixels = self._pixels_towards(mesh, mesh_owner, pose)
+        rotation = frame_from_slopes(actor_poses[:, 3], actor_poses[:, 4], actor_poses[:, 5])
         return _Instant(pose[:3, 3].astype(np.float32), pose[:3, :3].astype(np.float32), moving_scene, material,
-                        owner, normal, moving_pixels)
+                        owner, normal, moving_pixels, actor_poses[:, :3], rotation)
 
     def _pixels_towards(self, mesh: Mesh, owner: NDArray[np.int32], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Pixels inside the image rectangle of each road user of ``mesh`` (2 pixels wider): its
@@ -594,6 +631,7 @@ class CameraRenderer:
             blocked[rest] = self._occluded(instant, points, normals, rest)
             sunlit[blocked] = 0.0
 
+        self._wheel_faces(instant, material, owner, px, py, pz)
         albedo = self._albedo(material, owner, px, py, pz, nx, ny, nz, distance)
         ambient = np.float32(0.75) + np.float32(0.25) * nz
         channels = []
@@ -654,6 +692,23 @@ class CameraRenderer:
                                      dists=reach[todo], query="OCCLUDED")
             blocked[todo[occluded >= 0]] = True
         return blocked
+
+    def _wheel_faces(self, instant: _Instant, material: NDArray[np.uint8], owner: NDArray[np.int64],
+                     px: NDArray[np.float32], py: NDArray[np.float32], pz: NDArray[np.float32]) -> None:
+        """Paint hits inside a wheel's disc become tyre (in place). A tyre's outer face lies in the
+        plane of its vehicle's side, so Embree returns either at random (speckled wheels); the
+        meshes stay as they are: the LiDAR's points must not change."""
+        painted = np.flatnonzero(material == PAINT_MATERIAL)
+        painted = painted[self._wheels[owner[painted], 0, 2] > 0]  # vehicles with wheels
+        if not len(painted):
+            return
+        who = owner[painted]
+        offset = np.stack([px[painted], py[painted], pz[painted]], axis=1) - instant.actor_origin[who]
+        local = np.einsum("nij,ni->nj", instant.actor_rotation[who], offset)  # world → the vehicle's frame
+        discs = self._wheels[who]  # n × wheels × (x, z, radius, outer |y|)
+        inside = ((local[:, None, 0] - discs[:, :, 0]) ** 2 + (local[:, None, 2] - discs[:, :, 1]) ** 2
+                  < discs[:, :, 2] ** 2) & (np.abs(local[:, None, 1]) > discs[:, :, 3] - 0.01)
+        material[painted[inside.any(axis=1)]] = MATERIAL_ID["tyre"]
 
     def _albedo(self, material: NDArray[np.uint8], owner: NDArray[np.int64], px: NDArray[np.float32],
                 py: NDArray[np.float32], pz: NDArray[np.float32], nx: NDArray[np.float32], ny: NDArray[np.float32],

@@ -16,7 +16,7 @@ labels from their route (stops, a turn).
 
 Example (a vehicle 0.5 m right of a straight lane, heading along it: steer back left):
     >>> round(float(pure_pursuit(0.0, -0.5, 0.0, 8.0, 0.0)), 4)  # y_L = 0.5 at x_L = 8
-    0.0421
+    0.0422
 """
 
 from __future__ import annotations
