@@ -12,8 +12,11 @@ user is posed at that instant):
    reflectivities of :mod:`lidarfuzz.sim.materials`; a vehicle's paint a colour drawn from its
    own paint draw, :func:`paint_colour`), cheap procedural texture from hashed world
    coordinates (asphalt grain and patches, grass, paving joints, brick courses, lighter kerb
-   faces), Lambert under the sun plus a sky ambient term; **hard shadows** from one shadow ray
-   per pixel towards the sun (Embree occlusion queries); glass mirrors the sky;
+   faces), Lambert under the sun plus a sky ambient term; **hard shadows** from shadow rays
+   towards the sun (Embree occlusion queries) on every other row and column, and wherever
+   those disagree (a pixel between four that agree, on its own material, takes their answer);
+   glass mirrors the sky; a tyre's outer face, coplanar with its vehicle's side, wins over the
+   paint inside the wheel's disc;
 3. **sky**: a gradient from a pale, hazy horizon to a blue zenith, a glow around the sun; far
    surfaces fade into the horizon haze (aerial perspective);
 4. a film-like exposure curve and sRGB's encoding into 8 bits.
