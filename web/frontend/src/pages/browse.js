@@ -91,8 +91,10 @@ export async function frameViewerPage(root, name, frameId) {
   );
   if (isCamera(datasets, name)) {
     const item = await api(`/api/datasets/${encodeURIComponent(name)}/images${query({ limit: 1, offset: Math.max(0, at) })}`).then((r) => listOf(r, "images")[0]).catch(() => null);
+    // a small image is drawn larger on the server (its arrow and text stay sharp), a large one as it is
+    const width = item && item.width < 640 ? "?width=640" : "";
     stage.append(
-      h("img", { class: "frame-image", src: withToken(`/api/datasets/${encodeURIComponent(name)}/frames/${encodeURIComponent(frameId)}/image.png`), alt: `${name} / ${frameId}`, testid: "frame-image" }),
+      h("img", { class: "frame-image", src: withToken(`/api/datasets/${encodeURIComponent(name)}/frames/${encodeURIComponent(frameId)}/image.png${width}`), alt: `${name} / ${frameId}`, testid: "frame-image" }),
       item
         ? h("p", { class: "muted", testid: "frame-facts" }, `${frameId}: steering label ${steeringText(item.steering)} (green arrow; straight up is 0, left is positive), ${item.width} × ${item.height} pixels.`)
         : null,
