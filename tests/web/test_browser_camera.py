@@ -6,6 +6,8 @@ transformations only. Screenshots go to ``test-artifacts/web/camera-*.png``."""
 
 from __future__ import annotations
 
+import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -26,8 +28,6 @@ from tests.web.test_camera import LABELS, NET, camera_files  # noqa: E402
 
 @pytest.fixture(scope="module")
 def artifacts() -> Path:
-    import os
-
     folder = Path(os.environ.get("LIDARFUZZ_TEST_ARTIFACTS", ROOT / "test-artifacts")) / "web"
     folder.mkdir(parents=True, exist_ok=True)
     return folder
@@ -50,8 +50,6 @@ def camera_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Se
             "kind": "camera", "dataset": "road", "sut": "net", "search": {"budget": 4},
             "operators": [{"name": "image_fog", "severities": [3, 5]},
                           {"name": "image_brightness", "severities": [3]}]})
-        import time
-
         deadline = time.monotonic() + 120
         while server.api("GET", f"/api/tasks/{task['id']}")["status"] not in ("done", "failed"):
             assert time.monotonic() < deadline, "the camera task did not finish"
@@ -88,8 +86,9 @@ def test_camera_task_finding_and_browse_pages(page: Any, camera_server: tuple[Se
     assert page.get_by_test_id("mse-orig").inner_text().startswith("MSE_orig = ")
     assert "3 labelled of 3 original images" in page.get_by_test_id("mse-orig").inner_text()
     assert page.get_by_test_id("ap-chart-box").count() == 0
-    verdicts = {row.get_attribute("data-label"): row.locator("[data-testid=eq3-verdict]").inner_text()
-                for row in page.locator("[data-testid=subtask-row]").all() if row.locator("[data-testid=eq3-verdict]").count()}
+    verdict = "[data-testid=eq3-verdict]"
+    rows = [row for row in page.locator("[data-testid=subtask-row]").all() if row.locator(verdict).count()]
+    verdicts = {row.get_attribute("data-label"): row.locator(verdict).inner_text() for row in rows}
     assert verdicts["image_brightness@3"].startswith("filtered out at ε = 0.03")
     assert verdicts["image_fog@3"] == verdicts["image_fog@5"] == "not filtered (a composite transformation)"
     coverage = page.get_by_test_id("search-coverage").inner_text()
