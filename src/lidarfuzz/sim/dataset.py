@@ -62,7 +62,7 @@ from lidarfuzz.sim.world import compile_world, ego_labels, trajectory_of
 
 SUMMARY_FILE = "lidarfuzz_sim.json"
 STEERING_FILE = "steering.csv"
-#: Largest z-depth a 16-bit depth PNG holds (metres × 256; 0 means nothing hit or farther).
+#: A 16-bit depth PNG holds the z-depth in metres × this (so up to 255.99 m; 0: nothing hit, or farther).
 DEPTH_SCALE = 256.0
 
 
