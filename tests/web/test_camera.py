@@ -11,6 +11,7 @@ the paper's formulas, not read from the figures under test.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -216,3 +217,28 @@ def test_image_bytes_are_what_the_upload_held(camera_task: tuple[TestClient, int
     original = road_image(LABELS["000000"], 0)  # BGR, as written
     # bottom left: below the text box (2 lines: 18 × 2 + 8 = 44 rows) and left of the arrow (from x = 100)
     assert np.array_equal(picture[44:, :60], original[44:, :60])
+
+
+def test_generate_a_camera_data_set_size_is_checked(client: TestClient) -> None:
+    reply = client.post("/api/datasets/generate", json={"name": "cam", "frames": 1, "camera": "800x600"})
+    assert reply.status_code == 422 and reply.json()["detail"][0]["loc"] == ["body", "camera"]
+
+
+@pytest.mark.slow
+def test_generate_a_camera_data_set(client: TestClient) -> None:
+    """One simulator frame with camera 2 at 640×480: recorded as a camera data set whose image has
+    the simulator's steering label (steering.csv) and the chosen size."""
+    reply = client.post("/api/datasets/generate", json={"name": "cam", "frames": 1, "camera": "640x480"})
+    assert reply.status_code == 202 and reply.json()["modality"] == "camera"
+    deadline = time.monotonic() + 180
+    while True:
+        row = next(d for d in client.get("/api/datasets").json()["items"] if d["name"] == "cam")
+        if row["status"] != "generating":
+            break
+        assert time.monotonic() < deadline, "the camera data set was not rendered in time"
+        time.sleep(0.2)
+    assert row["status"] == "ready" and row["modality"] == "camera", row
+    item = client.get("/api/datasets/cam/images").json()["items"][0]
+    assert (item["width"], item["height"]) == (640, 480)
+    label = Path(row["path"], "steering.csv").read_text().splitlines()[1].split(",")[1]
+    assert item["steering"] == pytest.approx(float(label))

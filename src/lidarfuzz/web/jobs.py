@@ -31,6 +31,7 @@ class GenerationJob:
     sensor: str | None
     path: Path
     scenes: str = "independent"  # or "sequence" (one scene driven through: a log), "drive" (a stop and a turn)
+    camera: tuple[int, int] | None = None  # (width, height): camera 2's images too, registered as a camera data set
     status: str = "generating"
     done: int = 0
     error: str = ""
@@ -44,7 +45,10 @@ class GenerationJob:
                 "notes": f"simulator: {self.frames} frame(s), seed {self.seed}, "
                          + (f"{self.kind or 'mixed'} scenes" if self.scenes == "independent" else
                             f"a {'drive log' if self.scenes == 'drive' else 'sequence'} ({self.kind or 'any'} "
-                            "scene)"),
+                            "scene)")
+                         + (f", camera images {self.camera[0]}x{self.camera[1]} with steering labels"
+                            if self.camera else ""),
+                "modality": "camera" if self.camera else "lidar",
                 "added_at": datetime.fromtimestamp(self.started, UTC).isoformat(), "uploaded": True}
 
 
@@ -66,10 +70,12 @@ class GenerationJobs:
             return self._jobs.get(name)
 
     def start(self, name: str, frames: int, seed: int, kind: str | None, sensor: str | None = None,
-              scenes: str = "independent") -> GenerationJob:
-        """Start rendering; the caller has checked that ``name`` is free and the config valid."""
+              scenes: str = "independent", camera: tuple[int, int] | None = None) -> GenerationJob:
+        """Start rendering; the caller has checked that ``name`` is free and the config valid.
+        ``camera``: also render camera 2's images at (width, height) and record the data set as a
+        camera one (its images and steering labels)."""
         path = self.uploads / uuid.uuid4().hex
-        job = GenerationJob(name, frames, seed, kind, sensor, path, scenes)
+        job = GenerationJob(name, frames, seed, kind, sensor, path, scenes, camera)
         with self._lock:
             self._jobs[name] = job
         thread = threading.Thread(target=self._run, args=(job,), name=f"lidarfuzz-gen-{name}", daemon=True)
@@ -86,6 +92,7 @@ class GenerationJobs:
             return job
 
     def _run(self, job: GenerationJob) -> None:
+        from lidarfuzz.io.options import DatasetOptions
         from lidarfuzz.sim.dataset import GenerationConfig, generate_dataset
         from lidarfuzz.store.inventory import add_dataset
 
@@ -94,9 +101,11 @@ class GenerationJobs:
 
         try:
             config = GenerationConfig(frames=job.frames, seed=job.seed, kind=job.kind, sensor=job.sensor,
-                                      sequence=job.scenes != "independent", drive=job.scenes == "drive")
+                                      sequence=job.scenes != "independent", drive=job.scenes == "drive",
+                                      camera=job.camera)
             generate_dataset(job.path, config, workers=self.processes, on_frame=advance)
-            add_dataset(self.store, job.name, job.path, notes=job.as_dict()["notes"])
+            options = DatasetOptions(modality="camera") if job.camera else None
+            add_dataset(self.store, job.name, job.path, notes=job.as_dict()["notes"], options=options)
         except Exception as exc:  # shown in the list: the user sees why
             log.exception("generating data set %s failed", job.name)
             job.status, job.error = "failed", f"{type(exc).__name__}: {exc}"

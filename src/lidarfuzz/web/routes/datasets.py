@@ -318,19 +318,24 @@ class GenerateRequest(BaseModel):
     scenes: Literal["independent", "sequence", "drive"] = Field(
         default="independent", description="independent scenes; one scene driven through at 10 Hz (a log with "
                                            "timestamps and poses); or a drive log: a stop, a turn, pedestrians")
+    camera: Literal["640x480", "1242x375"] | None = Field(
+        default=None, description="also render camera 2's images at this size (image_2/, depth_2/, steering.csv: "
+                                  "lidarfuzz gen --camera) and record the data set as a camera one")
 
 
 @router.post("/datasets/generate", status_code=status.HTTP_202_ACCEPTED)
 def datasets_generate(ctx: Web, body: GenerateRequest) -> dict[str, Any]:
     """Render a labelled data set with the simulator in the background; it is listed as
-    ``generating`` (done/total frames) until it is recorded."""
+    ``generating`` (done/total frames) until it is recorded (with ``camera``: as a camera data set of
+    the rendered images and their steering labels)."""
     from lidarfuzz.sim.sensor import preset_names
 
     _name_free(ctx, body.name)
     if body.sensor is not None and body.sensor not in preset_names():
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"sensor: {body.sensor!r} is not a preset ({', '.join(preset_names())})")
-    job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor, body.scenes)
+    camera = None if body.camera is None else (int(body.camera.split("x")[0]), int(body.camera.split("x")[1]))
+    job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor, body.scenes, camera)
     return job.as_dict()
 
 

@@ -142,6 +142,13 @@ export async function datasetsPage(root) {
     h("option", { value: "sequence" }, "a log: one scene driven through"),
     h("option", { value: "drive" }, "a drive log: a stop, a turn, pedestrians"),
   );
+  const genCamera = h(
+    "select",
+    { name: "camera", testid: "generate-camera" },
+    h("option", { value: "" }, "none: a LiDAR data set"),
+    h("option", { value: "640x480" }, "640 × 480: a camera data set"),
+    h("option", { value: "1242x375" }, "1242 × 375 (KITTI's): a camera data set"),
+  );
   const genMessage = h("div", { testid: "generate-message" });
   const genForm = h(
     "form",
@@ -155,7 +162,7 @@ export async function datasetsPage(root) {
         try {
           await api("/api/datasets/generate", {
             method: "POST",
-            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value || null, scenes: genScenes.value },
+            body: { name, frames: Number(genFrames.value), seed: Number(genSeed.value), kind: genKind.value || null, scenes: genScenes.value, camera: genCamera.value || null },
           });
           pending.add(name);
           genMessage.append(notice("ok", `Rendering ${name} in the background; it appears in the list when done.`));
@@ -166,12 +173,13 @@ export async function datasetsPage(root) {
       },
     },
     h("h2", {}, "Generate from the simulator"),
-    h("p", { class: "hint" }, "Labelled HDL-64E street scenes in KITTI layout, rendered by lidarfuzz's simulator; a log (10 Hz, with timestamps and poses) for structural tasks."),
+    h("p", { class: "hint" }, "Labelled HDL-64E street scenes in KITTI layout, rendered by lidarfuzz's simulator; a log (10 Hz, with timestamps and poses) for structural tasks; with camera images (and their steering labels) a data set for camera tasks."),
     h("label", {}, "Name ", genName),
     h("label", {}, "Frames ", genFrames),
     h("label", {}, "Seed ", genSeed),
     h("label", {}, "Kind ", genKind),
     h("label", {}, "Frames are ", genScenes),
+    h("label", {}, "Camera images ", genCamera),
     h("button", { type: "submit", class: "primary", testid: "generate-submit" }, "Generate"),
     genMessage,
   );
