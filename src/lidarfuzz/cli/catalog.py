@@ -2,7 +2,7 @@
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -19,6 +19,7 @@ from lidarfuzz.cli.common import (
     print_listing,
 )
 
+Modality = Literal["lidar", "camera"]
 
 def datasets_add(
     name: Annotated[str, typer.Argument(help="A name for it.")],
@@ -34,13 +35,23 @@ def datasets_add(
                                                       "without a map).")] = None,
     intensity_scale: Annotated[float | None, typer.Option(help="Intensity of the strongest return (1 or 255), "
                                                                "when the layout's is wrong.")] = None,
+    modality: Annotated[Modality, typer.Option(help="lidar (point clouds) or camera (the images: a KITTI folder's "
+                                                    "image_2/, a Udacity folder, a CSV of images, image topics; "
+                                                    "for camera tasks).")] = "lidar",
+    camera: Annotated[str | None, typer.Option(help="With --modality camera: which camera of the source "
+                                                    "(image_3; Udacity's left or right).")] = None,
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
     """Validate a data set (never modified) and record it with how to read it."""
+    from lidarfuzz.errors import LidarfuzzError
     from lidarfuzz.io.options import options_from_flags
     from lidarfuzz.store.inventory import add_dataset
 
+    if camera is not None and modality != "camera":
+        raise LidarfuzzError("--camera chooses a camera of an image data set: give --modality camera too")
     options = options_from_flags(layout, allow_unlabelled, intensity_scale, roi_map)
+    if modality == "camera":
+        options = options.model_copy(update={"modality": "camera", "camera": camera})
     row = add_dataset(open_store(workspace), name, path, notes, options=options)
     shown = ", ".join(f"{k} {v}" for k, v in row.options.items())
     console.print(f"added data set {row.name}: {row.frame_count} frame(s), {row.format}, {row.path}"
@@ -79,6 +90,9 @@ def models_add(
     option: Annotated[list[str] | None, typer.Option(help="key=value passed to the system (JSON values); "
                                                      "repeatable.")] = None,
     notes: Annotated[str, typer.Option(help="Free text.")] = "",
+    modality: Annotated[Modality, typer.Option(help="lidar (a detector or controller) or camera (a steering "
+                                                    "system: dave2, onnx:…, a torch module; for camera tasks).")
+                        ] = "lidar",
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
     """Check that a spec builds a system, and record it with its fingerprint."""
@@ -93,7 +107,7 @@ def models_add(
             options[key] = json.loads(value)
         except json.JSONDecodeError:
             options[key] = value
-    row = add_model(open_store(workspace), name, spec, options, notes)
+    row = add_model(open_store(workspace), name, spec, options, notes, modality=modality)
     console.print(f"added model {row.name}: {row.spec} (fingerprint {row.fingerprint})")
 
 
