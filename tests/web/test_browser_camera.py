@@ -129,6 +129,14 @@ def test_camera_task_finding_and_browse_pages(page: Any, camera_server: tuple[Se
 
 def test_new_task_form_offers_the_camera_kind(page: Any, camera_server: tuple[Server, int], artifacts: Path) -> None:
     server, _ = camera_server
+    # the lists say which data sets and models are the camera's
+    page.goto(f"{server.url}/#/datasets")
+    page.locator("[data-testid=dataset-row][data-name=road] [data-testid=dataset-modality]").wait_for()
+    page.screenshot(path=str(artifacts / "camera-datasets.png"), full_page=True)
+    page.goto(f"{server.url}/#/models")
+    page.locator("[data-testid=model-row][data-name=net] [data-testid=model-modality-badge]").wait_for()
+    assert page.locator("[data-testid=model-row][data-name=classic] [data-testid=model-modality-badge]").count() == 0
+    page.screenshot(path=str(artifacts / "camera-models.png"), full_page=True)
     page.goto(f"{server.url}/#/tasks/new")
     page.get_by_test_id("task-kind").select_option("camera")
     assert page.locator("[data-testid=task-dataset] option").all_inner_texts() == ["road (3 frames)"]

@@ -33,7 +33,7 @@ export async function datasetsPage(root) {
           "tr",
           { testid: "dataset-row", dataset: { name: ds.name } },
           h("td", {}, h("a", { href: `#/browse/${encodeURIComponent(ds.name)}` }, ds.name), status),
-          h("td", {}, ds.format ?? "—", ds.modality === "camera" ? h("span", { class: "badge", testid: "dataset-modality" }, " camera") : null),
+          h("td", {}, ds.format ?? "—", ds.modality === "camera" ? h("span", { class: "badge modality", testid: "dataset-modality" }, "camera") : null),
           h("td", { class: "num" }, generating && ds.total ? progressBar(ds.done ?? 0, ds.total) : (ds.frame_count ?? ds.frames ?? "—")),
           h("td", { class: "path" }, ds.path ?? ""),
           h("td", {}, formatTime(ds.added_at ?? ds.created_at)),

@@ -47,7 +47,7 @@ export async function modelsPage(root) {
           "tr",
           { testid: "model-row", dataset: { name: model.name } },
           h("td", {}, model.name),
-          h("td", {}, h("code", {}, model.spec ?? ""), model.modality === "camera" ? h("span", { class: "badge", testid: "model-modality-badge" }, " camera") : null),
+          h("td", {}, h("code", {}, model.spec ?? ""), model.modality === "camera" ? h("span", { class: "badge modality", testid: "model-modality-badge" }, "camera") : null),
           h("td", {}, h("code", { class: "muted" }, options)),
           h("td", {}, h("code", { title: model.fingerprint ?? "" }, (model.fingerprint ?? "").slice(0, 12))),
           h("td", {}, formatTime(model.added_at ?? model.created_at)),
