@@ -242,3 +242,25 @@ def test_generate_a_camera_data_set(client: TestClient) -> None:
     assert (item["width"], item["height"]) == (640, 480)
     label = Path(row["path"], "steering.csv").read_text().splitlines()[1].split(",")[1]
     assert item["steering"] == pytest.approx(float(label))
+
+
+def test_a_guided_search_finding_has_its_chain_and_figures(camera_task: tuple[TestClient, int]) -> None:
+    """A finding of Algorithm 1's search: its figures come from the stored outcome of the test image
+    (a search's finding does not copy them into its detail), its params are the chain's steps."""
+    client, _ = camera_task
+    reply = client.post("/api/tasks", json={"kind": "camera", "dataset": "road", "sut": "net", "search": {"budget": 40},
+                                            "operators": [{"name": "image_contrast", "severities": [1]}]})
+    task_id = reply.json()["id"]
+    assert wait_for(client, task_id, timeout=120)["status"] == "done"
+    guided = client.get(f"/api/tasks/{task_id}/findings", params={"operator": "guided"}).json()["items"]
+    assert guided, "the search found no image breaking Eq. 2"
+    detail = client.get(f"/api/findings/{guided[0]['id']}").json()
+    assert detail["chain"] is True
+    steps = detail["operator_params"]["steps"]
+    assert len(steps) >= 1 and all(step["operator"].startswith("image_") for step in steps)
+    s = detail["steering"]
+    assert s["label"] == LABELS[guided[0]["frame_id"]]
+    assert s["squared_error"] == pytest.approx((s["label"] - s["prediction"]) ** 2)
+    assert s["squared_error"] > s["threshold"] == pytest.approx(s["lambda"] * s["mse_orig"])
+    assert s["eq3"] == "not_filtered"  # a search's chains are composite: Eq. 3 never filters them
+    assert client.get(detail["picture"]).status_code == 200

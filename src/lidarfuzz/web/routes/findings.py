@@ -76,11 +76,14 @@ def _number(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
 
 
-def steering_figures(finding: Finding, subtask: Subtask) -> dict[str, Any]:
+def steering_figures(finding: Finding, subtask: Subtask, result: FrameResult) -> dict[str, Any]:
     """What a camera finding's page shows: the label and both predictions, the squared error against
     λ·MSE_orig (Eq. 2) and the transformation's MSE_t against MSE_orig at ε (Eq. 3's verdict:
-    ``kept``, ``filtered_out`` or ``not_filtered`` for a composite transformation or a search's chain)."""
-    stats = dict((finding.detail or {}).get("stats") or {})
+    ``kept``, ``filtered_out`` or ``not_filtered`` for a composite transformation or a search's chain).
+    The figures are the violated relation's outcome on the image, as stored with its result (a
+    transformation's finding also copies them into its detail; a search's does not)."""
+    outcome = next((o for o in result.relations or [] if o.relation == finding.kind), None)
+    stats = dict((finding.detail or {}).get("stats") or (outcome.stats if outcome is not None else {}) or {})
     errors = [e for e in stats.get("squared_errors") or [] if isinstance(e, int | float)]
     lam, mse_orig = _number(stats.get("lambda")), _number(stats.get("mse_orig"))
     out: dict[str, Any] = {
@@ -108,17 +111,18 @@ def findings_detail(ctx: Web, finding_id: int) -> dict[str, Any]:
     for a camera task, ``picture`` (original | transformed, PNG) and ``steering`` (the figures Eq. 2
     and Eq. 3 judged, :func:`steering_figures`)."""
     with ctx.store.session() as s:
-        row = s.execute(_base().add_columns(Subtask).where(Finding.id == finding_id)).first()
+        row = s.execute(_base().add_columns(Subtask, FrameResult).where(Finding.id == finding_id)).first()
         if row is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no finding {finding_id}")
         out = _row(*row[:5])
-        finding, subtask = row[0], row[5]
+        finding, subtask, result = row[0], row[5], row[6]
         previous, following = _neighbours(s, finding)
         modality = task_modality(ctx, finding.task_id)
         out.update(detail=finding.detail, replay=finding.replay.dump(), replay_command=f"lidarfuzz replay {finding.id}",
                    modality=modality, previous=previous, next=following,
                    frames=f"/api/findings/{finding.id}/frames" if modality == "lidar" else None)
         if modality == "camera":
-            out.update(picture=f"/api/findings/{finding.id}/pair.png", steering=steering_figures(finding, subtask),
+            out.update(picture=f"/api/findings/{finding.id}/pair.png",
+                       steering=steering_figures(finding, subtask, result),
                        operator_params=finding.replay.params, chain=subtask.name == "guided")
     return out
