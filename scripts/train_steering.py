@@ -127,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
 
     torch = import_torch()
     args.out_dir.mkdir(parents=True, exist_ok=True)
-    log = Tee(args.out_dir / "steering.train.log")
+    part = "" if args.networks == list(NETWORKS) else "." + "+".join(args.networks)
+    log = Tee(args.out_dir / f"steering{part}.train.log")
     log(f"python {platform.python_version()}, torch {torch.__version__}, threads {args.threads}, "
         f"{platform.processor() or platform.machine()}")
     start = time.perf_counter()
@@ -181,15 +182,23 @@ def main(argv: list[str] | None = None) -> int:
             "train_seconds": history["seconds"], "train_mse": train_mse, "val_mse": val_mse,
             "val_mse_turning_frames": turning_mse, "baseline_mean_mse": baseline, "baseline_zero_mse": zero,
             "profile": f"{fingerprint}.npz", "history": history["epochs"],
+            "command": " ".join(["scripts/train_steering.py", *sys.argv[1:]]),
         }
         log(f"{name}: val MSE {val_mse:.5f} (predicting the mean {baseline:.5f}, zero {zero:.5f}); train MSE "
             f"{train_mse:.5f}; {net.parameter_count():,} parameters, {path.stat().st_size / 1e6:.2f} MB; "
             f"{history['seconds']:.0f} s of training")
-    figures["config"] = config.to_json()
-    figures["seconds"] = round(time.perf_counter() - start, 1)
-    (args.out_dir / "steering.json").write_text(json.dumps(figures, indent=2) + "\n")
-    log(f"done in {figures['seconds']:.0f} s")
+        figures["config"] = config.to_json()
+        write_figures(args.out_dir / "steering.json", figures, name)
+    log(f"done in {time.perf_counter() - start:.0f} s")
     return 0
+
+
+def write_figures(path: Path, figures: dict[str, Any], name: str) -> None:
+    """Write the figures with network ``name``'s row, keeping other networks' rows already in the
+    file (runs training different networks at once, ``--networks``, share one file)."""
+    merged = json.loads(path.read_text()) if path.is_file() else {}
+    rows = {**merged.get("networks", {}), name: figures["networks"][name]}
+    path.write_text(json.dumps({**figures, "networks": rows}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

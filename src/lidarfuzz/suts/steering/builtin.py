@@ -28,12 +28,13 @@ from lidarfuzz.suts.steering.pytorch import import_torch
 
 WEIGHTS_DIR = Path(__file__).with_name("weights")
 
-#: What each network eats. The sky above the horizon carries no steering cue, so the top of
-#: the frame is cut; DAVE-2 reads YUV scaled to [−1, 1] as published, the others RGB in [0, 1].
+#: What each network eats. The sky above the horizon carries no steering cue, so the top 40 % of
+#: the frame is cut (the horizon of the simulator's camera is at mid-height); DAVE-2 reads YUV as
+#: published, the others RGB; all scaled to [−1, 1].
 PREPROCESS: dict[str, Preprocess] = {
-    "epoch": Preprocess(height=48, width=96, crop_top=0.4, color="rgb"),
+    "epoch": Preprocess(height=48, width=96, crop_top=0.4, color="rgb", scale=1 / 127.5, offset=-1.0),
     "dave2": Preprocess(height=66, width=200, crop_top=0.4, color="yuv", scale=1 / 127.5, offset=-1.0),
-    "chauffeur": Preprocess(height=48, width=96, crop_top=0.4, color="rgb"),
+    "chauffeur": Preprocess(height=48, width=96, crop_top=0.4, color="rgb", scale=1 / 127.5, offset=-1.0),
 }
 
 #: Front-wheel angles beyond ±0.7 rad (40°) are no answer for a car: the simulator's largest is
@@ -158,21 +159,21 @@ class BuiltinSteering(SteeringSystem):
 
 
 class Epoch(BuiltinSteering):
-    """Epoch-like CNN (three convolution blocks, dropout, dense) on 48×96 RGB; 240k parameters."""
+    """Epoch-like CNN (three convolution blocks, dropout, dense) on 48×96 RGB; 240,369 parameters."""
 
     name = "epoch"
     network = "epoch"
 
 
 class Dave2(BuiltinSteering):
-    """DAVE-2 (PilotNet) on 66×200 YUV: five convolutions, three dense layers; 252k parameters."""
+    """DAVE-2 (PilotNet) on 66×200 YUV: five convolutions, three dense layers; 252,455 parameters."""
 
     name = "dave2"
     network = "dave2"
 
 
 class Chauffeur(BuiltinSteering):
-    """Chauffeur-like CNN, six convolutions on 48×96 RGB; 217k parameters."""
+    """Chauffeur-like CNN, six convolutions on 48×96 RGB; 217,441 parameters."""
 
     name = "chauffeur"
     network = "chauffeur"

@@ -172,6 +172,9 @@ def train_network(net: Any, preprocess: Preprocess, train: Frames, config: Train
     for module in net.modules():  # re-initialise from the seed: the same weights whatever ran before
         if hasattr(module, "reset_parameters"):
             module.reset_parameters()
+    if hasattr(net, "output_scale"):  # targets of order 1 for the head (the spread of the labels, flips included)
+        spread = float(np.sqrt(np.mean(train.labels**2))) if len(train) else 1.0
+        net.output_scale.fill_(spread if spread > 0 else 1.0)
     rng = np.random.default_rng(config.seed)
     steps_per_epoch = max(1, len(train) // config.batch_size)
     total = steps_per_epoch * config.epochs
