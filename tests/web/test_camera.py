@@ -264,3 +264,19 @@ def test_a_guided_search_finding_has_its_chain_and_figures(camera_task: tuple[Te
     assert s["squared_error"] > s["threshold"] == pytest.approx(s["lambda"] * s["mse_orig"])
     assert s["eq3"] == "not_filtered"  # a search's chains are composite: Eq. 3 never filters them
     assert client.get(detail["picture"]).status_code == 200
+
+
+def test_a_finding_whose_images_are_gone_has_a_one_line_422(camera_task: tuple[TestClient, int]) -> None:
+    client, task_id = camera_task
+    finding = client.get(f"/api/tasks/{task_id}/findings").json()["items"][0]
+    folder = Path(next(d for d in client.get("/api/datasets").json()["items"] if d["name"] == "road")["path"])
+    moved = folder.with_name("moved-away")
+    folder.rename(moved)
+    try:
+        reply = client.get(f"/api/findings/{finding['id']}/pair.png")
+    finally:
+        moved.rename(folder)
+    assert reply.status_code == 422
+    detail = reply.json()["detail"]
+    assert detail.startswith(f"finding {finding['id']}: no picture: ") and "\n" not in detail
+    assert client.get(f"/api/findings/{finding['id']}/pair.png").status_code == 200  # back in place
