@@ -585,8 +585,31 @@ def judge(model: Model, world: World, severities: Sequence[int], seed: int) -> J
                 holds.append(relation(pair).holds)
             kept = name in UNFILTERED or keeps(mse, mse_orig, EPSILON)
             settings[(name, severity)] = {"mse": mse, "kept": kept, "predicted": predicted, "holds": np.array(holds),
-                                          "images": images, "params": params}
+                                          "images": images, "params": params, "filtered": name not in UNFILTERED}
     return Judged(mse_orig, angles, settings)
+
+
+TABLE7_EPSILONS = (0.001, 0.003, 0.01, 0.02, 0.03, 0.04, 0.05)
+
+
+def table7_counts(judged: Judged, labels: NDArray[np.float64],
+                  epsilons: Sequence[float] = TABLE7_EPSILONS) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Table 7 for one model: erroneous images per λ = 1 … 10 (rows) and ε (columns), over the settings
+    Eq. 3 keeps at that ε (composite ones always), by :func:`lidarfuzz.oracles.deeptest.erroneous_table`;
+    and per λ without the filter."""
+    from lidarfuzz.oracles.deeptest import erroneous_table, transformation_errors
+
+    transformations = []
+    for setting in judged.settings.values():
+        errors = (labels - setting["predicted"]) ** 2
+        outcomes = [({"mse_orig": judged.mse_orig, "mse_orig_from": "data set", "lambda": LAMBDA, "epsilon": EPSILON,
+                      "squared_errors": [float(e)], "filtered": setting["filtered"]}, bool(h))
+                    for e, h in zip(errors, setting["holds"], strict=True)]
+        found = transformation_errors(outcomes)
+        assert found is not None
+        transformations.append(found)
+    grid = erroneous_table(transformations, epsilons=epsilons)
+    return np.array(grid.counts, dtype=np.int64), np.array(grid.unfiltered, dtype=np.int64)
 
 
 def violations_of(judged: Judged, counted_only: bool) -> list[tuple[str, int, int]]:
@@ -644,6 +667,10 @@ def table8(args: argparse.Namespace) -> str:
     rows.append(["**counted** (kept by Eq. 3, composite unfiltered)",
                  *[f"**{len(violations_of(results[m.name], True)) + len(searches[m.name].violations)}**"
                    for m in models]])
+    counts = [table7_counts(results[m.name], world.labels) for m in models]
+    grid = np.sum([c[0] for c in counts], axis=0)
+    unfiltered = np.sum([c[1] for c in counts], axis=0)
+    grid_rows = [[f"{k + 1}", *[f"{v:,}" for v in grid[k]], f"{unfiltered[k]:,}"] for k in range(len(grid))]
     mse_rows = [[m.name, f"{results[m.name].mse_orig:.5f}", f"{LAMBDA * results[m.name].mse_orig:.5f}",
                  ", ".join(f"{short(n)} {s}: {results[m.name].settings[(n, s)]['mse']:.4f}"
                            for n in ALL_TRANSFORMATIONS for s in args.severities
@@ -695,6 +722,13 @@ where Eq. 3 drops that setting (not counted). Guided: Algorithm 1 from {len(seed
 {data_line(world, models)}
 
 {table(["transformation", *[m.name for m in models]], rows)}
+
+Table 7's form: erroneous images over the three models (single transformations at the three severities, rain
+and fog; not the guided search) for λ = 1 … 10 (rows) and ε (columns; the paper's 0.01 … 0.05 and two
+smaller ones, since the errors here are front-wheel angles in rad², far below the paper's steering-wheel
+ones); "none": no Eq. 3 filter (`lidarfuzz.oracles.deeptest.erroneous_table`).
+
+{table(["λ", *[f"ε = {e:g}" for e in TABLE7_EPSILONS], "none"], grid_rows)}
 
 MSE_orig (rad²), Eq. 2's limit λ · MSE_orig, and the settings Eq. 3 drops with their MSE:
 

@@ -121,3 +121,6 @@ def test_table5_and_table6_end_to_end_on_a_tiny_world(tmp_path: Path, monkeypatc
     table6 = next(line for line in text.splitlines() if line.startswith("| epoch | 160 |"))  # epoch: 160 neurons
     base, cumulative = (int(cell.split("(")[0].replace(",", "")) for cell in table6.split("|")[3:5])
     assert 0 < base <= cumulative <= 160
+    # the guided search is deterministic for a seed: the same table again
+    assert script.main(["table6", *common, "--budget", "10"]) == 0
+    assert table6 in (tmp_path / "page.md").read_text().splitlines()
