@@ -863,11 +863,14 @@ def table9(args: argparse.Namespace) -> str:
         return np.stack([preprocess.pixels(judged.settings[(name, severity)]["images"][i].image) for i in indices])
 
     synthetic = np.concatenate([pixels(train_side, n, s) for n, s in violated])
-    synthetic_labels = np.concatenate([labels[train_side]] * len(violated))
+    pool = len(synthetic)
+    pick = np.sort(np.random.default_rng(args.run_seed).permutation(pool)[:args.synthetic])  # at most --synthetic
+    synthetic = synthetic[pick]
+    synthetic_labels = np.concatenate([labels[train_side]] * len(violated))[pick]
     extra = Frames(synthetic, synthetic_labels, np.full(len(synthetic), -1, np.int64),
                    tuple(f"synthetic/{i}" for i in range(len(synthetic))))
     # the control sees the same frames as often, untransformed: only the transformations differ
-    plain = np.concatenate([pixels(train_side, None, 0)] * len(violated))
+    plain = np.concatenate([pixels(train_side, None, 0)] * len(violated))[pick]
     same = Frames(plain, synthetic_labels, np.full(len(plain), -1, np.int64),
                   tuple(f"original/{i}" for i in range(len(plain))))
 
@@ -898,7 +901,8 @@ RQ5 / Table 9: retraining the Epoch-like network with transformed images. The tr
 Eq. 2 on `epoch` (λ = {LAMBDA:g}, kept by Eq. 3 at ε = {EPSILON} or composite; at severities
 {', '.join(map(str, args.severities))}, seeded {args.run_seed}): {', '.join(f'{short(n)} {s}' for n, s in violated)}.
 The test world's frames are split 66 / 34 % (seed {args.run_seed}): the transformed versions of the 66 %
-({len(train_side)} frames × {len(violated)} settings = {len(synthetic)} images, each with its original's label)
+({len(train_side)} frames × {len(violated)} settings = {pool} images, {len(synthetic)} of them drawn with seed
+{args.run_seed} (`--synthetic`), each with its original's label)
 join the original training data ({len(train)} frames: {', '.join(Path(r).name for r in args.train_data)}); the
 network is retrained from scratch with `lidarfuzz.suts.steering.training.train_network` ({args.epochs} epochs,
 seed {args.run_seed}, {args.threads} threads; {seconds['retrained']:.0f} s). The control is the same recipe on the
@@ -944,6 +948,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--train-data", nargs="+", default=None,
                         help="table9: training data sets (default: the committed weights', from weights/steering.json)")
     parser.add_argument("--epochs", type=int, default=6, help="table9: training epochs")
+    parser.add_argument("--synthetic", type=int, default=1000, help="table9: most transformed images added")
     parser.add_argument("--threads", type=int, default=2, help="table9: training threads")
     args = parser.parse_args(argv)
     raw = list(sys.argv[2:] if argv is None else argv[1:])
