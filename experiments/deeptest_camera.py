@@ -179,17 +179,24 @@ def load_model(name: str, weights: Path | None = None) -> Model:
     no weights are committed yet (said in the page)."""
     from lidarfuzz.suts.steering.builtin import BUILTINS, WEIGHTS_DIR
 
-    path = weights or WEIGHTS_DIR / f"{name}.pt"
+    committed = WEIGHTS_DIR / f"{name}.pt"
+    path = weights or committed
     if path.exists():
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
-        where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
-        text = f"`{where}` (sha256 {digest})"
+        same = committed.exists() and hashlib.sha256(committed.read_bytes()).hexdigest()[:12] == digest
+        where = (committed if same else path).resolve()
+        text = f"`{where.relative_to(ROOT) if where.is_relative_to(ROOT) else where}` (sha256 {digest})"
     else:
         path = seeded_weights(name)
         text = "**untrained** (seeded 0; no committed weights yet)"
     sut = BUILTINS[name](weights=str(path), threads=1)
     sut.load()
     return Model(name, sut, text)
+
+
+def weights_of(args: argparse.Namespace, name: str) -> Path | None:
+    """``--weights-dir``'s file for ``name``, or None (the committed weights)."""
+    return Path(args.weights_dir) / f"{name}.pt" if args.weights_dir else None
 
 
 def set_threads() -> None:
@@ -324,7 +331,7 @@ def rq1_rows(angles: NDArray[np.float64], nc: NDArray[np.float64]) -> dict[str, 
 def table5(args: argparse.Namespace) -> str:
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    models = [load_model(m) for m in args.models]
+    models = [load_model(m, weights_of(args, m)) for m in args.models]
     rows = []
     for model in models:
         angles, hits = run_images(model, world.samples)
@@ -380,7 +387,7 @@ def fig5(args: argparse.Namespace) -> str:
 
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    models = [load_model(m) for m in args.models]
+    models = [load_model(m, weights_of(args, m)) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     tests = simple_transformations(world, seeds, args.run_seed)
     names = list(table4())
@@ -495,7 +502,7 @@ def mse_of(angles: NDArray[np.float64], labels: NDArray[np.float64]) -> float:
 def table6(args: argparse.Namespace) -> str:
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    models = [load_model(m) for m in args.models]
+    models = [load_model(m, weights_of(args, m)) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     tests = simple_transformations(world, seeds, args.run_seed)
     rows = []
@@ -655,7 +662,7 @@ def table8(args: argparse.Namespace) -> str:
 
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    models = [load_model(m) for m in args.models]
+    models = [load_model(m, weights_of(args, m)) for m in args.models]
     seeds = seed_ids(world, args.seeds, args.run_seed)
     results = {m.name: judge(m, world, args.severities, args.run_seed) for m in models}
     searches = {m.name: guided(m, world, seeds, results[m.name].mse_orig, args.budget or 100, args.run_seed)
@@ -763,7 +770,7 @@ def fig6(args: argparse.Namespace) -> str:
 
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    models = [load_model(m) for m in args.models]
+    models = [load_model(m, weights_of(args, m)) for m in args.models]
     labels = world.labels
     rows, boxes, names = [], [], []
     for model in models:
@@ -839,7 +846,7 @@ def table9(args: argparse.Namespace) -> str:
 
     start = time.perf_counter()
     world = open_world(ensure_world(args.seed, args.frames, args.image_size), args.seed)
-    model = load_model("epoch")
+    model = load_model("epoch", weights_of(args, "epoch"))
     preprocess = PREPROCESS["epoch"]
     args.train_data = args.train_data or training_roots()
     missing = [r for r in args.train_data if not (Path(r) / "steering.csv").is_file()]
@@ -943,6 +950,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
                         help="guided search tests (default: table6 as many as the single transformations, "
                              "table8 100)")
     parser.add_argument("--severities", type=int, nargs="+", default=list(SEVERITIES))
+    parser.add_argument("--weights-dir", default=None, help="NAME.pt files to test instead of the committed weights")
     parser.add_argument("--review", type=int, default=8, help="violating pairs written for manual review")
     parser.add_argument("--review-dir", default=str(DOCS / "deeptest_camera_review"))
     parser.add_argument("--train-data", nargs="+", default=None,
