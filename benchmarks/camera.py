@@ -19,6 +19,13 @@ Sections (all by default):
   the ten blur filters of Table 4 one by one; fog on a photo without depth (ground prior).
   Baseline measured in the same run: copying the image. Target: ≤ 5 ms each.
 
+* ``inference`` — the built-in steering networks (:mod:`lidarfuzz.suts.steering`): milliseconds
+  per 640×480 image, one image at a time, PyTorch on one thread (``torch.set_num_threads(1)``),
+  median of ``--repeat`` runs after one warm-up, wall and CPU: the whole ``detect`` (crop,
+  resize and colour conversion with OpenCV, then the forward pass) and the forward pass alone.
+  Baseline measured in the same run: the preprocessing alone. Target: ≤ 10 ms per image for the
+  smallest network.
+
 The other sections run on one core (``sched_setaffinity``, ``cv2.setNumThreads(1)``).
 """
 
@@ -39,6 +46,8 @@ from lidarfuzz.scene.image import ImageSample
 TRANSFORM_TARGET_MS = 5.0
 #: Issue 21: the built-in world's camera renders ≥ 10 images/s at 640×480 (2 cores).
 RENDER_TARGET_IPS = 10.0
+#: Issue 21: the smallest built-in steering network answers in ≤ 10 ms per image on one core.
+INFERENCE_TARGET_MS = 10.0
 #: Sections that use every core (the others are pinned to one).
 ALL_CORES = frozenset({"render"})
 
@@ -129,7 +138,42 @@ def render(repeat: int) -> None:
     print()
 
 
-SECTIONS: dict[str, Callable[[int], None]] = {"render": render, "transforms": transforms}
+def inference(repeat: int) -> None:
+    """Steering networks: ms per 640×480 image on one core (see the module docstring)."""
+    import torch
+
+    from lidarfuzz.suts.registry import create_camera
+
+    torch.set_num_threads(1)
+    frame = road_frame()
+    print(f"## Steering networks: one 640×480 image at a time, torch threads 1, median of {repeat}, one core\n")
+    print("| network | parameters | detect wall (ms) | detect CPU (ms) | forward CPU (ms) | preprocessing CPU (ms) "
+          "| target | met (CPU) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    rows = []
+    for name in ("epoch", "dave2", "chauffeur"):
+        with create_camera(name, threads=1) as system:
+            module = system.module
+            batch = system.inputs([frame])
+
+            def forward(module: torch.nn.Module = module, batch: torch.Tensor = batch) -> object:
+                with torch.inference_mode():
+                    return module(batch)
+
+            wall, cpu = timed(lambda system=system: system.detect(frame), repeat)
+            _, forward_cpu = timed(forward, repeat)
+            _, pre_cpu = timed(lambda system=system: system.preprocess.apply(frame.image), repeat)
+            params = sum(p.numel() for p in module.parameters())
+            rows.append((params, cpu))
+            print(f"| {name} | {params:,} | {wall:.2f} | {cpu:.2f} | {forward_cpu:.2f} | {pre_cpu:.2f} | "
+                  f"≤ {INFERENCE_TARGET_MS:g} (smallest) | {'yes' if cpu <= INFERENCE_TARGET_MS else '**no**'} |",
+                  flush=True)
+    smallest = min(rows)
+    print(f"\nsmallest network ({smallest[0]:,} parameters): {smallest[1]:.2f} ms CPU per image, torch "
+          f"{torch.__version__}\n")
+
+
+SECTIONS: dict[str, Callable[[int], None]] = {"render": render, "transforms": transforms, "inference": inference}
 
 
 def main() -> None:
