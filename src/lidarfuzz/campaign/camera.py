@@ -498,6 +498,42 @@ def _tool_errors(failures: Iterable[FailureRecord | None]) -> dict[str, int]:
 
 
 # -- replaying a finding -----------------------------------------------------------------
+def finding_pair(store: Any, finding_id: int, datasets: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A camera finding's original and transformed image (rebuilt from the stored params: no random
+    number is drawn again), the label and the system's steering on both, as recorded."""
+    from lidarfuzz.operators.registry import from_spec
+    from lidarfuzz.store.inventory import open_registered
+
+    with store.session() as s:
+        row = s.execute(select(Finding, FrameResult, Subtask, Task).join(
+            FrameResult, Finding.frame_result_id == FrameResult.id).join(
+            Subtask, FrameResult.subtask_id == Subtask.id).join(Task, Subtask.task_id == Task.id).where(
+            Finding.id == finding_id)).first()
+        if row is None:
+            raise LidarfuzzError(f"no finding {finding_id}")
+        finding, result, _, task = row
+        dataset_row = task.dataset
+        original_output = s.scalar(select(FrameResult.output).join(Subtask).where(
+            Subtask.task_id == task.id, Subtask.name == "original", FrameResult.frame_id == result.frame_id,
+            FrameResult.trial == 0))
+        replay, output, kind = dict(finding.replay or {}), result.output, finding.kind
+        key = str(dataset_row.id)
+        cache = datasets if datasets is not None else {}
+        if key not in cache:
+            cache[key] = open_registered(dataset_row)
+        dataset = cache[key]
+    sample = dataset.load(result.frame_id)
+    transformed = sample
+    operator = replay.get("operator")
+    if operator:
+        op = from_spec(operator)
+        transformed = op.apply(sample, op.parse_params(replay.get("params") or {}))
+    return {"original": sample, "transformed": transformed, "label": sample.steering, "kind": kind,
+            "before": (original_output or {}).get("steering"), "after": (output or {}).get("steering"),
+            "operator": (operator or {}).get("name", "original"), "frame_id": result.frame_id}
+
+
+
 #: Largest difference of two steering answers (the label's unit) for them to be the same.
 STEERING_TOLERANCE = 1e-6
 
@@ -575,7 +611,6 @@ def replay_camera(store: Store, finding_id: int) -> SteeringReplay:
     """Re-run a camera task's finding in this process, twice, and compare with the record."""
     from lidarfuzz.oracles.relations.base import Pair
     from lidarfuzz.oracles.relations.registry import from_spec as relation_from_spec
-    from lidarfuzz.report.camera import finding_pair
     from lidarfuzz.suts.registry import create_camera
 
     pair = finding_pair(store, finding_id)
@@ -661,4 +696,4 @@ def kind_summary(store: Store, task: Task) -> dict[str, Any]:
 
 __all__ = ["DEFAULT_TRANSFORMATIONS", "GUIDED", "SEARCH_POOL", "STEERING_TOLERANCE", "UNFILTERED", "CameraSearch",
            "CameraSetupError", "SteeringReplay", "camera_relations", "check_spec", "counted_below", "describe",
-           "kind_summary", "plan", "replay_camera", "start"]
+           "finding_pair", "kind_summary", "plan", "replay_camera", "start"]

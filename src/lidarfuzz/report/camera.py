@@ -151,44 +151,9 @@ def png_bytes(image: NDArray[np.uint8]) -> bytes:
     return bytes(data.tobytes())
 
 
-def finding_pair(store: Any, finding_id: int, datasets: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The finding's original and transformed images, the label and both predictions."""
-    from sqlalchemy import select
-
-    from lidarfuzz.operators.registry import from_spec
-    from lidarfuzz.store.inventory import open_registered
-    from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
-
-    with store.session() as s:
-        row = s.execute(select(Finding, FrameResult, Subtask, Task).join(
-            FrameResult, Finding.frame_result_id == FrameResult.id).join(
-            Subtask, FrameResult.subtask_id == Subtask.id).join(Task, Subtask.task_id == Task.id).where(
-            Finding.id == finding_id)).first()
-        if row is None:
-            raise LidarfuzzError(f"no finding {finding_id}")
-        finding, result, _, task = row
-        dataset_row = task.dataset
-        original_output = s.scalar(select(FrameResult.output).join(Subtask).where(
-            Subtask.task_id == task.id, Subtask.name == "original", FrameResult.frame_id == result.frame_id,
-            FrameResult.trial == 0))
-        replay, output, kind = dict(finding.replay or {}), result.output, finding.kind
-        key = str(dataset_row.id)
-        cache = datasets if datasets is not None else {}
-        if key not in cache:
-            cache[key] = open_registered(dataset_row)
-        dataset = cache[key]
-    sample = dataset.load(result.frame_id)
-    transformed = sample
-    operator = replay.get("operator")
-    if operator:
-        op = from_spec(operator)
-        transformed = op.apply(sample, op.parse_params(replay.get("params") or {}))
-    return {"original": sample, "transformed": transformed, "label": sample.steering, "kind": kind,
-            "before": (original_output or {}).get("steering"), "after": (output or {}).get("steering"),
-            "operator": (operator or {}).get("name", "original"), "frame_id": result.frame_id}
-
-
 def finding_png(store: Any, finding_id: int, datasets: dict[str, Any] | None = None) -> bytes:
+    from lidarfuzz.campaign.camera import finding_pair
+
     pair = finding_pair(store, finding_id, datasets)
     title = f"finding #{finding_id} | {pair['kind']} | frame {pair['frame_id']} | {pair['operator']}"
     return png_bytes(pair_picture(pair["original"].image.copy(), pair["transformed"].image.copy(),
@@ -207,5 +172,5 @@ def finding_images(store: Any, finding_ids: Sequence[int], *, limit: int = 12) -
     return images
 
 
-__all__ = ["finding_images", "finding_pair", "finding_png", "frame_picture", "headline", "is_camera", "pair_picture",
+__all__ = ["finding_images", "finding_png", "frame_picture", "headline", "is_camera", "pair_picture",
            "png_bytes"]
