@@ -99,7 +99,8 @@ def p_text(p: float) -> str:
     if not math.isfinite(p):
         return "—"
     stars = "***" if p < 0.001 else "**" if p < 0.01 else "*" if p < 0.05 else ""
-    return f"{p:.2g}{(' ' + stars) if stars else ''}"
+    text = f"{p:.2g}" if p > 0 else "< 1e-300"  # below the smallest double scipy returns: 0
+    return f"{text}{(' ' + stars) if stars else ''}"
 
 
 # -- data -------------------------------------------------------------------------------------------

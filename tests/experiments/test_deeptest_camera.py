@@ -62,6 +62,7 @@ def test_improvement_and_p_values() -> None:
     assert script.p_text(0.03) == "0.03 *"
     assert script.p_text(0.2) == "0.2"
     assert script.p_text(float("nan")) == "—"
+    assert script.p_text(0.0) == "< 1e-300 ***"
 
 
 def test_rq1_on_four_images() -> None:
