@@ -257,14 +257,15 @@ def test_per_frame_randomisation_changes_the_sensor_deterministically():
     config = GenerationConfig(frames=2, seed=0, realism=RealismConfig.randomised())
     from lidarfuzz.sim.dataset import _frame_scene
 
-    a, b, a_again = _frame_scene(config, 0), _frame_scene(config, 1), _frame_scene(config, 0)
+    # each frame's scene (the first of the pair; the second is its lane, the same without a camera)
+    a, b, a_again = _frame_scene(config, 0)[0], _frame_scene(config, 1)[0], _frame_scene(config, 0)[0]
     assert a == a_again
     assert a.sensor != b.sensor
     sensor = load_sensor(a.sensor)
     assert 0.06 <= sensor.receiver.gain_spread <= 0.2
     # The default keeps one sensor (KITTI's receiver, one calibration) for every frame; only its
     # pitch and roll against the road vary, within KITTI's 0.17–0.64° of pitch.
-    first, second = (load_sensor(_frame_scene(GenerationConfig(frames=2), k).sensor) for k in (0, 1))
+    first, second = (load_sensor(_frame_scene(GenerationConfig(frames=2), k)[0].sensor) for k in (0, 1))
     assert first.receiver == second.receiver == SENSOR_PRESETS["HDL-64E"].receiver
     assert first.mount_pitch_deg != second.mount_pitch_deg
     assert 0.15 <= first.mount_pitch_deg <= 0.65
