@@ -790,6 +790,7 @@ def fig6(args: argparse.Namespace) -> str:
     axis.boxplot([b if len(b) else np.array([np.nan]) for b in boxes], showfliers=True)
     axis.set_xticks(range(1, len(names) + 1), names, fontsize=8)
     axis.set_yscale("symlog", linthresh=1e-4)
+    axis.set_ylim(bottom=0)  # squares: nothing below 0
     axis.set_ylabel("(θ − label)², rad²")
     axis.set_title("Deviation from the label: images violating Eq. 2 vs their originals", fontsize=9)
     axis.grid(axis="y", alpha=0.3)
