@@ -54,6 +54,23 @@ def test_demo_runs_the_main_job_offline(tmp_path):
     assert (tmp_path / "datasets" / "sim-world-s0-n2" / "velodyne" / "000001.bin").is_file()
 
 
+@pytest.mark.torch
+def test_demo_camera_runs_deeptest_offline(tmp_path):
+    pytest.importorskip("torch")
+    result = subprocess.run([sys.executable, "-c", NO_NETWORK, "demo", "--camera", "--workspace", str(tmp_path),
+                             "--frames", "3"], capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "PYTHONIOENCODING": "utf-8", "COLUMNS": "160"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    out = result.stdout
+    assert "MSE_orig =" in out and "over 3 labelled of 3 original images" in out
+    for setting in ("image_brightness@1", "image_rotation@5", "image_fog@3", "image_rain@5", "guided"):
+        assert setting in out  # the nine transformations at 1, 3, 5, then the search
+    assert "Table 7's form" in out and "guided search (Algorithm 1)" in out
+    world = tmp_path / "datasets" / "sim-camera-s0-n3"
+    assert (world / "image_2" / "000002.png").is_file() and (world / "steering.csv").is_file()
+    assert (tmp_path / "reports" / "task-1" / "report.html").is_file()
+
+
 @pytest.mark.parametrize("module", ["lidarfuzz.io.logs", "lidarfuzz.io.formats.las", "lidarfuzz.io.formats.pcd"])
 def test_imports_do_not_touch_the_network(module):
     code = NO_NETWORK.split("from lidarfuzz")[0] + f"import {module}\n"
