@@ -48,6 +48,10 @@ async function route() {
   }
   const mine = ++generation;
   clear(root);
+  // each render draws into a view of its own: a render overtaken by a later one (two hash changes in
+  // quick succession) finishes into its detached view instead of adding to the current page
+  const view = h("div", { class: "view" });
+  root.append(view);
   let page = null;
   let section = "";
   for (const [pattern, make, nav] of routes) {
@@ -62,11 +66,11 @@ async function route() {
     link.classList.toggle("active", link.dataset.nav === section);
   }
   if (!page) {
-    root.append(notice("error", `No page at ${path}.`), h("p", {}, h("a", { href: "#/tasks" }, "Back to the tasks")));
+    view.append(notice("error", `No page at ${path}.`), h("p", {}, h("a", { href: "#/tasks" }, "Back to the tasks")));
     return;
   }
   try {
-    const result = await page(root, params);
+    const result = await page(view, params);
     if (mine !== generation) {
       if (typeof result === "function") result();
       return;
@@ -74,7 +78,7 @@ async function route() {
     cleanup = typeof result === "function" ? result : null;
   } catch (exc) {
     console.error(exc);
-    if (mine === generation) root.append(notice("error", String(exc.message ?? exc), exc.problems ?? []));
+    if (mine === generation) view.append(notice("error", String(exc.message ?? exc), exc.problems ?? []));
   }
 }
 
