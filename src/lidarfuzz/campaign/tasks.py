@@ -110,7 +110,7 @@ def _model_row(s: Any, ref: str, options: dict[str, Any], *, sequence: bool = Fa
             try:
                 return create_camera(spec, **given)
             except LidarfuzzError as exc:  # the user's choice: a bad input
-                raise SutSpecError(f"sut: {exc} (a camera campaign needs a steering system, e.g. dave2)") from None
+                raise SutSpecError(f"sut: {exc}") from None  # the message names the steering systems
         if not sequence:
             return create(spec, **given)
         try:
