@@ -62,6 +62,26 @@ def _resolve(value: Any) -> Any:
     return import_target(value) if isinstance(value, str) else value
 
 
+
+def onnx_session(path: Path, threads: int) -> Any:
+    """An ONNX Runtime CPU session on the model at ``path`` (``threads`` intra-op threads).
+
+    Raises:
+        MissingDependencyError: ONNX Runtime (extra ``onnx``) is not installed.
+        DataFormatError: ONNX Runtime cannot load the file (named).
+    """
+    try:
+        import onnxruntime as ort  # optional extra 'onnx', needed only to run a model
+    except ImportError:
+        raise MissingDependencyError("onnxruntime", "onnx", "running ONNX models") from None
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    try:
+        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # ONNX Runtime raises its own exception types for bad files
+        raise DataFormatError(path, f"ONNX Runtime cannot load the model: {exc}") from None
+
 class OnnxSut(SystemUnderTest[Scene, Boxes3D]):
     """An ONNX model.
 
@@ -121,17 +141,7 @@ class OnnxSut(SystemUnderTest[Scene, Boxes3D]):
     def load(self) -> None:
         if self._session is not None:
             return
-        try:
-            import onnxruntime as ort  # optional extra 'onnx', needed only to run a model
-        except ImportError:
-            raise MissingDependencyError("onnxruntime", "onnx", "running ONNX models") from None
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = self.threads
-        options.inter_op_num_threads = 1
-        try:
-            self._session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # ONNX Runtime raises its own exception types for bad files
-            raise DataFormatError(self.path, f"ONNX Runtime cannot load the model: {exc}") from None
+        self._session = onnx_session(self.path, self.threads)
         if self.class_names is None:
             meta = self._session.get_modelmeta().custom_metadata_map
             if "class_names" in meta:

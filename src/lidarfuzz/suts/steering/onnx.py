@@ -23,7 +23,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from lidarfuzz.errors import DataFormatError, MissingDependencyError
+from lidarfuzz.errors import DataFormatError
 from lidarfuzz.scene.image import ImageSample
 from lidarfuzz.suts.code import distribution_version
 from lidarfuzz.suts.steering.base import Steering, SteeringSystem, checked_range
@@ -74,17 +74,9 @@ class OnnxSteering(SteeringSystem):
     def load(self) -> None:
         if self._session is not None:
             return
-        try:
-            import onnxruntime as ort  # optional extra 'onnx'
-        except ImportError:
-            raise MissingDependencyError("onnxruntime", "onnx", "running ONNX models") from None
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = self.threads
-        options.inter_op_num_threads = 1
-        try:
-            self._session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # ONNX Runtime raises its own exception types for bad files
-            raise DataFormatError(self.path, f"ONNX Runtime cannot load the model: {exc}") from None
+        from lidarfuzz.suts.onnx import onnx_session
+
+        self._session = onnx_session(self.path, self.threads)
 
     def close(self) -> None:
         self._session = None
