@@ -204,7 +204,7 @@ def main() -> int:
 
             base = f"http://127.0.0.1:{port}"
             with archive.open("rb") as handle:
-                httpx.post(f"{base}/api/datasets/upload", data={"name": "bench"},
+                httpx.post(f"{base}/api/datasets/upload", data={"name": "bench"}, headers={"Origin": base},
                            files={"files": ("frames.zip", handle, "application/zip")}, timeout=120).raise_for_status()
             ids = httpx.get(f"{base}/api/datasets/bench/frames").json()["frame_ids"]
             gl = SWIFTSHADER if args.gl == "swiftshader" else ["--use-gl=egl", "--ignore-gpu-blocklist"]

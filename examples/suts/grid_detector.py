@@ -6,7 +6,7 @@ It needs only numpy. Points above the ground are rasterised into a 0.5 m bird's-
 axis-aligned "Car" box. It is deliberately simple: the point is the protocol.
 
 One-shot:  grid_detector.py POINTS.bin OUTPUT.json
-Worker:    grid_detector.py --worker        (one JSON request per stdin line)
+Worker:    grid_detector.py --worker        (one JSON request per stdin line, each answer echoing its "id")
 
 For tests of failure handling, ``--fail-on ID:MODE`` makes frame ``ID`` crash (``crash``),
 hang (``hang``), or answer garbage (``garbage``).
@@ -95,7 +95,8 @@ def main(argv: list[str]) -> int:
             if mode == "garbage":
                 print("this is not json", flush=True)
                 continue
-            print(json.dumps({"detections": detect(load(request["points"]))}), flush=True)
+            answer = {"id": request["id"], "detections": detect(load(request["points"]))}  # echo the id
+            print(json.dumps(answer), flush=True)
         return 0
     points_path, output_path = argv[0], argv[1]
     frame_id = argv[2] if len(argv) > 2 else ""

@@ -9,6 +9,9 @@ line per request to its stdin:
   answer is the decision, ``{"steering": ..., "speed": ..., "emergency_stop": ..., "path": [...]}``;
 * an empty line (or end of input): exit.
 
+Every request carries an ``"id"`` (the frame id and a sequence number) that its answer echoes:
+an answer with another id, or none, is an invalid output and the program is restarted.
+
 A program in another language does the same with its own controller; this one wraps lidarfuzz's
 (:class:`lidarfuzz.suts.controller.ObstacleAvoidance`), so its decisions can be compared with the
 controller run in process. Options of the controller are given as ``--option key=value``.
@@ -67,7 +70,7 @@ def main(argv: list[str]) -> int:
         request = json.loads(line)
         if request.get("reset"):
             controller.reset()
-            print(json.dumps({"ok": True}), flush=True)
+            print(json.dumps({"ok": True, "id": request["id"]}), flush=True)  # every answer echoes the id
             continue
         mode = fail_on.get(int(request.get("index", -1)))
         if mode == "crash":
@@ -76,7 +79,7 @@ def main(argv: list[str]) -> int:
         if mode == "hang":
             time.sleep(3600)
         if mode == "error":
-            print(json.dumps({"error": "simulated failure"}), flush=True)
+            print(json.dumps({"error": "simulated failure", "id": request["id"]}), flush=True)
             continue
         if mode == "garbage":
             print("this is not json", flush=True)
@@ -84,9 +87,9 @@ def main(argv: list[str]) -> int:
         try:
             decision = controller.step(frame_of(request))
         except Exception as exc:  # reported to lidarfuzz as this step's failure; the worker goes on
-            print(json.dumps({"error": f"{type(exc).__name__}: {exc}"}), flush=True)
+            print(json.dumps({"error": f"{type(exc).__name__}: {exc}", "id": request["id"]}), flush=True)
             continue
-        print(json.dumps(decision.to_dict()), flush=True)
+        print(json.dumps({**decision.to_dict(), "id": request["id"]}), flush=True)
     return 0
 
 

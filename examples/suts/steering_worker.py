@@ -8,7 +8,9 @@ line per frame to its stdin::
      "channels": "rgb"}
 
 (``"format": "raw"``: height × width × 3 bytes, RGB, row after row). It answers one line,
-``{"steering": angle}``, or ``{"error": "message"}``; an empty line (or end of input) ends it.
+``{"steering": angle}``, or ``{"error": "message"}``, echoing the request's ``"id"`` (the frame id
+and a sequence number; an answer without it is an invalid output); an empty line (or end of
+input) ends it.
 
 Its "network" is a rule a test can work out by hand: the bottom half of the frame is split into
 a left and a right half, and the answer is ``gain · (mean(right) − mean(left)) / 255`` over all
@@ -82,6 +84,7 @@ def main(argv: list[str]) -> None:
             answer: dict[str, object] = {"steering": value}
         except Exception as exc:  # the protocol's error answer
             answer = {"error": f"{type(exc).__name__}: {exc}"}
+        answer["id"] = request["id"]  # every answer echoes its request's id
         print(json.dumps(answer), flush=True)
 
 

@@ -13,7 +13,28 @@ from typing import Any
 
 
 class LidarfuzzError(Exception):
-    """Base class of every error lidarfuzz raises on purpose."""
+    """Base class of every error lidarfuzz raises on purpose.
+
+    ``cli``: what to run about it from the command line, shown after the message in a terminal
+    (``str(exc)``) and left out where there is no command line (the web app shows :attr:`plain`).
+
+    Example:
+        >>> exc = LidarfuzzError("no data set called 'x'", cli="lidarfuzz datasets list")
+        >>> str(exc), exc.plain
+        ("no data set called 'x' (lidarfuzz datasets list)", "no data set called 'x'")
+    """
+
+    def __init__(self, *args: Any, cli: str | None = None) -> None:
+        self.cli = cli
+        if cli and args:
+            args = (f"{args[0]} ({cli})", *args[1:])
+        super().__init__(*args)
+        self._plain = str(args[0]).removesuffix(f" ({cli})") if args else ""
+
+    @property
+    def plain(self) -> str:
+        """The message without the command-line advice."""
+        return getattr(self, "_plain", None) or str(self)
 
 
 class DataFormatError(LidarfuzzError, ValueError):

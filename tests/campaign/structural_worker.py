@@ -24,11 +24,11 @@ def main() -> int:
         request = json.loads(line)
         if request.get("reset"):
             gate.reset()
-            print(json.dumps({"ok": True}), flush=True)
+            print(json.dumps({"ok": True, "id": request["id"]}), flush=True)
             continue
         points = np.fromfile(request["points"], dtype=np.float32).reshape(-1, 4)
         decision = gate.step(Scene(PointCloud(points), frame_id=str(request.get("frame_id", ""))))
-        print(json.dumps(decision.to_dict()), flush=True)
+        print(json.dumps({**decision.to_dict(), "id": request["id"]}), flush=True)
     return 0
 
 

@@ -225,3 +225,16 @@ def test_mutate_interleave_writes_the_logs_of_neves_et_al(kitti_log, tmp_path):
     assert len(open_dataset(tmp_path / "avg")) == 5
     result = runner.invoke(app, ["mutate", str(kitti_log), str(tmp_path / "avg2"), "--op", "AVG"])
     assert result.exit_code != 0 and "--interleave" in result.output
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (["gen", "--frames", "-3"], "error: lidarfuzz gen: Invalid value for '--frames'"),
+    (["no-such-command"], "error: lidarfuzz: No such command 'no-such-command'."),
+    (["run", "--bogus"], "error: lidarfuzz run: No such option: --bogus"),
+])
+def test_a_usage_mistake_is_one_line_from_the_entry_point(args, expected, tmp_path):
+    # typer's default is a five-line box; a user (and a script reading stderr) gets one line and exit 2
+    done = subprocess.run([sys.executable, "-c", "from lidarfuzz.cli.app import main; main()", *args],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.startswith(expected) and done.stderr.count("\n") == 1, done.stderr

@@ -222,3 +222,16 @@ def test_the_core_runs_a_campaign_without_the_web_and_postgres_extras(kitti_log:
     assert "pip install 'lidarfuzz[web]'" in serve.stderr
     store = cli("list", "--workspace", "postgresql+psycopg://nobody@localhost/none")
     assert store.returncode == 2 and "pip install 'lidarfuzz[postgres]'" in store.stderr
+
+
+@pytest.mark.parametrize("plain", [False, True])
+def test_names_with_terminal_escapes_are_listed_escaped(plain: bool, capsys: pytest.CaptureFixture[str]) -> None:
+    # a name stored before names were checked (or a task's name from a campaign file): ESC ] 0 ; … BEL
+    # would retitle the user's terminal; the listing shows the characters as \x1b and \x07 instead
+    from lidarfuzz.cli.common import Column, print_listing
+
+    evil = "drive" + chr(27) + "]0;pwned" + chr(7)
+    print_listing([Column("name", name=True)], [[evil]], [{"name": evil}], plain=plain)
+    out = capsys.readouterr().out
+    assert chr(27) not in out and chr(7) not in out
+    assert "drive\\x1b]0;pwned\\x07" in out

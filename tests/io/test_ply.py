@@ -134,7 +134,8 @@ def test_truncated_text(tmp_path):
     path = tmp_path / "trunc_text.ply"
     ply.write(path, Scene(PointCloud(np.ones((4, 4), np.float32))), text=True)
     path.write_text("\n".join(path.read_text().splitlines()[:-2]) + "\n")
-    expect_error(path, "header claims 4 'vertex' rows but the data holds only 2 complete rows")
+    # two rows "1 1 1 1" left: 16 bytes, at most 16 // 8 rows of four 2-character values
+    expect_error(path, "header claims 4 'vertex' rows but the data holds only at most 2 complete rows")
 
 
 def test_malformed_text_value(tmp_path):

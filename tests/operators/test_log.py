@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.operators import get
 from lidarfuzz.operators.lidar.log import FrameAverage, interleave
 
@@ -99,7 +100,9 @@ def test_an_interleaved_log_that_fails_midway_leaves_no_folder(kitti_log, tmp_pa
         return sample
 
     hgt.apply = fails_on_the_second
-    with pytest.raises(RuntimeError, match="disk gone"):
+    # one line naming the operator and the last frame written (frame 000000, its mutant, frame 000001;
+    # the second call makes the mutant of 000001); the cause is kept as __cause__
+    with pytest.raises(LidarfuzzError, match="height_shift failed after frame 000001: RuntimeError: disk gone"):
         mutate_log(kitti_log, tmp_path / "out", hgt)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
     # without rings AVG now writes the whole log: 3 frames and the 2 averages between them

@@ -195,6 +195,18 @@ def test_gt_recall_reports_objects_found_then_lost_by_track_id() -> None:
     assert out.stats == {"n_gt": 2, "n_found_source": 1, "n_lost": 1}
 
 
+def test_gt_recall_on_a_mutant_with_no_labelled_object_left_holds() -> None:
+    """Every labelled object removed by the operator (track ids 7 and 8 gone): none is expected on
+    the mutant, so nothing is lost (before: an IndexError indexing the mutant's empty matches)."""
+    gt = boxes([(10, 0), (20, 5)], track_ids=[7, 8])
+    src_dets = boxes([(10, 0), (20, 5)], scores=[0.9, 0.9])
+    gone = gt.select(np.zeros(0, dtype=int))
+    p = pair(src_dets, Boxes3D.empty(), Relation.DEGRADING, source=scene(gt), follow=scene(gone))
+    out = GroundTruthRecall()(p)
+    assert out.holds and not out.violations
+    assert out.stats["n_lost"] == 0
+
+
 def test_max_truncation_skips_objects_the_camera_view_cuts() -> None:
     """An object beside the car (half outside the camera's view) is not checked with
     max_truncation; one well inside the view still is."""

@@ -26,7 +26,7 @@ pytestmark = pytest.mark.gcov
 
 SOURCE = Path(__file__).resolve().parents[2] / "examples" / "suts" / "c_worker"
 MAIN = "detector.c:main"
-POINTS_PATH = "detector.c:points_path"
+STRING_FIELD = "detector.c:string_field"  # reads the request's "id" and "points"
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +48,7 @@ def scene(frame_id: str, xyz: list[tuple[float, float, float]]) -> Scene:
 
 
 # Frame A: 30 points inside the 20 m x 8 m corridor: a detection, score 30/500 (n <= 500).
-# Frame B: 3 points, each failing one test of line 46: x < 2, x > 22, y > 4; then n < 20: none.
+# Frame B: 3 points, each failing one test of line 52: x < 2, x > 22, y > 4; then n < 20: none.
 FRAME_A = scene("a", [(5.0 + 0.1 * i, 0.0, 0.0) for i in range(30)])
 FRAME_B = scene("b", [(1.0, 0.0, 0.0), (50.0, 0.0, 0.0), (5.0, 10.0, 0.0)])
 
@@ -67,24 +67,24 @@ def edges_on(requirements: Covered, function: str, line: int) -> int:
 
 def test_nodes_and_branch_outcomes_of_two_frames(built: Path):
     total, covered = run(built, FRAME_A, FRAME_B)
-    assert {r.function for r in total} == {MAIN, POINTS_PATH}
+    assert {r.function for r in total} == {MAIN, STRING_FIELD}
     main_lines = {r.source for r in total if r.kind == "node" and r.function == MAIN}
     missed = main_lines - {r.source for r in covered if r.kind == "node" and r.function == MAIN}
     # by hand: every request names a readable points file, so only the two error paths never run
-    assert missed == {32, 33, 34, 38, 39, 40}
-    assert all(r in covered for r in total if r.kind == "node" and r.function == POINTS_PATH)
+    assert missed == {38, 39, 40, 44, 45, 46}
+    assert all(r in covered for r in total if r.kind == "node" and r.function == STRING_FIELD)
     # branch outcomes per line (covered, total), worked from the source at -O0:
     expected = {
-        29: (1, 2),  # while (fgets(...)): the loop always ends at the empty line, never at end of input
-        30: (3, 4),  # '\n' || '\0': the first test both ways, the second only false
-        31: (1, 2),  # !points_path: never
-        37: (1, 2),  # !f: never
-        46: (8, 10),  # five tests: x < 2, x > 22, y > 4 each true once (frame B); y < -4, z < -1.3 never
-        54: (2, 2),  # n < 20: false for A, true for B
+        34: (1, 2),  # while (fgets(...)): the loop always ends at the empty line, never at end of input
+        35: (3, 4),  # '\n' || '\0': the first test both ways, the second only false
+        37: (1, 2),  # !string_field(... "points" ...): never (line 36, the id, has no branch)
+        43: (1, 2),  # !f: never
+        52: (8, 10),  # five tests: x < 2, x > 22, y > 4 each true once (frame B); y < -4, z < -1.3 never
+        60: (2, 2),  # n < 20: false for A, true for B
     }
     for line, (n_covered, n_total) in expected.items():
         assert (edges_on(covered, MAIN, line), edges_on(total, MAIN, line)) == (n_covered, n_total), line
-    assert Requirement(MAIN, "edge", 54, 1) in total
+    assert Requirement(MAIN, "edge", 60, 1) in total
     assert 0 < coverage_ratio(covered, total, "edge") < coverage_ratio(covered, total, "node") < 1
 
 
@@ -92,9 +92,9 @@ def test_counts_start_from_zero_after_reset_and_runs_are_deterministic(built: Pa
     total_a, only_a = run(built, FRAME_A)
     total_b, only_b = run(built, FRAME_B)
     assert total_a == total_b == gcov.requirements(built, SOURCE)
-    # A alone never takes n < 20 nor prints the empty answer (line 55); B never reaches the detection (57)
-    assert Requirement(MAIN, "node", 55) in only_b - only_a
-    assert Requirement(MAIN, "node", 57) in only_a - only_b
+    # A alone never takes n < 20 nor prints the empty answer (line 61); B never reaches the detection (63)
+    assert Requirement(MAIN, "node", 61) in only_b - only_a
+    assert Requirement(MAIN, "node", 63) in only_a - only_b
     assert run(built, FRAME_A) == (total_a, only_a)
 
 

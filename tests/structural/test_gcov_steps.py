@@ -80,8 +80,9 @@ def test_each_step_covers_its_own_branches(build: Path) -> None:
 def test_a_program_that_does_not_dump_is_named(build: Path, tmp_path: Path) -> None:
     script = tmp_path / "silent.py"  # speaks the protocol, never writes gcov data
     script.write_text("import sys, json\nfor line in sys.stdin:\n    if not line.strip(): break\n"
-                      "    r = json.loads(line)\n    print(json.dumps({'ok': True} if r.get('reset') else "
-                      "{'steering': 0.0, 'speed': 1.0}), flush=True)\n")
+                      "    r = json.loads(line)\n"
+                      "    print(json.dumps({'ok': True, 'id': r['id']} if r.get('reset') else "
+                      "{'steering': 0.0, 'speed': 1.0, 'id': r['id']}), flush=True)\n")
     system = WorkerSequence(f"python3 {script}", timeout=30)
     try:
         recorder = GcovRecorder(system, build, SOURCE)

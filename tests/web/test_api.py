@@ -216,11 +216,13 @@ def test_stop_resume_and_delete(client: TestClient, tmp_path: Path) -> None:
     task_id = client.post("/api/tasks", json=campaign(operators=MANY)).json()["id"]
     wait_for(client, task_id, ("running",))
     reply = client.post(f"/api/tasks/{task_id}/stop")
-    assert reply.status_code == 200 and reply.json() == {"id": task_id, "status": "cancelled"}
+    assert reply.status_code == 200 and reply.json() == {
+        "id": task_id, "status": "cancelled", "refused": False,
+        "message": f"Task #{task_id} stopped: what is done is kept; Resume goes on from there."}
     stopped = wait_for(client, task_id)
     assert stopped["status"] == "cancelled" and stopped["done"] < stopped["total"] == 32
     resumed = client.post(f"/api/tasks/{task_id}/resume").json()
-    assert resumed["status"] == "pending"
+    assert resumed["status"] == "pending" and not resumed["refused"]
     done = wait_for(client, task_id)
     assert done["status"] == "done" and done["done"] == 32
     client.get(f"/api/tasks/{task_id}/report.json")
@@ -376,22 +378,24 @@ def test_a_findings_frames_decode_to_the_rebuilt_pair(finished: tuple[TestClient
     assert pair.mutant is not None
     original, mutant = clouds["original"], clouds["mutant"]
     assert [c["name"] for c in header["clouds"]] == ["original", "mutant"]
-    assert header["clouds"][0]["channels"] == [*pair.source.points.channels, "change"]
-    assert original.shape == (len(pair.source.points), len(pair.source.points.channels) + 1)
+    # a rotation is geometric: after ``change``, ``aligned_change`` (tests/web/test_frames_payload.py)
+    assert header["clouds"][0]["channels"] == [*pair.source.points.channels, "change", "aligned_change"]
+    width = len(pair.source.points.channels)
+    assert original.shape == (len(pair.source.points), width + 2)
     assert mutant.shape[0] == len(pair.mutant.points)
-    np.testing.assert_array_equal(original[:, :-1], pair.source.points.data)
-    np.testing.assert_array_equal(mutant[:, :-1], pair.mutant.points.data)
+    np.testing.assert_array_equal(original[:, :width], pair.source.points.data)
+    np.testing.assert_array_equal(mutant[:, :width], pair.mutant.points.data)
     # the change flags, against sets of exact x, y, z bytes
     in_mutant, in_original = _key_set(pair.mutant.points.data), _key_set(pair.source.points.data)
     expected_original = [SAME if k in in_mutant else ONLY_ORIGINAL for k in map(bytes, np.ascontiguousarray(
         pair.source.points.data[:, :3]).view(np.dtype((np.void, 12))).ravel())]
     expected_mutant = [SAME if k in in_original else ONLY_MUTANT for k in map(bytes, np.ascontiguousarray(
         pair.mutant.points.data[:, :3]).view(np.dtype((np.void, 12))).ravel())]
-    np.testing.assert_array_equal(original[:, -1], expected_original)
-    np.testing.assert_array_equal(mutant[:, -1], expected_mutant)
+    np.testing.assert_array_equal(original[:, width], expected_original)
+    np.testing.assert_array_equal(mutant[:, width], expected_mutant)
     # a rotation keeps every point and moves it: as many points, and (off the axis) none where it was
     assert len(pair.mutant.points) == len(pair.source.points)
-    assert int(np.sum(mutant[:, -1] == ONLY_MUTANT)) > 0.99 * len(pair.mutant.points)
+    assert int(np.sum(mutant[:, width] == ONLY_MUTANT)) > 0.99 * len(pair.mutant.points)
     # boxes and highlights
     boxes = header["boxes"]
     geometric = int(np.sum(pair.source.boxes.has_geometry))
@@ -441,7 +445,9 @@ def test_a_data_set_frame_as_binary(client: TestClient, world: Path) -> None:
     from lidarfuzz.io.open import open_dataset
 
     listing = client.get("/api/datasets/world/frames").json()
-    assert listing == {"name": "world", "modality": "lidar", "total": 2, "frame_ids": ["000000", "000001"]}
+    # independent frames: no order, so no timestamps (a log's: tests/web/test_browser_viewer.py)
+    assert listing == {"name": "world", "modality": "lidar", "total": 2, "frame_ids": ["000000", "000001"],
+                       "order": None, "timestamps": None}
     assert client.get("/api/datasets/world/frames", params={"offset": 1, "limit": 5}).json()["frame_ids"] == [
         "000001"]
     reply = client.get("/api/datasets/world/frames/000001")

@@ -6,7 +6,6 @@ transformations only. Screenshots go to ``test-artifacts/web/camera-*.png``."""
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,23 +13,15 @@ from typing import Any
 
 import pytest
 
-from tests.web.test_browser import CHROMIUM, CHROMIUM_ARGS, ROOT, TIMEOUT_MS, Server
+from tests.web.test_browser import Server
 
 pytestmark = pytest.mark.browser
 pytest.importorskip("torch")
 
-from playwright import sync_api  # noqa: E402
 
 from lidarfuzz.store import Store  # noqa: E402
 from lidarfuzz.store.inventory import add_model  # noqa: E402
 from tests.web.test_camera import LABELS, NET, camera_files  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def artifacts() -> Path:
-    folder = Path(os.environ.get("LIDARFUZZ_TEST_ARTIFACTS", ROOT / "test-artifacts")) / "web"
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
 
 
 @pytest.fixture(scope="module")
@@ -55,20 +46,6 @@ def camera_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Se
             assert time.monotonic() < deadline, "the camera task did not finish"
             time.sleep(0.2)
         yield server, task["id"]
-
-
-@pytest.fixture
-def page(artifacts: Path) -> Iterator[Any]:
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        context = browser.new_context(viewport={"width": 1400, "height": 900})
-        tab = context.new_page()
-        tab.set_default_timeout(TIMEOUT_MS)
-        errors: list[str] = []
-        tab.on("pageerror", lambda exc: errors.append(str(exc)))
-        yield tab
-        browser.close()
-        assert not errors, f"uncaught errors in the page: {errors}"
 
 
 def loaded(page: Any, selector: str) -> None:

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from tests.web.test_browser import Server, artifacts, browser, page  # noqa: F401 (fixtures)
+from tests.web.test_browser import Server
 
 pytestmark = pytest.mark.browser
 
@@ -41,15 +41,15 @@ def logs_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         yield running
 
 
-def open_structural_form(page: Any, server: Server) -> None:  # noqa: F811 (the page fixture's value)
+def open_structural_form(page: Any, server: Server) -> None:
     page.goto(server.url + "/#/tasks/new")
     page.get_by_test_id("new-task-form").wait_for()
     page.get_by_test_id("task-kind").select_option("structural")
     page.get_by_test_id("log-drive").wait_for()
 
 
-def test_a_structural_task_from_the_new_task_form(page: Any, logs_server: Server,  # noqa: F811
-                                                  artifacts: Path) -> None:  # noqa: F811
+def test_a_structural_task_from_the_new_task_form(page: Any, logs_server: Server,
+                                                  artifacts: Path) -> None:
     open_structural_form(page, logs_server)
     # the detection fields give way to the structural ones; the form proposes what the user expects
     assert page.get_by_test_id("operators").is_hidden() and page.get_by_test_id("task-model").is_hidden()
@@ -92,8 +92,8 @@ def test_a_structural_task_from_the_new_task_form(page: Any, logs_server: Server
     page.screenshot(path=str(artifacts / "24-structural-task-from-form.png"), full_page=True)
 
 
-def test_a_target_that_does_not_exist_is_shown_next_to_the_targets(page: Any, logs_server: Server,  # noqa: F811
-                                                                   artifacts: Path) -> None:  # noqa: F811
+def test_a_target_that_does_not_exist_is_shown_next_to_the_targets(page: Any, logs_server: Server,
+                                                                   artifacts: Path) -> None:
     before = logs_server.api("GET", "/api/tasks")["total"]
     open_structural_form(page, logs_server)
     page.get_by_test_id("task-targets").fill(f"{PROCESS}\nlidarfuzz.suts.controller.avoidance:ObstacleAvoidance.nowhere")

@@ -24,7 +24,7 @@ from fastapi.testclient import TestClient
 from lidarfuzz.store import Store
 from lidarfuzz.store.inventory import add_model
 from lidarfuzz.web import create_app
-from tests.web.conftest import BASE, wait_for
+from tests.web.conftest import BASE, ORIGIN, wait_for
 
 pytest.importorskip("torch")
 
@@ -81,7 +81,7 @@ def camera_task(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Test
     store = Store(root / "ws")
     add_model(store, "net", NET, modality="camera")
     store.close()
-    with TestClient(create_app(root / "ws", inline=True), base_url=BASE) as client:
+    with TestClient(create_app(root / "ws", inline=True), base_url=BASE, headers=ORIGIN) as client:
         reply = upload(client, "road", paths)
         assert reply.status_code == 201, reply.text
         reply = client.post("/api/tasks", json={

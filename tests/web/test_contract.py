@@ -92,8 +92,8 @@ def test_the_front_end_reads_only_declared_fields(path: str) -> None:
 def test_the_fields_read_are_found() -> None:
     # the scanner itself: what the task list reads from a task
     source = (SOURCES / "pages/tasks.js").read_text(encoding="utf-8")
-    assert fields_read(source, "task") == {"id", "name", "kind", "status", "dataset", "model", "operator_count",
-                                           "started_at", "finished_at", "done", "total"}
+    assert fields_read(source, "task") == {"id", "name", "kind", "status", "dataset", "model", "headline", "tags",
+                                           "notes", "started_at", "finished_at", "done", "total"}
     assert fields_read("a.task.x; task?.y; subtask.z; task.w.v", "task") == {"y", "w"}
 
 

@@ -5,6 +5,7 @@
  * One JSON request per line on stdin:
  *   {"reset": true}                      -> clear the state, answer {"ok": true}
  *   {"points": "/path/frame.bin", ...}   -> answer {"steering": rad, "speed": m/s, "emergency_stop": bool}
+ * Every request carries an "id" (the frame id and a sequence number) that its answer echoes.
  * An empty line or end of input ends it. Points are KITTI .bin (float32 x, y, z, intensity), the
  * sensor 1.73 m above a flat road.
  *
@@ -50,8 +51,9 @@ static int string_field(const char *line, const char *key, char *out, size_t siz
     const char *start = strchr(at + strlen(key), '"');
     if (!start) return 0;
     start++;
-    const char *end = strchr(start, '"');
-    if (!end || (size_t)(end - start) >= size) return 0;
+    const char *end = start;
+    while (*end && *end != '"') end += (*end == '\\' && end[1]) ? 2 : 1; /* escapes kept as written */
+    if (*end != '"' || (size_t)(end - start) >= size) return 0;
     memcpy(out, start, (size_t)(end - start));
     out[end - start] = '\0';
     return 1;
@@ -65,7 +67,8 @@ static int true_field(const char *line, const char *key) {
     return at && strncmp(at, "true", 4) == 0;
 }
 
-static void answer(const char *text, int dump) {
+/* One answer line: `text` (a JSON object) with the request's "id" echoed first. */
+static void answer(const char *id, const char *text, int dump) {
 #ifdef LIDARFUZZ_GCOV
     if (dump) {
         __gcov_dump(); /* the step's counts are on disk before lidarfuzz reads the answer */
@@ -74,7 +77,7 @@ static void answer(const char *text, int dump) {
 #else
     (void)dump;
 #endif
-    fputs(text, stdout);
+    printf("{\"id\": \"%s\", %s", id, text + 1);
     fflush(stdout);
 }
 
@@ -125,27 +128,28 @@ static void step(FILE *f, char *out, size_t size) {
 }
 
 int main(void) {
-    char line[65536], path[4096], out[256];
+    char line[65536], path[4096], out[256], id[512];
     while (fgets(line, sizeof line, stdin)) {
         if (line[0] == '\n' || line[0] == '\0') break;
         int dump = true_field(line, "\"gcov_dump\"");
+        if (!string_field(line, "\"id\"", id, sizeof id)) id[0] = '\0';
         if (true_field(line, "\"reset\"")) {
             reset_state();
-            answer("{\"ok\": true}\n", dump);
+            answer(id, "{\"ok\": true}\n", dump);
             continue;
         }
         if (!string_field(line, "\"points\"", path, sizeof path)) {
-            answer("{\"error\": \"request without a points path\"}\n", dump);
+            answer(id, "{\"error\": \"request without a points path\"}\n", dump);
             continue;
         }
         FILE *f = fopen(path, "rb");
         if (!f) {
-            answer("{\"error\": \"cannot open points file\"}\n", dump);
+            answer(id, "{\"error\": \"cannot open points file\"}\n", dump);
             continue;
         }
         step(f, out, sizeof out);
         fclose(f);
-        answer(out, dump);
+        answer(id, out, dump);
     }
     return 0;
 }

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
-from sqlalchemy import insert, select, update
+from sqlalchemy import func, insert, select, update
 
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, get_task, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan, operator_stream
@@ -247,7 +247,8 @@ class _CameraRun:
     def _count(self, counts: dict[int, int]) -> None:
         for sub_id, n in counts.items():
             self.connection.execute(update(Subtask).where(Subtask.id == sub_id).values(
-                done=Subtask.done + n, status=Status.RUNNING))
+                done=Subtask.done + n, status=Status.RUNNING,
+                started_at=func.coalesce(Subtask.started_at, now())))  # set once: its first unit
         self.connection.execute(update(Task).where(Task.id == self.task.id).values(
             done=Task.done + sum(counts.values()), heartbeat_at=now()))
 
@@ -377,7 +378,7 @@ class _CameraRun:
                             "detail": {"stats": outcome.stats, "kept_by_eq3": True},
                             "replay": self._replay(sub, frame_id, trial, params, specs.get(outcome.relation))})
             self.connection.execute(update(Subtask).where(Subtask.id == sub.id).values(
-                results=results, status=Status.DONE))
+                results=results, status=Status.DONE, finished_at=now()))
 
     # -- 3. the guided search -----------------------------------------------------------
     def run_search(self) -> None:
@@ -449,7 +450,7 @@ class _CameraRun:
             "sut_seconds": float(sum(r.seconds or 0 for r in rows)), "deeptest": deeptest_errors(records)})
         with self.connection.begin():
             self.connection.execute(update(Subtask).where(Subtask.id == sub.id).values(
-                results=results, status=Status.DONE, total=len(rows), done=len(rows)))
+                results=results, status=Status.DONE, total=len(rows), done=len(rows), finished_at=now()))
 
     # -- the run ------------------------------------------------------------------------
     search_summary: SearchSummary | None = None
@@ -462,7 +463,8 @@ class _CameraRun:
             failures = self.connection.execute(select(FrameResult.failure).where(
                 FrameResult.subtask_id == self.original.id)).scalars().all()
             self.connection.execute(update(Subtask).where(Subtask.id == self.original.id).values(
-                status=Status.DONE, results=SubtaskResults(frames=len(self.frames),
+                status=Status.DONE, finished_at=func.coalesce(Subtask.finished_at, now()),
+                results=SubtaskResults(frames=len(self.frames),
                                                            failures=sum(1 for f in failures if f is not None))))
         self.run_transformations(done)
         self.run_search()

@@ -194,7 +194,7 @@ def check_comparable(a: Task, b: Task) -> None:
     for task in (a, b):
         if task.status != Status.DONE:
             raise ConflictError(f"task {task.id} is {task.status.value} ({task.done}/{task.total} units); "
-                                f"compare finished tasks (lidarfuzz resume {task.id})")
+                                f"compare finished tasks", cli=f"lidarfuzz resume {task.id}")
     if a.id == b.id:
         raise ConflictError(f"task {a.id} compared with itself: name two tasks")
     if a.dataset.path != b.dataset.path:

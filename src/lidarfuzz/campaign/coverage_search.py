@@ -178,7 +178,8 @@ class _SearchRun:
             self.sub.results, self.sub.state = results, state
             for sub_id, n in counts.items():
                 self.connection.execute(update(Subtask).where(Subtask.id == sub_id).values(
-                    done=Subtask.done + n, status=Status.RUNNING))
+                    done=Subtask.done + n, status=Status.RUNNING,
+                    started_at=func.coalesce(Subtask.started_at, now())))  # set once: its first unit
             self.connection.execute(update(Subtask).where(Subtask.id == self.sub.id).values(
                 results=results, state=state))
             self.connection.execute(update(Task).where(Task.id == self.task.id).values(
@@ -265,6 +266,8 @@ def finish_subtasks(store: Store, task_id: int) -> None:
             sub.results = figures.model_copy(update={"search": sub.results.search})
             sub.total = sub.done = int(s.scalar(select(func.count()).select_from(FrameResult).where(
                 FrameResult.subtask_id == sub.id, FrameResult.trial < MINIMISED)) or 0)
+            if sub.status != Status.DONE or sub.finished_at is None:
+                sub.finished_at = now()
             sub.status = Status.DONE
         row = s.get(Task, task_id)
         assert row is not None

@@ -7,6 +7,12 @@
   rebuilt, the units that were in flight are re-run one at a time, and the one that kills
   its process again is recorded as a crash of the system under test.
 
+A worker process that cannot open the data set (a file deleted mid-run, seen when the pool is
+rebuilt) stays up and answers each unit with a data fault (:func:`~lidarfuzz.campaign.work.data_fault`):
+its pool never breaks over it, so it is never taken for a crash of the system under test.
+:func:`in_unit_order` gives any executor's results in the order the units were given, so results are
+stored (and numbered) in the same order whatever finishes first.
+
 The runner commits every result as it arrives, so an executor keeps nothing worth keeping:
 closing one (on cancel, Ctrl-C or kill) loses only units in flight, which a resume re-runs.
 A cluster backend (Ray) implements the same three methods.
@@ -22,7 +28,7 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit
+from lidarfuzz.campaign.work import UnitResult, WorkContext, Worker, WorkUnit, data_fault
 from lidarfuzz.store.contracts import FailureRecord
 
 
@@ -71,17 +77,23 @@ class InlineExecutor(Executor):
 
 
 _WORKER: Worker | None = None
+_WORKER_ERROR: BaseException | None = None  # why this process has no worker (the data set did not open)
 
 
 def _start(context: WorkContext) -> None:
-    global _WORKER
+    global _WORKER, _WORKER_ERROR
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")  # one core per worker: the pool is the parallelism
-    _WORKER = Worker(context)
+    try:
+        _WORKER = Worker(context)
+    except Exception as exc:  # an initializer that raises breaks the pool: that would read as a crash
+        _WORKER_ERROR = exc
 
 
 def _run(unit: WorkUnit) -> UnitResult:
-    assert _WORKER is not None, "worker not started"
+    if _WORKER is None:
+        assert _WORKER_ERROR is not None, "worker not started"
+        return data_fault(unit, _WORKER_ERROR)
     return _WORKER.run(unit)
 
 
@@ -169,6 +181,26 @@ class ProcessExecutor(Executor):
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+
+def in_unit_order(executor: Executor, units: Iterable[WorkUnit]) -> Iterator[UnitResult]:
+    """``executor``'s results of ``units`` in the order of ``units`` (each unit, keyed by subtask,
+    frame and trial, gives exactly one result): a result that finishes early waits for those
+    before it, so the store numbers results and findings the same way on every run."""
+    issued: deque[tuple[int, str, int]] = deque()
+
+    def tap() -> Iterator[WorkUnit]:
+        for unit in units:
+            issued.append((unit.subtask_id, unit.frame_id, unit.trial))
+            yield unit
+
+    waiting: dict[tuple[int, str, int], UnitResult] = {}
+    for result in executor.run(tap()):
+        waiting[result.key] = result
+        while issued and issued[0] in waiting:
+            yield waiting.pop(issued.popleft())
+    if waiting:  # an executor that answered a unit it was not given: a bug, never hidden
+        raise RuntimeError(f"results of units never issued: {sorted(waiting)[:3]}")
 
 
 def make_executor(workers: int | None = None, inline: bool = False) -> Executor:

@@ -11,6 +11,10 @@ everything around that is here, once:
 * liveness: a running task's worker writes a heartbeat (:class:`Watch`); :func:`looks_alive`
   tells a live task from one whose process died (``lidarfuzz resume`` and the web app's
   workers resume only the latter);
+* data faults: a run that ends with units whose frames could not be read
+  (:data:`~lidarfuzz.campaign.work.DATA_FAULT`) ends as failed, with its summary (the faults counted
+  apart) and an error saying how many and what to do: restore the files and resume, which runs only
+  those units again;
 * cancelling is cooperative: :func:`cancel_task` sets the status in the store (from any
   process), and the running task's :class:`Watch` sees it within :data:`CHECK_EVERY` seconds
   and stops, keeping what is done.
@@ -42,6 +46,13 @@ if TYPE_CHECKING:
 
 CHECK_EVERY = 0.5  # seconds between looks at the task's status (cancel) and heartbeats
 STALE_AFTER = 30.0  # seconds without a heartbeat before a "running" task is taken as dead
+HEARTBEAT_EVERY = 5.0  # seconds between heartbeats of a run's own thread (while a model loads too)
+#: The error of a task that went back to pending because its run was stopped from inside its
+#: process (the web app's server shutting down) or interrupted (Ctrl-C): it is resumed, not failed.
+STOPPED_NOTE = "interrupted: the server stopped while it ran; it resumes when the server starts again"
+INTERRUPTED_NOTE = "interrupted before it finished; resuming it runs only what is left"
+#: How many data-fault messages :func:`data_fault_note` quotes.
+QUOTED_FAULTS = 2
 
 
 @dataclass(frozen=True)
@@ -83,6 +94,18 @@ class CancelledError(Exception):
     """The task was cancelled while running."""
 
 
+class StopSignal(threading.Event):
+    """A run's ``stop`` event that can also say "interrupted, not cancelled": after
+    :meth:`interrupt` the run ends as pending with :data:`STOPPED_NOTE`, to be resumed (the web
+    app's workers interrupt their runs when the server shuts down); after ``set()`` it is cancelled."""
+
+    interrupted = False
+
+    def interrupt(self) -> None:
+        self.interrupted = True
+        self.set()
+
+
 def now() -> datetime:
     return datetime.now(UTC)
 
@@ -100,7 +123,7 @@ def task_row(session: Any, task_id: int) -> Task:
     """
     task = session.get(Task, task_id)
     if task is None:
-        raise NotFoundError(f"no task {task_id} (lidarfuzz list)")
+        raise NotFoundError(f"no task {task_id}")
     return task
 
 
@@ -156,6 +179,9 @@ def cancel_task(store: Store, task_id: int) -> Status:
         if task.status in (Status.DONE, Status.FAILED, Status.CANCELLED):
             return task.status
         task.status = Status.CANCELLED
+        for sub in task.subtasks:  # at once, not when the run notices: a page reading it now sees no "running"
+            if sub.status == Status.RUNNING and sub.done < sub.total:
+                sub.status = Status.PENDING
         return task.status
 
 
@@ -180,6 +206,34 @@ class Watch:
             if status == Status.CANCELLED:
                 raise CancelledError
             s.execute(update(Task).where(Task.id == self.task_id).values(heartbeat_at=now()))
+
+
+class Heartbeat:
+    """A thread writing a running task's heartbeat every :data:`HEARTBEAT_EVERY` seconds, so a run
+    whose first unit is slow (a model loading) still looks alive to ``lidarfuzz resume`` and to
+    another server's workers, which take over only tasks that do not."""
+
+    def __init__(self, store: Store, task_id: int, every: float = HEARTBEAT_EVERY) -> None:
+        self.store, self.task_id, self.every = store, task_id, every
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name=f"lidarfuzz-heartbeat-{task_id}", daemon=True)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._done.set()
+        self._thread.join()
+
+    def _beat(self) -> None:
+        while not self._done.wait(self.every):
+            try:
+                with self.store.session() as s:
+                    s.execute(update(Task).where(Task.id == self.task_id, Task.status == Status.RUNNING)
+                              .values(heartbeat_at=now()))
+            except Exception:  # a busy store ("database is locked"): the next beat tries again
+                continue
 
 
 # -- status transitions -----------------------------------------------------------------
@@ -224,15 +278,53 @@ def set_status(store: Store, task_id: int, status: Status, error: str) -> None:
                 sub.status = Status.PENDING if status != Status.FAILED else sub.status
 
 
-def finish(store: Store, task_id: int, summary: TaskSummary) -> None:
-    """A run that finished: the task done, with its summary."""
+def data_faults(store: Store, task_id: int) -> list[str]:
+    """The messages of task ``task_id``'s units that have a data fault, in unit order."""
+    from lidarfuzz.campaign.work import DATA_FAULT
+
+    with store.session() as s:
+        rows = s.execute(select(FrameResult.failure).join(Subtask).where(
+            Subtask.task_id == task_id, FrameResult.failure.is_not(None)).order_by(
+            Subtask.id, FrameResult.frame_id, FrameResult.trial))
+        return [failure.message for (failure,) in rows if failure is not None and failure.kind == DATA_FAULT]
+
+
+def data_fault_note(faults: list[str]) -> str:
+    """The error of a task whose run ended with data faults (their messages)."""
+    quoted = "; ".join(faults[:QUOTED_FAULTS]) + ("; …" if len(faults) > QUOTED_FAULTS else "")
+    units = "1 unit" if len(faults) == 1 else f"{len(faults)} units"
+    return (f"data faults: {units} could not read their frames ({quoted}); not the system's failures, and "
+            f"left out of the figures. Restore the data set's files and resume the task: only those units run again")
+
+
+def finish(store: Store, task_id: int, summary: TaskSummary, faults: list[str] | None = None) -> Status:
+    """A run that finished: the task done, with its summary (and its headline figures) — or failed
+    when ``faults`` (data faults' messages) remain, with its summary and :func:`data_fault_note`."""
+    from lidarfuzz.campaign.headline import headline
+
+    status = Status.FAILED if faults else Status.DONE
     with store.session() as s:
         row = task_row(s, task_id)
-        row.status, row.finished_at = Status.DONE, now()
+        row.status, row.finished_at = status, now()
+        row.error = data_fault_note(faults) if faults else ""
         # the summary was drawn up while the task ran: it describes the task as it ends
-        info = summary.task.model_copy(update={"status": Status.DONE.value, "finished_at": row.finished_at.isoformat(),
+        info = summary.task.model_copy(update={"status": status.value, "finished_at": row.finished_at.isoformat(),
                                                "done": row.done})
         row.summary = summary.model_copy(update={"task": info})
+        row.headline = headline(row.summary)  # the task list's sortable figures
+    return status
+
+
+def _stopped(store: Store, task_id: int, interrupted: bool) -> Status:
+    """End a run its :class:`Watch` stopped: cancelled when the task is cancelled in the store (a
+    user's stop) or its ``stop`` was set; back to pending with :data:`STOPPED_NOTE` when it was
+    interrupted (:class:`StopSignal`: a server shutting down) — in one transaction, so a process
+    that dies right after leaves nothing a restart would take for a user's cancel."""
+    with store.session() as s:
+        cancelled = s.scalar(select(Task.status).where(Task.id == task_id)) == Status.CANCELLED
+    status = Status.CANCELLED if cancelled or not interrupted else Status.PENDING
+    set_status(store, task_id, status, "" if cancelled else STOPPED_NOTE)
+    return status
 
 
 # -- what a task kind implements --------------------------------------------------------
@@ -303,17 +395,17 @@ def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOpti
     status = Status.DONE
     run: KindRun | None = None
     try:
-        run = kind.start(store, task, options)
-        run.execute()
-        summary = run.summary()
+        with Heartbeat(store, task_id):
+            run = kind.start(store, task, options)
+            run.execute()
+            summary = run.summary()
         run.stats.wall = time.perf_counter() - started
         summary.run = run.stats.timings()
-        finish(store, task_id, summary)
+        status = finish(store, task_id, summary, data_faults(store, task_id))
     except CancelledError:
-        status = Status.CANCELLED
-        set_status(store, task_id, Status.CANCELLED, "")
+        status = _stopped(store, task_id, isinstance(options.stop, StopSignal) and options.stop.interrupted)
     except KeyboardInterrupt:
-        set_status(store, task_id, Status.PENDING, "interrupted; lidarfuzz resume finishes it")
+        set_status(store, task_id, Status.PENDING, INTERRUPTED_NOTE)
         raise
     except BaseException as exc:
         set_status(store, task_id, Status.FAILED, f"{type(exc).__name__}: {exc}")
@@ -326,7 +418,7 @@ def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOpti
     return RunOutcome(task_id, status, stats)
 
 
-__all__ = ["CHECK_EVERY", "STALE_AFTER", "CancelledError", "KindImplementation", "KindRun", "ProgressEvent",
-           "RunOptions", "RunOutcome", "RunStats", "Watch", "cancel_task", "drive", "finish", "get_task",
-           "heartbeat_age", "looks_alive", "mark_running", "now", "recount", "set_status", "task_row",
-           "worker_name"]
+__all__ = ["CHECK_EVERY", "HEARTBEAT_EVERY", "INTERRUPTED_NOTE", "STALE_AFTER", "STOPPED_NOTE", "CancelledError",
+           "Heartbeat", "KindImplementation", "KindRun", "ProgressEvent", "RunOptions", "RunOutcome", "RunStats",
+           "StopSignal", "Watch", "cancel_task", "data_fault_note", "data_faults", "drive", "finish", "get_task",
+           "heartbeat_age", "looks_alive", "mark_running", "now", "recount", "set_status", "task_row", "worker_name"]

@@ -12,7 +12,12 @@ A result is one transaction: its frame result, its findings, the cache entry and
 so a kill at any instant leaves whole results and counters that agree with them (and
 :func:`~lidarfuzz.campaign.lifecycle.recount` re-derives the counters anyway on every start).
 Units are keyed by (subtask, frame, trial) under a unique constraint: a resumed task runs exactly
-the units that have no result, and nothing is counted twice. Units run on an
+the units that have no result, and nothing is counted twice. Results are stored in the order the
+units are planned (:func:`~lidarfuzz.campaign.executor.in_unit_order`), whatever finishes first, so
+identical runs number their results and findings alike and a resumed run goes on where a killed one
+stopped. A unit with a data fault (:data:`~lidarfuzz.campaign.work.DATA_FAULT`: its frame could not be
+read) counts as done but is run again by every resume: its new result replaces the fault in place, in
+the same transaction, and its subtask's figures are computed again. Units run on an
 :class:`~lidarfuzz.campaign.executor.Executor`; this process is the single writer.
 
 The hooks of :class:`~lidarfuzz.campaign.lifecycle.KindImplementation` are at the end; the
@@ -26,14 +31,14 @@ import json
 import math
 import threading
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING, Any
 
-from sqlalchemy import bindparam, insert, literal, select, update
+from sqlalchemy import bindparam, delete, func, insert, literal, select, update
 from sqlalchemy.exc import IntegrityError
 
-from lidarfuzz.campaign.executor import Executor, ProcessExecutor
+from lidarfuzz.campaign.executor import Executor, ProcessExecutor, in_unit_order
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
 from lidarfuzz.campaign.plan import (
     ORIGINAL,
@@ -44,9 +49,9 @@ from lidarfuzz.campaign.plan import (
     subtask_label,
     unchecked_relations,
 )
-from lidarfuzz.campaign.work import UnitResult, WorkContext, WorkUnit
+from lidarfuzz.campaign.work import DATA_FAULT, NOT_THE_SYSTEM, UnitResult, WorkContext, WorkUnit
 from lidarfuzz.store.boxes import StoredBoxes
-from lidarfuzz.store.contracts import TOOL_ERRORS, TaskSummary, ViolationRecord
+from lidarfuzz.store.contracts import TaskSummary, ViolationRecord
 from lidarfuzz.store.errors import StoreError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
 from lidarfuzz.store.store import Store
@@ -77,7 +82,8 @@ class _Run:
         self._insert_result = insert(FrameResult).returning(FrameResult.id)
         self._insert_finding = insert(Finding)
         self._bump_subtask = update(Subtask).where(Subtask.id == bindparam("subtask")).values(
-            done=Subtask.done + 1, status=Status.RUNNING)
+            done=Subtask.done + 1, status=Status.RUNNING,
+            started_at=func.coalesce(Subtask.started_at, bindparam("now")))  # set once: its first unit
         self._bump_task = update(Task).where(Task.id == bindparam("task")).values(
             done=Task.done + 1, heartbeat_at=bindparam("now"))
         dialect = store.engine.dialect.name
@@ -87,23 +93,47 @@ class _Run:
         self._cache_insert: Any = dialect_insert(SutOutput).on_conflict_do_nothing()  # a concurrent twin: fine
         self._dataset: Any = None
         self._mse_orig: dict[str, float] = {}  # DeepTest's MSE_orig by relation spec (see _with_mse_orig)
+        self._faults: dict[tuple[int, str, int], int] = {}  # data faults to run again: unit key → result id
+        self._faults_left: Counter[int] = Counter()  # how many of them each subtask has
+        self._replace_result = update(FrameResult).where(FrameResult.id == bindparam("row"))
+        self._drop_findings = delete(Finding).where(Finding.frame_result_id == bindparam("row"))
 
     # -- units ------------------------------------------------------------------------
     def _finished_keys(self) -> set[tuple[int, str, int]]:
+        """The units with a result, less those with a data fault (kept in ``_faults``, to run again);
+        a subtask with a data fault is open again (its figures are computed anew when it completes)."""
+        done, faulted = set(), set()
         with self.store.session() as s:
-            rows = s.execute(select(FrameResult.subtask_id, FrameResult.frame_id, FrameResult.trial).join(
-                Subtask).where(Subtask.task_id == self.task.id))
-            return {(a, b, c) for a, b, c in rows}
+            rows = s.execute(select(FrameResult.id, FrameResult.subtask_id, FrameResult.frame_id, FrameResult.trial,
+                                    FrameResult.failure).join(Subtask).where(Subtask.task_id == self.task.id))
+            for row_id, sub_id, frame_id, trial, failure in rows:
+                if failure is not None and failure.kind == DATA_FAULT:
+                    self._faults[(sub_id, frame_id, trial)] = row_id
+                    self._faults_left[sub_id] += 1
+                    faulted.add(sub_id)
+                else:
+                    done.add((sub_id, frame_id, trial))
+            if faulted:
+                s.execute(update(Subtask).where(Subtask.id.in_(faulted), Subtask.status == Status.DONE).values(
+                    status=Status.RUNNING, finished_at=None))
+        return done
 
-    def _sources(self, original: Subtask) -> dict[str, tuple[StoredBoxes, bool]]:
-        """The originals' outputs by frame, and whether the system failed on each."""
+    def _waiting(self, sub_id: int) -> bool:
+        """Whether a data fault of subtask ``sub_id`` waits to run again in this run."""
+        return self._faults_left[sub_id] > 0
+
+    def _sources(self, original: Subtask) -> dict[str, tuple[StoredBoxes, bool, str]]:
+        """The originals' outputs by frame, whether the system failed on each, and its data fault's
+        message ("" for none)."""
         with self.store.session() as s:
             rows = s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.failure).where(
                 FrameResult.subtask_id == original.id))
-            return {f: (detections, failure is not None) for f, detections, failure in rows}
+            return {f: (detections, failure is not None,
+                        failure.message if failure is not None and failure.kind == DATA_FAULT else "")
+                    for f, detections, failure in rows}
 
     def _units(self, subtasks: Iterable[Subtask], done: set[tuple[int, str, int]],
-               sources: dict[str, tuple[StoredBoxes, bool]],
+               sources: dict[str, tuple[StoredBoxes, bool, str]],
                block: list[str]) -> Iterator[WorkUnit]:
         """Pending units of ``subtasks`` on a block of frames, subtask by subtask."""
         for sub in subtasks:
@@ -119,9 +149,9 @@ class _Run:
                     if is_original:
                         yield WorkUnit(sub.id, frame_id, trial, None, sub.op_index, self.task.seed, label)
                         continue
-                    output, failed = sources.get(frame_id, (None, True))
+                    output, failed, fault = sources.get(frame_id, (None, True, ""))
                     yield WorkUnit(sub.id, frame_id, trial, sub.operator, sub.op_index, self.task.seed, label,
-                                   relations, output, failed)
+                                   relations, output, failed, source_fault=fault)
 
     # -- DeepTest's MSE_orig ----------------------------------------------------------
     @staticmethod
@@ -166,7 +196,7 @@ class _Run:
         """Rows of the findings table: a failure, and per violated relation one per class."""
         findings = []
         failure = result.failure
-        if failure is not None and failure.kind not in TOOL_ERRORS:  # lidarfuzz's own errors are not findings
+        if failure is not None and failure.kind not in NOT_THE_SYSTEM:  # nor lidarfuzz's errors nor data faults
             findings.append(dict(task_id=self.task.id, frame_result_id=frame_result_id, cls="", magnitude=None,
                                  kind=failure.kind, message=failure.message, detail={"detail": failure.detail},
                                  replay=self._replay(result)))
@@ -192,14 +222,21 @@ class _Run:
         start = time.perf_counter()
         unit = result.unit
         fingerprint = self.task.model.fingerprint
+        replaced = self._faults.get(result.key)  # a data fault run again: its row is rewritten in place
         try:
             connection = self._connection
             with connection.begin():
-                row_id = connection.execute(self._insert_result, {
-                    "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
-                    "params": result.params, **result.box_columns(), "failure": result.failure,
-                    "relations": result.relations, "seconds": result.seconds, "cached": result.cached,
-                    "created_at": now()}).scalar_one()
+                values = {"params": result.params, **result.box_columns(), "failure": result.failure,
+                          "relations": result.relations, "seconds": result.seconds, "cached": result.cached,
+                          "created_at": now()}
+                if replaced is not None:
+                    connection.execute(self._drop_findings, {"row": replaced})
+                    connection.execute(self._replace_result, {"row": replaced, **values})
+                    row_id = replaced
+                else:
+                    row_id = connection.execute(self._insert_result, {
+                        "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
+                        **values}).scalar_one()
                 findings = self._findings(result, row_id)
                 if findings:
                     connection.execute(self._insert_finding, findings)
@@ -208,14 +245,19 @@ class _Run:
                     connection.execute(self._cache_insert, {
                         "fingerprint": fingerprint, "digest": result.input_key, **detections.columns(),
                         "seconds": result.seconds})
-                connection.execute(self._bump_subtask, {"subtask": unit.subtask_id})
-                connection.execute(self._bump_task, {"task": self.task.id, "now": now()})
+                if replaced is None:  # a replaced fault was counted already
+                    connection.execute(self._bump_subtask, {"subtask": unit.subtask_id, "now": now()})
+                    connection.execute(self._bump_task, {"task": self.task.id, "now": now()})
         except IntegrityError:
             return False  # another run stored this unit first
         finally:
             self.stats.store += time.perf_counter() - start
-        self.done[unit.subtask_id] += 1
-        self.task_done += 1
+        if replaced is not None:
+            del self._faults[result.key]
+            self._faults_left[unit.subtask_id] -= 1
+        else:
+            self.done[unit.subtask_id] += 1
+            self.task_done += 1
         self.stats.units += 1
         self.stats.cached += int(result.cached)
         self.stats.failures += int(result.failure is not None)
@@ -224,14 +266,15 @@ class _Run:
             self.stats.stages[stage] += seconds
         return True
 
-    def consume(self, results: Iterator[UnitResult]) -> None:
-        for result in results:
+    def consume(self, units: Iterable[WorkUnit]) -> None:
+        """Run ``units``, storing their results in the units' order (see the module docstring)."""
+        for result in in_unit_order(self.executor, units):
             self.commit(result)
             sub = self.subtasks[result.unit.subtask_id]
             if self.progress is not None:
                 self.progress(ProgressEvent(self.task_done, self.task.total, sub.id,
                                             subtask_label(sub.name, sub.severity), self.done[sub.id], sub.total))
-            if self.done[sub.id] >= sub.total:
+            if self.done[sub.id] >= sub.total and not self._waiting(sub.id):
                 self.finish(sub)
             self.watch.check()
 
@@ -249,7 +292,7 @@ class _Run:
             rows = list(s.execute(select(FrameResult.frame_id, FrameResult.detections, FrameResult.ground_truth,
                                          FrameResult.failure, FrameResult.relations, FrameResult.seconds,
                                          FrameResult.cached, FrameResult.params).where(
-                FrameResult.subtask_id == sub.id)))
+                FrameResult.subtask_id == sub.id).order_by(FrameResult.frame_id, FrameResult.trial)))
             operator = from_spec(row.operator) if row.operator else None
             row.results = evaluate_subtask(rows, self.calibration, operator=operator,
                                            unlabelled=self.task.options.unlabelled_frames)
@@ -262,17 +305,24 @@ class _Run:
                     Finding.kind == "deeptest_tolerance",
                     Finding.frame_result_id.in_(select(FrameResult.id).where(FrameResult.subtask_id == sub.id)),
                 ).values(message=literal(note) + Finding.message).execution_options(synchronize_session=False))
-            row.status = Status.DONE
+            row.status, row.finished_at = Status.DONE, now()
         self.stats.evaluate += time.perf_counter() - start
+
+    def open_dataset(self) -> Any:
+        """The task's data set in this process, opened once (at the start of :meth:`execute`, while its
+        files are as the workers found them: a file deleted later is a data fault of its units, not a
+        reason to stop the evaluation of the others)."""
+        if self._dataset is None:
+            from lidarfuzz.io.open import open_dataset
+            from lidarfuzz.io.options import DatasetOptions
+
+            self._dataset = open_dataset(self.task.dataset.path,
+                                         options=DatasetOptions.from_stored(self.task.dataset.options))
+        return self._dataset
 
     def calibration(self, frame_id: str) -> Any:
         if frame_id not in self._calibs:
-            if self._dataset is None:
-                from lidarfuzz.io.open import open_dataset
-                from lidarfuzz.io.options import DatasetOptions
-
-                self._dataset = open_dataset(self.task.dataset.path,
-                                             options=DatasetOptions.from_stored(self.task.dataset.options))
+            self.open_dataset()
             load_calib = getattr(self._dataset, "load_calib", None)
             self._calibs[frame_id] = load_calib(frame_id) if load_calib else self._dataset.load(frame_id).calib
         return self._calibs[frame_id]
@@ -290,20 +340,23 @@ class _Run:
         loaded about once per worker, and the subtasks still advance in turn."""
         subs = sorted(self.subtasks.values(), key=lambda x: (x.name != ORIGINAL, x.id))
         original = subs[0]
+        self.open_dataset()
         done = self._finished_keys()
         blocks = [self.frame_ids[start:start + BLOCK] for start in range(0, len(self.frame_ids), BLOCK)]
         originals_first = any(self._needs_mse_orig(spec) for sub in subs[1:] for spec in sub.plan.relation_specs)
         if originals_first:  # DeepTest's MSE_orig is over every original (see the module docstring)
             for block in blocks:
-                self.consume(self.executor.run(self._units([original], done, {}, block)))
+                self.consume(self._units([original], done, {}, block))
+            if any(fault for _, _, fault in self._sources(original).values()):
+                return  # MSE_orig would miss an original: the mutants wait for a resume that reads it
             self._compute_mse_orig(original, subs[1:])
         for block in blocks:
             if not originals_first:
-                self.consume(self.executor.run(self._units([original], done, {}, block)))
+                self.consume(self._units([original], done, {}, block))
             sources = self._sources(original)
-            self.consume(self.executor.run(self._units(subs[1:], done, sources, block)))
+            self.consume(self._units(subs[1:], done, sources, block))
         for sub in subs:
-            if self.done[sub.id] >= sub.total:
+            if self.done[sub.id] >= sub.total and not self._waiting(sub.id):
                 self.finish(sub)
 
     def summary(self) -> TaskSummary:

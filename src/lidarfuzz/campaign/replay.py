@@ -186,7 +186,7 @@ def replay_finding(store: Store, finding_id: int) -> Replay:
     with store.session() as s:
         finding = s.get(Finding, finding_id)
         if finding is None:
-            raise NotFoundError(f"no finding {finding_id} (lidarfuzz report TASK lists them)")
+            raise NotFoundError(f"no finding {finding_id}", cli="lidarfuzz report TASK lists them")
         row = s.get(FrameResult, finding.frame_result_id)
         assert row is not None
         original = s.scalar(select(FrameResult).join(Subtask).where(

@@ -9,7 +9,10 @@ rates per relation, operator, severity and class, the count form of MR1, DeepTes
 
 Detections are evaluated as KITTI results are: boxes outside the camera's view are left out,
 since labels exist only there. A frame where the system failed counts as one with no
-detections (every object missed).
+detections (every object missed); a frame with a data fault (it could not be read) is left out
+and counted apart (``tool_errors["data_error"]``), as lidarfuzz's own errors are. Frames are
+evaluated in (frame, trial) order, whatever order their results were stored in, so sums over them
+(AOS, DeepTest's MSE) come out to the same last digit on every run.
 """
 
 from __future__ import annotations
@@ -24,13 +27,13 @@ from sqlalchemy import func, select
 
 from lidarfuzz.campaign.lifecycle import get_task
 from lidarfuzz.campaign.plan import ORIGINAL, subtask_label
+from lidarfuzz.campaign.work import DATA_FAULT, NOT_THE_SYSTEM
 from lidarfuzz.operators.base import Relation
 from lidarfuzz.oracles.kitti_eval import CLASSES, DIFFICULTIES, KittiEvalResult, KittiFrame, evaluate_kitti
 from lidarfuzz.oracles.relations.base import RelationOutcome, Violation
 from lidarfuzz.oracles.robustness import RelationRecord, count_form_rates, robustness_summary, violation_rates
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.store.contracts import (
-    TOOL_ERRORS,
     APExcluded,
     APRecord,
     DatasetRef,
@@ -94,6 +97,10 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     part of the view the source had no labels for are not scored (:func:`labelled_region`), and
     when no labelled object is left in view at all the subtask has no AP (``None``: not 0).
 
+    Rows are taken in frame order (stably: pass them ordered by frame and trial, as the store's
+    query does), so the figures do not depend on the order results were stored in. A frame with a
+    data fault is counted in ``tool_errors`` and left out of everything else.
+
     Frames in ``unlabelled`` (no label file in a labelled data set, run with ``--allow-unlabelled``)
     are left out of AP — with no ground truth every detection there would count as a false
     positive — and counted in ``ap_excluded``; their relations and failures still count.
@@ -109,13 +116,15 @@ def evaluate_subtask(rows: Sequence[Any], calibration: Callable[[str], Any], *,
     tool_errors: dict[str, int] = defaultdict(int)
     seconds = 0.0
     regions: dict[str, set[str]] = defaultdict(set)
-    for frame_id, detected, truth, failure, relations, secs, was_cached, *more in rows:
-        if more and isinstance(more[0], Mapping) and more[0].get("region"):
-            regions[str(more[0]["region"])].add(frame_id)
-        if failure is not None and failure.kind in TOOL_ERRORS:
+    for frame_id, detected, truth, failure, relations, secs, was_cached, *more in sorted(rows, key=lambda r: r[0]):
+        if failure is not None and failure.kind in NOT_THE_SYSTEM:
             tool_errors[failure.kind] += 1
         else:
             failures += int(failure is not None)
+        if failure is not None and failure.kind == DATA_FAULT:
+            continue  # nothing was read: no output, no ground truth
+        if more and isinstance(more[0], Mapping) and more[0].get("region"):
+            regions[str(more[0]["region"])].add(frame_id)
         cached += int(bool(was_cached))
         seconds += float(secs or 0.0)
         for item in relations or []:
@@ -367,7 +376,9 @@ def top_findings(session: Any, task_id: int, limit: int = TOP_FINDINGS) -> list[
         select(Finding, FrameResult.frame_id, FrameResult.trial, Subtask.name, Subtask.severity).join(
             FrameResult, Finding.frame_result_id == FrameResult.id).join(
             Subtask, FrameResult.subtask_id == Subtask.id).where(Finding.task_id == task_id).order_by(
-            Finding.magnitude.desc().nulls_first(), Finding.id).limit(2000)).all()
+            # ties by unit, not id: the same choice however the store numbered them
+            Finding.magnitude.desc().nulls_first(), Subtask.id, FrameResult.frame_id, FrameResult.trial,
+            Finding.id).limit(2000)).all()
     chosen: list[TopFinding] = []
     per_group: Counter[tuple[str, str]] = Counter()
     for finding, frame_id, trial, name, severity in rows:

@@ -27,7 +27,8 @@ from lidarfuzz.campaign.lifecycle import (
     mark_running,
     recount,
 )
-from lidarfuzz.store.models import Task
+from lidarfuzz.store.claims import claim_task
+from lidarfuzz.store.models import Task, TaskClaim
 from lidarfuzz.store.store import Store
 
 
@@ -44,7 +45,8 @@ def describe_plan(task: Task) -> str:
 
 def run_task(store: Store, task_id: int, *, executor: Executor | None = None, workers: int | None = None,
              progress: Callable[[ProgressEvent], None] | None = None,
-             stop: threading.Event | None = None) -> RunOutcome:
+             stop: threading.Event | None = None, wait: bool = False, take_over: bool = False,
+             on_wait: Callable[[TaskClaim], object] | None = None) -> RunOutcome:
     """Run (or resume) task ``task_id`` to its end, committing every result as it is produced.
 
     Args:
@@ -53,9 +55,13 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
             of ``workers`` processes; a kind that runs in this process ignores it).
         progress: Called after every committed result.
         stop: Set it to stop the run cleanly (as ``lidarfuzz cancel`` does from outside).
+        wait, take_over, on_wait: When another process runs the task: wait for it, take its claim
+            anyway, say whom it waits for (:func:`lidarfuzz.store.claims.claim_task`; by default
+            :class:`~lidarfuzz.store.errors.TaskClaimedError` names it).
     """
     kind = implementation(get_task(store, task_id))
-    return drive(store, task_id, kind, RunOptions(executor, workers, progress, stop))
+    with claim_task(store, task_id, wait=wait, take_over=take_over, on_wait=on_wait):  # one runner per task
+        return drive(store, task_id, kind, RunOptions(executor, workers, progress, stop))
 
 
 __all__ = ["CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "describe_plan", "implementation",

@@ -35,19 +35,42 @@ A structural campaign (``kind: structural``, :mod:`lidarfuzz.campaign.structural
 
 from __future__ import annotations
 
+import json
 from os import PathLike
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from lidarfuzz.campaign.kinds import DEFAULT_KIND, TASK_KINDS, find_kind, task_kind
 from lidarfuzz.errors import DataFormatError, validation_error
+from lidarfuzz.io.guards import reading
+from lidarfuzz.io.textfiles import load_structured
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+class FieldError(ValueError):
+    """A problem at a key below the one pydantic reports (an operator's ``config.share_range.1``, or
+    one entry of the operator list): :func:`parse_campaign` names the whole path.
+
+    Args:
+        loc: The path below the reporting key (``("config", "share_range", 1)``).
+        message: What is wrong.
+    """
+
+    def __init__(self, loc: tuple[str | int, ...], message: str) -> None:
+        super().__init__(message)
+        self.loc, self.message = loc, message
+
+
+def _severity_setting(name: str, severity: int) -> str:
+    """The configuration ``severity`` gives operator ``name``, as comparable text."""
+    from lidarfuzz.operators import get
+
+    return json.dumps(get(name).at_severity(severity).config.model_dump(mode="json"), sort_keys=True)
 
 
 class OperatorChoice(_Model):
@@ -60,12 +83,12 @@ class OperatorChoice(_Model):
     @field_validator("name")
     @classmethod
     def _known(cls, name: str) -> str:
-        from lidarfuzz.operators import get
+        from lidarfuzz.operators import available, get
 
         try:
             return get(name).name
-        except KeyError as exc:
-            raise ValueError(str(exc)) from None
+        except KeyError:  # the registry's message ends in CLI advice; a campaign's error names the choices
+            raise ValueError(f"unknown operator {name!r}; known: {', '.join(sorted(available()))}") from None
 
     @field_validator("severities")
     @classmethod
@@ -79,11 +102,53 @@ class OperatorChoice(_Model):
 
     @model_validator(mode="after")
     def _config_builds(self) -> OperatorChoice:
+        """A config must build the operator: a field out of its range (a share above 1) is refused
+        at ``config.<field>``, as pydantic names it."""
         if self.config is not None:
             from lidarfuzz.operators import get
 
-            get(self.name)(**self.config)  # a bad field raises here, named by pydantic
+            try:
+                get(self.name)(**self.config)
+            except ValidationError as exc:
+                first = exc.errors()[0]
+                more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+                raise FieldError(("config", *first["loc"]), f"{self.name}: {first['msg']}{more}") from None
         return self
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_severities(cls, data: Any) -> Any:
+        """The default severities less those that configure the operator as an earlier one does
+        (``global_flip`` mirrors at every severity: severity 1 only)."""
+        if (not isinstance(data, dict) or "severities" in data or data.get("config") is not None
+                or not isinstance(data.get("name"), str)):
+            return data  # a name that is no string is refused by its own validator
+        from lidarfuzz.campaign.defaults import DEFAULT_SEVERITIES, distinct_severities
+
+        try:
+            return {**data, "severities": distinct_severities(data["name"], DEFAULT_SEVERITIES)}
+        except (KeyError, TypeError):
+            return data  # an unknown name is refused by its own validator
+
+    @model_validator(mode="after")
+    def _distinct_severities(self) -> OperatorChoice:
+        """Severities that configure the operator the same way (a mirror is a mirror at every
+        severity) would run the same mutants twice: refused, naming the operator."""
+        if self.config is not None:
+            return self
+        settings: dict[str, int] = {}
+        same: list[int] = []
+        for severity in self.severities:
+            key = _severity_setting(self.name, severity)
+            if key in settings:
+                same.append(severity)
+            else:
+                settings[key] = severity
+        if not same:
+            return self
+        first = min(settings.values())
+        raise FieldError(("severities",), f"{self.name} is configured the same way at severities "
+                                            f"{', '.join(map(str, sorted([first, *same])))}: give one of them")
 
 
 class RelationChoice(_Model):
@@ -119,7 +184,7 @@ class CampaignSpec(_Model):
         default_factory=dict, description="guided / fuzz: budget, criteria, guide, max_failed_tries, batch, ...")
     relations: Literal["auto"] | list[str | RelationChoice] = Field(
         default="auto", description="auto, or relation names and {name, config} entries")
-    seed: int = 0
+    seed: int = Field(default=0, ge=0)  # numpy's SeedSequence takes non-negative integers only
     trials: int = Field(default=1, ge=1, le=100, description="mutants per frame and severity")
     frames: int | None = Field(default=None, ge=1, description="only N frames (see frame_order)")
     pilot: int | None = Field(
@@ -194,7 +259,29 @@ class CampaignSpec(_Model):
                 modality = get(choice.name).modality
                 if modality != kind.modality:
                     raise ValueError(f"{choice.name} is a {modality} operator; a {kind.name} campaign runs on "
-                                     f"{kind.modality} data (lidarfuzz operators --modality {kind.modality})")
+                                     f"{kind.modality} data: choose {kind.modality} operators")
+        return value
+
+    @field_validator("operators")
+    @classmethod
+    def _no_duplicates(cls, value: list[OperatorChoice]) -> list[OperatorChoice]:
+        """The same operator with the same config, or at a severity an earlier entry has, would run
+        the same mutants twice: refused, naming the operator and the entries."""
+        seen: dict[tuple[str, str], int] = {}
+        for index, choice in enumerate(value):
+            if choice.config is not None:
+                from lidarfuzz.operators import get
+
+                setting = get(choice.name)(**choice.config).config.model_dump(mode="json")
+                keys = [(choice.name, "config " + json.dumps(setting, sort_keys=True))]
+            else:
+                keys = [(choice.name, f"severity {severity}") for severity in choice.severities]
+            for key in keys:
+                if key in seen:
+                    what = "with this config" if choice.config is not None else f"at {key[1]}"
+                    raise FieldError((index,), f"{choice.name} {what} is in entry {seen[key]} already: a "
+                                               f"duplicate configuration runs the same mutants twice")
+                seen[key] = index
         return value
 
     @model_validator(mode="after")
@@ -219,23 +306,26 @@ def parse_campaign(data: Any, source: str | PathLike[str] = "<campaign>") -> Cam
     """Validate a mapping as a campaign; errors name the offending key."""
     if not isinstance(data, dict):
         raise DataFormatError(source, "a campaign must be a mapping with keys dataset, sut, operators, …")
-    try:
-        return CampaignSpec.model_validate(data)
-    except ValidationError as exc:
-        raise validation_error(source, exc) from None
+    with reading(source, "read the campaign"):  # what pydantic's validators do not turn into errors
+        try:
+            return CampaignSpec.model_validate(data)
+        except ValidationError as exc:
+            raise _named(source, exc) from None
+
+
+def _named(source: str | PathLike[str], exc: ValidationError) -> DataFormatError:
+    """The first error as a DataFormatError naming its whole key path: a :class:`FieldError`'s
+    path below the key pydantic reports is added (``operators.0.config.share_range.1``)."""
+    first = exc.errors()[0]
+    problem = (first.get("ctx") or {}).get("error")
+    if not isinstance(problem, FieldError):
+        return validation_error(source, exc)
+    where = ".".join(str(part) for part in (*first["loc"], *problem.loc))
+    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    return DataFormatError(source, f"{problem.message}{more}", field=where)
 
 
 def load_campaign(path: str | PathLike[str]) -> CampaignSpec:
     """Read a campaign file (YAML or JSON)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFormatError(path, f"cannot read the campaign file: {exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(exc, 'problem', exc)}", line=line) from None
-    return parse_campaign(data, path)
+    return parse_campaign(load_structured(path, "a campaign file"), path)

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
-from sqlalchemy import insert, select, update
+from sqlalchemy import func, insert, select, update
 
 from lidarfuzz.campaign.lifecycle import ProgressEvent, RunOptions, RunStats, Watch, now
 from lidarfuzz.campaign.plan import ORIGINAL, KindPlan, SubtaskPlan
@@ -540,7 +540,8 @@ class _StructuralRun:
         for finding in findings:
             session.execute(insert(Finding), {**finding, "task_id": self.task.id, "frame_result_id": result_id})
         session.execute(update(Subtask).where(Subtask.id == unit.sub.id).values(
-            done=Subtask.done + 1, status=Status.RUNNING))
+            done=Subtask.done + 1, status=Status.RUNNING,
+            started_at=func.coalesce(Subtask.started_at, now())))  # set once: its first unit
         session.execute(update(Task).where(Task.id == self.task.id).values(done=Task.done + 1, heartbeat_at=now()))
 
     # -- relations ---------------------------------------------------------------------
@@ -655,6 +656,8 @@ def finish_subtasks(store: Store, task_id: int) -> None:
             failures = sum(len((output or {}).get("failures", {})) for output, _ in rows)
             sub.results = SubtaskResults(frames=len(rows), failures=failures,
                                          sut_seconds=float(sum(seconds or 0.0 for _, seconds in rows)))
+            if sub.status != Status.DONE or sub.finished_at is None:
+                sub.finished_at = now()
             sub.status = Status.DONE
 
 

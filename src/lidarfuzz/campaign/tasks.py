@@ -13,11 +13,13 @@ they are importable from here too.
 from __future__ import annotations
 
 import hashlib
+import json
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import func, select
-from sqlalchemy.orm import defer, joinedload
+from sqlalchemy import Float, String, Text, cast, func, or_, select
+from sqlalchemy.orm import contains_eager, defer
 
 from lidarfuzz.campaign.kinds import task_kind
 from lidarfuzz.campaign.lifecycle import (
@@ -52,7 +54,7 @@ def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None, *, mod
     if row is None:
         path = Path(ref).expanduser()
         if not path.exists():
-            raise StoreError(f"{ref}: neither a registered data set (lidarfuzz datasets list) nor a path")
+            raise StoreError(f"{ref}: neither a registered data set nor a path", cli="lidarfuzz datasets list")
         resolved = path.resolve()
         rows = s.scalars(select(Dataset).where(Dataset.path == str(resolved)).order_by(Dataset.id))
         row = next((r for r in rows if dataset_options(r).modality == modality), None)
@@ -72,12 +74,13 @@ def _dataset_row(s: Any, ref: str, options: DatasetOptions | None = None, *, mod
     stored = dataset_options(row)
     if stored.modality != modality:
         raise ConflictError(f"data set {row.name!r} holds {stored.modality} frames; a {modality} campaign needs "
-                            f"{modality} data (register it with lidarfuzz datasets add --modality {modality})")
+                            f"{modality} data; register it as {modality} data",
+                            cli=f"lidarfuzz datasets add --modality {modality}")
     for field in ("layout", "intensity_scale", "roi_map"):
         value = getattr(given, field)
         if value is not None and value != getattr(stored, field):
             raise ConflictError(f"data set {row.name!r} is registered with {field} {getattr(stored, field)!r}, not "
-                               f"{value!r}; register it again under another name (lidarfuzz datasets add)")
+                               f"{value!r}; register it again under another name", cli="lidarfuzz datasets add")
     return row
 
 
@@ -155,7 +158,25 @@ def create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any]
     ``dataset_options`` (the CLI's ``--layout``, ``--allow-unlabelled``) register a data set given
     by path; ``allow_unlabelled`` also lets a registered one run with frames that have no labels.
     ``pilot``: what a pilot changed in ``spec`` (:mod:`lidarfuzz.campaign.pilot`), kept with the task.
+
+    Two processes creating campaigns on one data set or model at once both register it: the
+    one that loses (a name taken meanwhile, or SQLite's stale snapshot) plans again and finds it.
     """
+    from sqlalchemy.exc import IntegrityError, OperationalError
+
+    for attempt in range(3):
+        try:
+            return _create_task(store, spec, sut_options=sut_options, isolate=isolate, timeout=timeout,
+                                save_mutants=save_mutants, dataset_options=dataset_options, pilot=pilot)
+        except (IntegrityError, OperationalError) as exc:
+            if attempt == 2 or (isinstance(exc, OperationalError) and "locked" not in str(exc)):
+                raise
+    raise AssertionError("unreachable")
+
+
+def _create_task(store: Store, spec: CampaignSpec, *, sut_options: dict[str, Any] | None,
+                 isolate: bool, timeout: float, save_mutants: str | None,
+                 dataset_options: DatasetOptions | None, pilot: PilotNote | None) -> int:
     from lidarfuzz.store.inventory import dataset_options as stored_options
     from lidarfuzz.store.inventory import open_registered
 
@@ -223,44 +244,116 @@ def _add_task(s: Any, spec: CampaignSpec, name: str, dataset: Dataset, model: Mo
     return task
 
 
+#: What the task list sorts by: a key of :func:`list_tasks`'s ``sort`` → the column (``dataset`` and
+#: ``model``: the names; the headline figures: :mod:`lidarfuzz.campaign.headline`'s, read from the JSON).
+SORT_KEYS: tuple[str, ...] = ("id", "name", "status", "dataset", "model", "created", "started", "finished",
+                              "progress", "map", "delta_map", "violations", "violation_rate", "failures")
+#: Headline figures sortable in SQL: JSON_EXTRACT on SQLite, ``->>`` on PostgreSQL (SQLAlchemy's JSON index).
+HEADLINE_SORTS: tuple[str, ...] = ("map", "delta_map", "violations", "violation_rate", "failures")
+
+
+@dataclass(frozen=True)
+class TaskQuery:
+    """Which tasks a list shows and in what order.
+
+    Attributes:
+        status: Only tasks in this state.
+        text: Only tasks whose name, data set, model, status, tags or notes contain it (any case).
+        tags: Only tasks carrying every one of these tags.
+        sort: A key of :data:`SORT_KEYS`, ``-`` first for descending; ties go newest first. A task
+            without the figure (not done, or no AP) comes last either way.
+    """
+
+    status: Status | str | None = None
+    text: str = ""
+    tags: tuple[str, ...] = ()
+    sort: str = "-id"
+
+
+def _sort_column(key: str) -> Any:
+    if key in HEADLINE_SORTS:
+        return Task.headline[key].as_float()
+    columns = {"id": Task.id, "name": func.lower(Task.name), "status": Task.status, "dataset": func.lower(Dataset.name),
+               "model": func.lower(Model.name), "created": Task.created_at, "started": Task.started_at,
+               "finished": Task.finished_at, "progress": cast(Task.done, Float) / func.nullif(Task.total, 0)}
+    return columns[key]
+
+
+def _filtered(query: Any, spec: TaskQuery) -> Any:
+    """``query`` (joined with the data set and model) restricted to what ``spec`` asks for."""
+    if spec.status:
+        query = query.where(Task.status == Status(spec.status))
+    text = spec.text.strip()
+    if text:
+        fields = [Task.name, Dataset.name, Model.name, cast(Task.status, String), cast(Task.tags, Text), Task.notes]
+        query = query.where(or_(*(func.lower(f).contains(text.lower(), autoescape=True) for f in fields)))
+    for tag in spec.tags:  # a JSON list of strings: the tag in quotes matches it whole
+        query = query.where(cast(Task.tags, Text).contains(json.dumps(tag), autoescape=True))
+    return query
+
+
+def _ordered(query: Any, sort: str) -> Any:
+    descending = sort.startswith("-")
+    key = sort.lstrip("-+")
+    if key not in SORT_KEYS:
+        raise ValueError(f"sort: {sort!r} is not one of {', '.join(SORT_KEYS)} (- first for descending)")
+    column = _sort_column(key)
+    if key == "id":
+        return query.order_by(Task.id.desc() if descending else Task.id.asc())
+    # a task without the figure last either way: NULLS LAST is spelt the same on SQLite and PostgreSQL
+    ordered = column.desc().nulls_last() if descending else column.asc().nulls_last()
+    return query.order_by(ordered, Task.id.desc())
+
+
 def list_tasks(store: Store, limit: int | None = None, *, offset: int = 0,
-               status: Status | str | None = None) -> list[Task]:
-    """Tasks, newest first, with their data set and model loaded (the summary is not: it can be
-    large, and a listing does not show it).
+               status: Status | str | None = None, query: TaskQuery | None = None) -> list[Task]:
+    """Tasks, newest first (or as ``query`` sorts), with their data set and model loaded (the
+    summary is not: it can be large, and a listing does not show it). Finished tasks without
+    headline figures get them first (:func:`lidarfuzz.campaign.headline.fill_headlines`).
 
     Args:
         store: The campaign store.
         limit: At most this many (all when None or 0).
-        offset: Skip the newest ``offset`` first (pages).
-        status: Only tasks in this state.
+        offset: Skip the first ``offset`` (pages).
+        status: Only tasks in this state (``query.status`` too).
+        query: Filters and order, done in SQL (:class:`TaskQuery`).
+
+    Raises:
+        ValueError: An unknown sort key (the message names ``sort`` and the keys).
     """
+    from lidarfuzz.campaign.headline import fill_headlines
+
+    spec = query or TaskQuery()
+    if status is not None:
+        spec = replace(spec, status=status)
+    fill_headlines(store)
     with store.session() as s:
-        query = select(Task).options(defer(Task.summary), joinedload(Task.dataset), joinedload(Task.model))
-        if status is not None:
-            query = query.where(Task.status == Status(status))
-        query = query.order_by(Task.id.desc()).offset(offset or None)
+        select_ = (select(Task).join(Task.dataset).join(Task.model)
+                   .options(defer(Task.summary), contains_eager(Task.dataset), contains_eager(Task.model)))
+        select_ = _ordered(_filtered(select_, spec), spec.sort).offset(offset or None)
         if limit:
-            query = query.limit(limit)
-        return list(s.scalars(query))
+            select_ = select_.limit(limit)
+        return list(s.scalars(select_))
 
 
-def count_tasks(store: Store, status: Status | str | None = None) -> int:
-    """How many tasks there are (in ``status``, when given)."""
+def count_tasks(store: Store, status: Status | str | None = None, *, query: TaskQuery | None = None) -> int:
+    """How many tasks there are (matching ``query``, in ``status``, when given)."""
+    spec = query or TaskQuery()
+    if status is not None:
+        spec = replace(spec, status=status)
     with store.session() as s:
-        query = select(func.count()).select_from(Task)
-        if status is not None:
-            query = query.where(Task.status == Status(status))
-        return int(s.scalar(query) or 0)
+        select_ = select(func.count(Task.id)).select_from(Task).join(Task.dataset).join(Task.model)
+        return int(s.scalar(_filtered(select_, spec)) or 0)
 
 
 def delete_task(store: Store, task_id: int) -> None:
     with store.session() as s:
         task = task_row(s, task_id)
         if task.status == Status.RUNNING:
-            raise ConflictError(f"task {task_id} is running; cancel it first (lidarfuzz cancel {task_id})")
+            raise ConflictError(f"task {task_id} is running; stop it first", cli=f"lidarfuzz cancel {task_id}")
         s.delete(task)
 
 
-__all__ = ["ORIGINAL", "STALE_AFTER", "campaign_frames", "cancel_task", "count_tasks", "create_task", "delete_task",
-           "get_task", "heartbeat_age", "list_tasks", "looks_alive", "operator_key", "relations_for", "subtask_label",
-           "unlabelled_frames"]
+__all__ = ["ORIGINAL", "SORT_KEYS", "STALE_AFTER", "TaskQuery", "campaign_frames", "cancel_task", "count_tasks",
+           "create_task", "delete_task", "get_task", "heartbeat_age", "list_tasks", "looks_alive", "operator_key",
+           "relations_for", "subtask_label", "unlabelled_frames"]

@@ -5,6 +5,12 @@ A :class:`Worker` holds what every unit of a task needs — the data set, the sy
 never writes to the store: the runner, a single writer, commits results as they arrive, so
 any executor (inline, a process pool, later a cluster) can run workers.
 
+A frame that cannot be read (a file deleted, unreadable or malformed mid-run: any error while loading
+the source frame, or while a worker opens the data set) is a *data fault* (:data:`DATA_FAULT`): recorded
+on its unit, never a failure of the system under test, never a finding, left out of AP, and run
+again by ``lidarfuzz resume`` — as are the mutants of an original that had one (their relations need
+its output).
+
 The SUT's outputs are cached by the system's fingerprint and an *input key*: the digest of
 the source frame's content (points, calibration, ROI, frame id, timestamp) for an original,
 and that digest with the operator's spec and concrete params for a mutant (params make a
@@ -27,8 +33,13 @@ import numpy as np
 
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.store.boxes import StoredBoxes
-from lidarfuzz.store.contracts import FailureRecord, OutcomeRecord
+from lidarfuzz.store.contracts import TOOL_ERRORS, FailureRecord, OutcomeRecord
 from lidarfuzz.store.types import json_safe
+
+#: The failure kind of a unit whose frame could not be read (see the module docstring).
+DATA_FAULT = "data_error"
+#: Failure kinds that are never the system under test's: lidarfuzz's own errors and data faults.
+NOT_THE_SYSTEM: tuple[str, ...] = (*TOOL_ERRORS, DATA_FAULT)
 
 
 @dataclass(frozen=True)
@@ -62,6 +73,7 @@ class WorkUnit:
     source_failed: bool = False
     params: dict[str, Any] | None = None  # exact params (a replay) instead of drawing them
     operator_relation: str | None = None  # overrides the operator's own (a search's valid tests: invariant)
+    source_fault: str = ""  # the original of this frame had a data fault (its message): so has this unit
 
 
 @dataclass
@@ -85,6 +97,12 @@ class UnitResult:
     @property
     def key(self) -> tuple[int, str, int]:
         return self.unit.subtask_id, self.unit.frame_id, self.unit.trial
+
+
+def data_fault(unit: WorkUnit, exc: BaseException | str) -> UnitResult:
+    """The result of ``unit`` when its frame cannot be read (``exc``: the error, or a message)."""
+    message = exc if isinstance(exc, str) else f"{type(exc).__name__}: {exc}"
+    return UnitResult(unit, failure=FailureRecord(kind=DATA_FAULT, message=f"frame {unit.frame_id}: {message}"))
 
 
 def content_digest(scene: Scene) -> str:
@@ -226,10 +244,15 @@ class Worker:
     def run(self, unit: WorkUnit) -> UnitResult:
         """Load the source frame, mutate it, detect (or find the output cached), check the
         relations and save the mutant — each step timed in ``result.timings``."""
+        if unit.source_fault:
+            return data_fault(unit, f"its original had a data fault — {unit.source_fault}")
         result = UnitResult(unit)
         timings = result.timings
         t0 = time.perf_counter()
-        source = self.load(unit.frame_id)
+        try:
+            source = self.load(unit.frame_id)
+        except Exception as exc:  # the data, not the system: a data fault, run again on resume
+            return data_fault(unit, exc)
         timings["load"] = time.perf_counter() - t0
         mutated = self._mutate(unit, source, result)
         if mutated is None:

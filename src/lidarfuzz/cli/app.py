@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 import warnings
-from typing import Annotated, TextIO
+from typing import Annotated, Any, TextIO
 
 import typer
 from rich.markup import escape
@@ -128,16 +128,56 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
         _python_show_warning(message, category, filename, lineno, file, line)
 
 
+def _fail(message: str, code: int) -> None:
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    sys.exit(code)
+
+
+def _click_errors() -> tuple[type[Any], type[Any], type[Any]]:
+    """Click's UsageError, ClickException and NoArgsIsHelpError, from whichever click Typer uses
+    (recent Typer carries its own copy; older ones use the click package)."""
+    bases = {cls.__name__: cls for cls in typer.BadParameter.__mro__}
+    usage, click_error = bases["UsageError"], bases["ClickException"]
+    no_args = getattr(sys.modules[usage.__module__], "NoArgsIsHelpError", None)
+    return usage, click_error, no_args or type("_Never", (Exception,), {})
+
+
 def main() -> None:
-    """Entry point: user-facing errors become one clear line and exit code 2, not a traceback."""
+    """Entry point: user-facing errors become one clear line, not a traceback: exit code 2 for what
+    the user gave, 1 for a failing disk (full, over quota, read-only, I/O error: what is stored is
+    kept, and the line says what to do)."""
+    usage_error, click_error, no_args = _click_errors()
     previous, warnings.showwarning = warnings.showwarning, _show_warning
     try:
-        app()
+        # click's exits come back as codes, its errors as exceptions
+        code = app(standalone_mode=False, prog_name="lidarfuzz")
+    except no_args as exc:  # `lidarfuzz` alone: the help, as click shows it
+        exc.show()
+        sys.exit(exc.exit_code)
+    except usage_error as exc:  # a bad option or value: one line naming it, not a usage box
+        where = exc.ctx.command_path if exc.ctx is not None else "lidarfuzz"
+        _fail(f"{where}: {exc.format_message()} ({where} --help)", exc.exit_code)
+    except click_error as exc:
+        _fail(exc.format_message(), exc.exit_code)
+    except typer.Abort:  # Ctrl-C or end of input at a prompt
+        err_console.print("Aborted.", highlight=False)
+        sys.exit(130)
     except LidarfuzzError as exc:
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+        from lidarfuzz.store.errors import StorageError
+
+        _fail(str(exc), 1 if isinstance(exc, StorageError) else 2)
     except OSError as exc:  # permission denied, disk full, ...: the OS message names the file
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+        from lidarfuzz.store.errors import storage_error
+
+        failure = storage_error(exc)
+        _fail(str(failure or exc), 1 if failure else 2)
+    except Exception as exc:  # a database's own error for a failing disk ("database or disk is full")
+        from lidarfuzz.store.errors import storage_error
+
+        if (failure := storage_error(exc)) is None:
+            raise
+        _fail(str(failure), 1)
+    else:  # as click's standalone mode ends: always through SystemExit (0 when a command returned nothing)
+        sys.exit(code if isinstance(code, int) else 0)
     finally:
         warnings.showwarning = previous

@@ -20,6 +20,8 @@ from lidarfuzz.cli.common import (
     PlainOption,
     WorkspaceOption,
     console,
+    disk_failures,
+    err_console,
     open_store,
     print_listing,
     print_table,
@@ -34,6 +36,13 @@ KIND_HELP = "; ".join(f"{kind.name}: {kind.help}" for kind in TASK_KINDS) + (
 
 WorkersOption = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
 InlineOption = Annotated[bool, typer.Option(help="Run every unit in this process (no pool; for debugging).")]
+
+
+def _shown(text: str) -> str:
+    """A user's name or note for the terminal: control characters escaped, then Rich markup."""
+    from lidarfuzz.store.inventory import printable
+
+    return escape(printable(text, newlines=True))
 
 
 def parse_op(text: str) -> dict[str, Any]:
@@ -57,8 +66,13 @@ def _age(moment: datetime | None) -> float | None:
 
 
 def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, show_progress: bool = True,
-            report: bool = True, gates: list[str] | None = None) -> int:
-    """Run a task with progress bars, print its tables and write its report; returns an exit code."""
+            report: bool = True, gates: list[str] | None = None, wait: bool = False, take_over: bool = False) -> int:
+    """Run a task with progress bars, print its tables and write its report; returns an exit code.
+
+    The run holds the task's claim (one runner per task): another process running it refuses
+    this one with a line naming it, unless ``wait`` (wait for it to end) or ``take_over``. A
+    failing disk stops it with one line; what is stored stays, and the line says how to go on.
+    """
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -73,10 +87,10 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
     from lidarfuzz.campaign.tasks import get_task
     from lidarfuzz.store.models import Status
 
-    store = open_store(workspace)
+    store = open_store(workspace, writes=f"running task {task_id}")
     task = get_task(store, task_id)
     plan = describe_plan(task)
-    console.print(f"task [bold]{task_id}[/]: {escape(task.model.name)} on {escape(task.dataset.name)}, "
+    console.print(f"task [bold]{task_id}[/]: {_shown(task.model.name)} on {_shown(task.dataset.name)}, "
                   f"{plan}, {task.total} units ({task.done} done before)")
     columns = (TextColumn("{task.description:<28}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
@@ -92,8 +106,15 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
             bars.update(current, completed=event.subtask_done)
             bars.update(overall, completed=event.task_done)
 
+        def on_wait(claim: Any) -> None:
+            console.print(f"task {task_id} is being run by process {claim.pid} on {escape(claim.host)} since "
+                          f"{claim.claimed_at:%Y-%m-%d %H:%M:%S} UTC: waiting for it")
+
         try:
-            outcome = run_task(store, task_id, executor=make_executor(workers, inline), progress=on_progress)
+            with disk_failures(f"what is stored is kept: lidarfuzz resume {task_id} finishes the task",
+                               store.file or store.where):
+                outcome = run_task(store, task_id, executor=make_executor(workers, inline), progress=on_progress,
+                                   wait=wait, take_over=take_over, on_wait=on_wait)
         except KeyboardInterrupt:
             console.print(f"\ninterrupted; what is done is stored. Finish with: lidarfuzz resume {task_id}")
             return 130
@@ -105,7 +126,12 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
         print_comparisons(store, task_id)
     code = 0
     if report:
-        code = write_report(store, task_id, reports_dir(workspace, task_id), gates or [])
+        with disk_failures(f"the task is done and stored: lidarfuzz report {task_id} writes its report"):
+            code = write_report(store, task_id, reports_dir(workspace, task_id), gates or [])
+    if outcome.status == Status.FAILED:  # e.g. data faults: what ran is shown and reported, the run did not finish
+        error = get_task(store, task_id).error or "the task failed"
+        err_console.print(f"[bold red]error:[/] task {task_id}: {_shown(error)}", highlight=False, soft_wrap=True)
+        code = code or 1
     return code
 
 
@@ -263,7 +289,7 @@ def run(
                               "command line")
     if pilot is not None:
         spec = spec.model_copy(update={"pilot": pilot})
-    store = open_store(workspace)
+    store = open_store(workspace, writes="lidarfuzz run")
     sut_options = parse_assignments(option or [])
     dataset_options = options_from_flags(layout, allow_unlabelled)
     note = None
@@ -290,35 +316,40 @@ def resume(
     task: Annotated[int, typer.Argument(help="Task id (lidarfuzz list).")],
     workers: WorkersOption = None,
     inline: InlineOption = False,
-    force: Annotated[bool, typer.Option(help="Resume even if another process seems to be running it.")] = False,
+    force: Annotated[bool, typer.Option(help="Resume even if another process seems to be running it (its "
+                                             "claim on the task is taken over).")] = False,
+    wait: Annotated[bool, typer.Option(help="When another process runs the task, wait for it to end (or die), "
+                                            "then finish what is left, instead of refusing.")] = False,
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
-    """Finish an interrupted, cancelled or failed task: only units without a result run."""
-    from lidarfuzz.campaign.tasks import get_task, heartbeat_age, looks_alive
+    """Finish an interrupted, cancelled or failed task: only units without a result run.
+
+    One process runs a task at a time: while another runs it (``lidarfuzz status`` names it),
+    resume refuses with a line naming that process, or with --wait waits for it. A process that
+    died leaves a claim that is taken over (at once on the same host, else 30 s after its last
+    heartbeat).
+    """
+    from lidarfuzz.campaign.tasks import get_task
     from lidarfuzz.store.models import Status
 
-    row = get_task(open_store(workspace), task)
+    row = get_task(open_store(workspace, writes=f"lidarfuzz resume {task}"), task)
     if row.status == Status.DONE:
         console.print(f"task {task} is done already (lidarfuzz report {task})")
         return
-    age = heartbeat_age(row) or 0.0
-    if looks_alive(row) and not force:
-        raise LidarfuzzError(f"task {task} looks alive: {row.worker} reported {age:.0f} s ago "
-                             f"(--force to resume anyway)")
-    raise typer.Exit(execute(workspace, task, workers=workers, inline=inline))
+    raise typer.Exit(execute(workspace, task, workers=workers, inline=inline, wait=wait, take_over=force))
 
 def cancel(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     """Stop a task cleanly (a running one stops within a second; what is done stays)."""
     from lidarfuzz.campaign.tasks import cancel_task
 
-    status = cancel_task(open_store(workspace), task)
+    status = cancel_task(open_store(workspace, writes="lidarfuzz cancel"), task)
     console.print(f"task {task}: {status.value}")
 
 def delete(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     """Delete a task and its results (the data set and model stay)."""
     from lidarfuzz.campaign.tasks import delete_task
 
-    delete_task(open_store(workspace), task)
+    delete_task(open_store(workspace, writes="lidarfuzz delete"), task)
     console.print(f"deleted task {task}")
 
 def list_tasks_command(limit: Annotated[int, typer.Option(help="Newest N tasks.")] = 50,
@@ -333,14 +364,15 @@ def list_tasks_command(limit: Annotated[int, typer.Option(help="Newest N tasks."
         share = f"{t.done}/{t.total} ({100 * t.done / t.total:.0f}%)" if t.total else "0/0"
         rows.append([str(t.id), t.name, t.status.value, t.dataset.name, t.model.name, str(len(t.operators)), share,
                      f"{t.started_at:%Y-%m-%d %H:%M}" if t.started_at else "",
-                     f"{t.finished_at:%Y-%m-%d %H:%M}" if t.finished_at else ""])
+                     f"{t.finished_at:%Y-%m-%d %H:%M}" if t.finished_at else "", ", ".join(t.tags or [])])
         records.append({"id": t.id, "name": t.name, "status": t.status.value, "dataset": t.dataset.name,
                         "model": t.model.name, "subtasks": len(t.operators), "done": t.done, "total": t.total,
                         "started": t.started_at.isoformat() if t.started_at else None,
-                        "finished": t.finished_at.isoformat() if t.finished_at else None})
+                        "finished": t.finished_at.isoformat() if t.finished_at else None,
+                        "tags": list(t.tags or [])})
     columns = [Column("id", justify="right"), Column("name", name=True), Column("status"),
                Column("data set", name=True), Column("SUT", name=True), Column("subtasks"), Column("progress"),
-               Column("started"), Column("finished")]
+               Column("started"), Column("finished"), Column("tags")]
     print_listing(columns, rows, records, as_json=as_json, plain=plain)
 
 
@@ -350,17 +382,23 @@ def status(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     from sqlalchemy import func, select
 
     from lidarfuzz.campaign.tasks import get_task, subtask_label
+    from lidarfuzz.store.claims import holder, is_dead
     from lidarfuzz.store.models import Finding, Status
 
     store = open_store(workspace)
     row = get_task(store, task)
     age = _age(row.heartbeat_at)
     alive = f", {row.worker}, last heartbeat {age:.0f} s ago" if row.status.value == "running" and age else ""
-    console.print(f"task {row.id} {escape(row.name)}: [bold]{row.status.value}[/]{alive}; "
-                  f"{row.done}/{row.total} units; {escape(row.model.name)} on {escape(row.dataset.name)}; "
+    claim = holder(store, task)
+    if claim is not None:  # who runs it now (a dead claim is taken over by the next resume)
+        gone = " (gone: the next resume takes it over)" if is_dead(claim) else ""
+        alive += (f"; claimed by process {claim.pid} on {escape(claim.host)} since "
+                  f"{claim.claimed_at:%Y-%m-%d %H:%M:%S} UTC{gone}")
+    console.print(f"task {row.id} {_shown(row.name)}: [bold]{row.status.value}[/]{alive}; "
+                  f"{row.done}/{row.total} units; {_shown(row.model.name)} on {_shown(row.dataset.name)}; "
                   f"seed {row.seed}")
     if row.error:
-        console.print(f"[red]{escape(row.error)}[/]")
+        console.print(f"[red]{_shown(row.error)}[/]")
     table = Table("subtask", "status", "done", "total", "failures")
     table.columns[0].no_wrap, table.columns[0].overflow = True, "fold"
     for sub in row.subtasks:  # a subtask's figures exist once it is done

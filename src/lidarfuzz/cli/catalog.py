@@ -21,6 +21,14 @@ from lidarfuzz.cli.common import (
 
 Modality = Literal["lidar", "camera"]
 
+
+def _shown(text: object) -> str:
+    """A stored name, path or note as a terminal may show it: control characters escaped
+    (:func:`~lidarfuzz.store.inventory.printable`; names stored before they were refused)."""
+    from lidarfuzz.store.inventory import printable
+
+    return printable(str(text), newlines=True)
+
 def datasets_add(
     name: Annotated[str, typer.Argument(help="A name for it.")],
     path: Annotated[Path, typer.Argument(help="KITTI folder, folder of frames, frame file, bag or MCAP.")],
@@ -54,8 +62,8 @@ def datasets_add(
         options = options.model_copy(update={"modality": "camera", "camera": camera})
     row = add_dataset(open_store(workspace), name, path, notes, options=options)
     shown = ", ".join(f"{k} {v}" for k, v in row.options.items())
-    console.print(f"added data set {row.name}: {row.frame_count} frame(s), {row.format}, {row.path}"
-                  + (f" ({shown})" if shown else ""))
+    console.print(f"added data set {_shown(row.name)}: {row.frame_count} frame(s), {row.format}, {_shown(row.path)}"
+                  + (f" ({_shown(shown)})" if shown else ""), markup=False)
 
 
 def datasets_list(workspace: WorkspaceOption = WORKSPACE, as_json: JsonOption = False,
@@ -67,8 +75,8 @@ def datasets_list(workspace: WorkspaceOption = WORKSPACE, as_json: JsonOption = 
     records: list[dict[str, Any]] = []
     for row in list_datasets(open_store(workspace)):
         options = ", ".join(f"{k}={v}" for k, v in (row.options or {}).items())
-        rows.append([row.name, str(row.frame_count), row.format, row.path, options,
-                     f"{row.added_at:%Y-%m-%d %H:%M}", row.notes])
+        rows.append([_shown(row.name), str(row.frame_count), row.format, _shown(row.path), _shown(options),
+                     f"{row.added_at:%Y-%m-%d %H:%M}", _shown(row.notes)])
         records.append({"name": row.name, "frames": row.frame_count, "format": row.format, "path": row.path,
                         "options": row.options or {}, "added": row.added_at.isoformat(), "notes": row.notes})
     columns = [Column("name", name=True), Column("frames"), Column("format"), Column("path", name=True),
@@ -81,7 +89,7 @@ def datasets_remove(name: str, workspace: WorkspaceOption = WORKSPACE) -> None:
     from lidarfuzz.store.inventory import remove_dataset
 
     remove_dataset(open_store(workspace), name)
-    console.print(f"removed data set {name}")
+    console.print(f"removed data set {_shown(name)}", markup=False)
 
 
 def models_add(
@@ -108,7 +116,7 @@ def models_add(
         except json.JSONDecodeError:
             options[key] = value
     row = add_model(open_store(workspace), name, spec, options, notes, modality=modality)
-    console.print(f"added model {row.name}: {row.spec} (fingerprint {row.fingerprint})")
+    console.print(f"added model {_shown(row.name)}: {_shown(row.spec)} (fingerprint {row.fingerprint})", markup=False)
 
 
 def models_list(workspace: WorkspaceOption = WORKSPACE, as_json: JsonOption = False,
@@ -119,7 +127,8 @@ def models_list(workspace: WorkspaceOption = WORKSPACE, as_json: JsonOption = Fa
     rows: list[list[str]] = []
     records: list[dict[str, Any]] = []
     for row in list_models(open_store(workspace)):
-        rows.append([row.name, row.spec, row.fingerprint, f"{row.added_at:%Y-%m-%d %H:%M}", row.notes])
+        rows.append([_shown(row.name), _shown(row.spec), row.fingerprint, f"{row.added_at:%Y-%m-%d %H:%M}",
+                     _shown(row.notes)])
         records.append({"name": row.name, "spec": row.spec, "options": row.options or {},
                         "fingerprint": row.fingerprint, "added": row.added_at.isoformat(), "notes": row.notes})
     columns = [Column("name", name=True), Column("spec", name=True), Column("fingerprint", name=True),
@@ -132,4 +141,4 @@ def models_remove(name: str, workspace: WorkspaceOption = WORKSPACE) -> None:
     from lidarfuzz.store.inventory import remove_model
 
     remove_model(open_store(workspace), name)
-    console.print(f"removed model {name}")
+    console.print(f"removed model {_shown(name)}", markup=False)

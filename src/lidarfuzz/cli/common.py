@@ -12,8 +12,9 @@ tab-separated row a line with ``--plain``, or JSON with ``--json``.
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from importlib.util import find_spec
 from pathlib import Path
@@ -73,12 +74,37 @@ def check_store_driver(workspace: str | Path) -> None:
                          f"is psycopg: postgresql+psycopg://… (pip install 'lidarfuzz[postgres]')")
 
 
-def open_store(workspace: str | Path) -> Store:
-    """The store of a workspace folder or database URL (after :func:`check_store_driver`)."""
+def open_store(workspace: str | Path, *, writes: str | None = None) -> Store:
+    """The store of a workspace folder or database URL (after :func:`check_store_driver`).
+
+    A workspace this process cannot write opens read-only (``list``, ``status`` and ``report``
+    work); a command that writes says so in ``writes`` (``"lidarfuzz run"``) and is refused there
+    with one line, before it does anything.
+    """
     check_store_driver(workspace)
     from lidarfuzz.store import Store
 
-    return Store(str(workspace))
+    store = Store(str(workspace))
+    if writes is not None:
+        store.require_writable(writes)
+    return store
+
+
+@contextlib.contextmanager
+def disk_failures(then: str, where: str | Path | None = None) -> Iterator[None]:
+    """Inside the block, a failing disk (full, over quota, read-only, I/O error; under the store or
+    an output) becomes one :class:`~lidarfuzz.store.errors.StorageError` line that ends with
+    ``then``: what the user does once the disk is fixed (``lidarfuzz resume 3 finishes the task``);
+    ``where`` names what was written when the error does not (a database's file)."""
+    try:
+        yield
+    except Exception as exc:
+        from lidarfuzz.store.errors import StorageError, storage_error
+
+        failure = storage_error(exc, where)
+        if failure is None:
+            raise
+        raise StorageError(failure.path, failure.reason, f"{failure.plain}; {then}") from None
 
 
 @dataclass(frozen=True)
@@ -123,9 +149,14 @@ def print_listing(columns: Sequence[Column], rows: Sequence[Sequence[str]],
     if as_json:
         typer.echo(json.dumps(records if isinstance(records, dict) else list(records), indent=2, default=str))
         return
+    from lidarfuzz.store.inventory import printable
+
+    # names, notes and paths come from users and uploads: a control character is shown escaped,
+    # never sent to the terminal (an escape sequence could rewrite the screen)
+    rows = [[printable(str(cell)) for cell in row] for row in rows]
     if plain:
         for row in rows:
-            typer.echo("\t".join(" ".join(str(cell).split()) for cell in row))
+            typer.echo("\t".join(" ".join(cell.split()) for cell in row))
         return
     from rich.table import Table
     from rich.text import Text
@@ -144,5 +175,6 @@ def print_listing(columns: Sequence[Column], rows: Sequence[Sequence[str]],
 
 
 __all__ = ["WORKSPACE", "AllowUnlabelledOption", "Column", "JsonOption", "LayoutOption", "PlainOption",
-           "WorkspaceOption", "check_store_driver", "console", "err_console", "open_store", "print_listing",
+           "WorkspaceOption", "check_store_driver", "console", "disk_failures", "err_console", "open_store",
+           "print_listing",
            "print_table"]

@@ -2,9 +2,10 @@
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal, cast
+from typing import TYPE_CHECKING, Annotated, Literal, NoReturn, cast
 
 import typer
+from rich.markup import escape
 
 from lidarfuzz.cli.common import console, err_console
 
@@ -16,18 +17,24 @@ if TYPE_CHECKING:
 OVERLAP_PRESETS = ("official", "loose")
 
 
+def _refuse(option: str, message: str) -> NoReturn:
+    """A bad option value: one line naming the option and what it takes, exit code 2 (no usage box)."""
+    err_console.print(f"[bold red]error:[/] {option}: {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(2)
+
+
 def _classes(text: str) -> tuple[str, ...]:
+    """The classes named in ``--classes``, in KITTI's spelling whatever their case (as the devkit matches them)."""
     from lidarfuzz.oracles.kitti_eval import OFFICIAL_OVERLAPS
 
-    known = tuple(OFFICIAL_OVERLAPS["bbox"])
-    names = tuple(dict.fromkeys(c.strip() for c in text.split(",") if c.strip()))
-    unknown = [c for c in names if c not in known]
-    if unknown or not names:
-        raise typer.BadParameter(
-            f"{', '.join(unknown) or 'nothing'} given; choose among {', '.join(known)} (comma-separated)",
-            param_hint="--classes",
-        )
-    return names
+    known = {name.lower(): name for name in OFFICIAL_OVERLAPS["bbox"]}
+    given = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = [c for c in given if c.lower() not in known]
+    if unknown or not given:
+        verb = "is not a class" if len(unknown) == 1 else "are not classes"
+        what = f"{', '.join(repr(c) for c in unknown)} {verb}" if unknown else "no class given"
+        _refuse("--classes", f"{what}; choose among {', '.join(known.values())} (comma-separated, any case)")
+    return tuple(dict.fromkeys(known[c.lower()] for c in given))
 
 
 def summary_table(result: "KittiEvalResult", classes: tuple[str, ...]) -> "Table":
@@ -56,7 +63,9 @@ def eval_command(
             help="Detections: KITTI label files with a score column, named like the ground-truth files."
         ),
     ],
-    classes: Annotated[str, typer.Option(help="Classes to evaluate, comma-separated.")] = "Car,Pedestrian,Cyclist",
+    classes: Annotated[
+        str, typer.Option(help="Classes to evaluate, comma-separated (any case).")
+    ] = "Car,Pedestrian,Cyclist",
     overlaps: Annotated[
         str, typer.Option(help="IoU thresholds: official (0.7/0.5/0.5) or loose (BEV and 3D at 0.5/0.25/0.25).")
     ] = "official",
@@ -80,9 +89,7 @@ def eval_command(
 
     names = _classes(classes)
     if overlaps not in OVERLAP_PRESETS:
-        raise typer.BadParameter(
-            f"{overlaps!r} is not one of {', '.join(OVERLAP_PRESETS)}", param_hint="--overlaps"
-        )
+        _refuse("--overlaps", f"{overlaps!r} is not one of {', '.join(OVERLAP_PRESETS)}")
     loaded = load_kitti_eval_frames(gt_dir, dt_dir, calib_dir, allow_unlabelled=allow_unlabelled)
     for note in loaded.notes:
         err_console.print(f"[yellow]note:[/] {note}", highlight=False, soft_wrap=True)
@@ -109,5 +116,7 @@ def eval_command(
             "frames": len(loaded.frames),
             "missing_detections": loaded.missing_detections,
         }
-        json_out.write_text(json.dumps(payload, indent=2, sort_keys=True), encoding="utf-8")
+        from lidarfuzz.io.atomic import write_text
+
+        write_text(json_out, json.dumps(payload, indent=2, sort_keys=True), overwrite=True)
         console.print(f"wrote {json_out}", highlight=False)

@@ -2,11 +2,27 @@
 
 import inspect
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
+from rich.markup import escape
 
-from lidarfuzz.cli.common import Column, JsonOption, LayoutOption, PlainOption, console, print_listing, print_table
+from lidarfuzz.cli.common import (
+    Column,
+    JsonOption,
+    LayoutOption,
+    PlainOption,
+    console,
+    err_console,
+    print_listing,
+    print_table,
+)
+
+
+def _refuse(option: str, message: str) -> NoReturn:
+    """A bad option value: one line naming the option and what it takes, exit code 2 (no usage box)."""
+    err_console.print(f"[bold red]error:[/] {option}: {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(2)
 
 
 def operators_command(
@@ -22,8 +38,7 @@ def operators_command(
 
     known_modalities = sorted({cls.modality for cls in available().values()})
     if modality is not None and modality not in known_modalities:
-        raise typer.BadParameter(f"expected one of {', '.join(known_modalities)}, got {modality!r}",
-                                 param_hint="--modality")
+        _refuse("--modality", f"expected one of {', '.join(known_modalities)}, got {modality!r}")
 
     if name is not None:
         cls = get(name)
@@ -94,15 +109,14 @@ def mutate_command(
     options = options_from_flags(layout)
     if is_frame_average(op):
         if not interleave:
-            raise typer.BadParameter("AVG combines consecutive frames of a log: add --interleave",
-                                     param_hint="--op")
+            _refuse("--op", "AVG combines consecutive frames of a log: add --interleave")
         written = mutate_log(src, dst, FrameAverage(), seed=seed, to=to, overwrite=overwrite, options=options)
         console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")
         return
     operator = build_operator(op, severity, parse_assignments(param or []))
     if operator.modality != "lidar":
-        raise typer.BadParameter(f"{operator.name} is a {operator.modality} operator; mutate writes lidar frames "
-                                 "(lidarfuzz operators --modality lidar)", param_hint="--op")
+        _refuse("--op", f"{operator.name} is a {operator.modality} operator; mutate writes lidar frames "
+                "(lidarfuzz operators --modality lidar)")
     if interleave:
         written = mutate_log(src, dst, operator, seed=seed, to=to, overwrite=overwrite, options=options)
         console.print(f"wrote a log of {written.frames} frame(s) to {written.destination} ({written.target})")

@@ -1,13 +1,14 @@
 """``lidarfuzz report``: a task's report files, and the tables ``run``, ``resume`` and ``report`` print."""
 
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
 
-from lidarfuzz.cli.common import WORKSPACE, WorkspaceOption, console, open_store, print_table
+from lidarfuzz.cli.common import WORKSPACE, WorkspaceOption, console, disk_failures, open_store, print_table
 
 if TYPE_CHECKING:
     from lidarfuzz.store.contracts import RateRow
@@ -186,7 +187,8 @@ def print_search(store: Any, task_id: int) -> None:
 def report(
     task: int,
     out: Annotated[Path | None, typer.Option(help="Folder for report.html, JSON, CSV and JUnit XML "
-                                                  "(default: <workspace>/reports/task-ID).")] = None,
+                                                  "(default: <workspace>/reports/task-ID); - prints "
+                                                  "report.html on stdout and writes nothing.")] = None,
     baseline: Annotated[int | None, typer.Option(help="A task of a baseline system on the same campaign: "
                                                       "compared with (violation rates with a significance test, "
                                                       "disagreements, recall/AP by group; lidarfuzz compare) and "
@@ -198,10 +200,18 @@ def report(
 ) -> None:
     """Write a task's report (self-contained HTML, JSON, CSV, JUnit XML) and print its tables."""
     store = open_store(workspace)
+    if out == Path("-"):  # the page alone (a read-only workspace can be reported): no tables, no files
+        from lidarfuzz.report import render_report
+
+        sys.stdout.write(render_report(store, task, baseline=baseline))
+        return
     if not quiet:
         print_tables(store, task)
         from lidarfuzz.cli.compare import print_comparisons
 
         print_comparisons(store, task, baseline)
     target = out or reports_dir(workspace, task)
-    raise typer.Exit(write_report(store, task, target, gate or [], baseline))
+    with disk_failures(f"nothing half-written is left; lidarfuzz report {task} writes it again (--out - prints "
+                       f"report.html)"):
+        code = write_report(store, task, target, gate or [], baseline)
+    raise typer.Exit(code)

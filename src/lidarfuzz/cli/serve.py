@@ -35,11 +35,37 @@ def parse_size(text: str) -> int:
     return size
 
 
+def check_token(token: str) -> str:
+    """A token a browser and ``curl`` can send in a header: printable ASCII without spaces, at least 8 characters."""
+    if len(token) < 8 or not all(33 <= ord(c) <= 126 for c in token):
+        raise LidarfuzzError("--token: use at least 8 printable ASCII characters without spaces (a header and "
+                             "an address carry it); e.g. python -c 'import secrets; print(secrets.token_urlsafe())'")
+    return token
+
+
+def banner(host: str, port: int, workspace: str, token: str | None, print_token: bool) -> str:
+    """The start-up line: the address, and with a token how to sign in (the token itself only with
+    ``--print-token``: a terminal's scroll-back and a service's journal are logs too)."""
+    shown = f"[{host}]" if ":" in host else host
+    address = f"http://{shown}:{port}/"
+    sign_in = ""
+    if token and print_token:
+        address += f"?token={token}"
+    elif token:
+        sign_in = (f"; a token is required: open {address}?token=TOKEN once with your token "
+                   "(--print-token prints that address)")
+    return f"lidarfuzz web app on [bold]{address}[/] (workspace {workspace}; API docs /docs{sign_in}); Ctrl-C stops it"
+
+
 def serve(
-    host: Annotated[str, typer.Option(help="Address to bind; anything but loopback needs --token.")] = "127.0.0.1",
+    host: Annotated[str, typer.Option(help="Address to bind; anything but localhost or a loopback address "
+                                           "(127.0.0.0/8, ::1) needs --token.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="Port.")] = 8000,
     token: Annotated[str | None, typer.Option(help="Require this token on every API call "
-                                                   "(Authorization: Bearer …); $LIDARFUZZ_TOKEN.")] = None,
+                                                   "(Authorization: Bearer …); $LIDARFUZZ_TOKEN. Never "
+                                                   "printed or logged.")] = None,
+    print_token: Annotated[bool, typer.Option("--print-token", help="Print the address with the token at start "
+                                                                    "(to open it in a browser).")] = False,
     workers: Annotated[int, typer.Option(min=0, help="Tasks run at once (0: queue only).")] = 1,
     processes: Annotated[int | None, typer.Option(min=1, help="Worker processes per running task "
                                                               "(default: the CPU count).")] = None,
@@ -56,6 +82,10 @@ def serve(
     if not is_loopback(host) and not token:
         raise LidarfuzzError(f"--host {host}: serving beyond this machine needs a token "
                              f"(--token T or $LIDARFUZZ_TOKEN); every API call must then carry it")
+    if token:
+        check_token(token)
+    elif print_token:
+        raise LidarfuzzError("--print-token: this server has no token to print (give --token T or $LIDARFUZZ_TOKEN)")
     limits = Limits(max_upload=parse_size(max_upload))
     check_store_driver(workspace)
 
@@ -64,8 +94,5 @@ def serve(
     from lidarfuzz.web import create_app
 
     web_app = create_app(workspace, token=token or None, workers=workers, processes=processes, limits=limits)
-    shown = f"[{host}]" if ":" in host else host
-    suffix = f"/?token={token}" if token else "/"
-    console.print(f"lidarfuzz web app on [bold]http://{shown}:{port}{suffix}[/] (workspace {workspace}; "
-                  f"API docs /docs); Ctrl-C stops it")
+    console.print(banner(host, port, str(workspace), token or None, print_token), soft_wrap=True)
     uvicorn.run(web_app, host=host, port=port, log_level=log_level)

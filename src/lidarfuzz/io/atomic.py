@@ -17,6 +17,19 @@ from pathlib import Path
 from lidarfuzz.errors import LidarfuzzError
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the mask means setting it; set it back at once
+    os.umask(mask)
+    return mask
+
+
+#: The process's umask, read once at import (reading it later from threads would race). mkstemp and
+#: mkdtemp create 0600 files and 0700 folders; outputs get the modes an ordinary ``open`` would give.
+_UMASK = _umask()
+_FILE_MODE = 0o666 & ~_UMASK
+_FOLDER_MODE = 0o777 & ~_UMASK
+
+
 class OutputExistsError(LidarfuzzError, FileExistsError):
     """The destination exists and overwriting was not requested."""
 
@@ -52,6 +65,7 @@ def atomic_path(path: str | PathLike[str], *, overwrite: bool = False, durable: 
     target = check_destination(path, overwrite)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.fchmod(fd, _FILE_MODE)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -103,6 +117,7 @@ def atomic_folder(path: str | PathLike[str], *, overwrite: bool = False) -> Iter
         raise OutputExistsError(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    tmp.chmod(_FOLDER_MODE)
     try:
         yield tmp
         if target.exists():

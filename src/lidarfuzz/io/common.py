@@ -100,11 +100,14 @@ def cloud_from_columns(
     n = int(np.asarray(columns["x"]).shape[0])
     names = list(STANDARD_CHANNELS) + [c for c in columns if c not in STANDARD_CHANNELS]
     data = np.empty((n, len(names)), dtype=np.float32)
-    for i, name in enumerate(names):
-        if name == "intensity" and name not in columns:
-            data[:, i] = 0.0
-        else:
-            data[:, i] = columns[name]
+    # a value beyond float32 (1e308 in a float64 field) becomes ±inf for the non-finite policy,
+    # without numpy's RuntimeWarning on the terminal
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i, name in enumerate(names):
+            if name == "intensity" and name not in columns:
+                data[:, i] = 0.0
+            else:
+                data[:, i] = columns[name]
     return finish_cloud(data, names, path, nonfinite=nonfinite)
 
 

@@ -174,7 +174,8 @@ def inspect_source(path: str | PathLike[str], *, topic: str | None = None, limit
                 scene = dataset.load(frame_id)
         except DataFormatError as exc:
             hint = f" ({exc.hint})" if exc.hint else ""  # e.g. the layout that fits a misread scan
-            report.problems.append(Problem("error", str(exc.path), exc.message + hint, exc.line))
+            field = f"field '{exc.field}': " if exc.field else ""  # the header field that lied
+            report.problems.append(Problem("error", str(exc.path), field + exc.message + hint, exc.line))
             report.unreadable += 1
             continue
         report.inspected += 1

@@ -43,7 +43,9 @@ from shapely.errors import ShapelyError  # type: ignore[import-untyped]
 from shapely.geometry import MultiPolygon, Polygon, shape
 
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
+from lidarfuzz.io.guards import describe, reading
 from lidarfuzz.io.layouts import LayoutError, PointLayout, parse_layout
+from lidarfuzz.io.textfiles import check_json_depth, read_text
 from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 
@@ -163,8 +165,9 @@ def _polygons(obj: Any, where: str, path: Path) -> list[Polygon]:
                               field=f"{prefix}type")
     try:
         geometry = shape(obj)
-    except (ShapelyError, ValueError, TypeError, IndexError, KeyError, AttributeError) as exc:
-        raise DataFormatError(path, f"not a valid {kind}: {exc}", field=f"{prefix}coordinates") from None
+    except (ShapelyError, ValueError, TypeError, IndexError, KeyError, AttributeError, OverflowError) as exc:
+        # OverflowError: an integer too large for a float (300 digits of JSON)
+        raise DataFormatError(path, f"not a valid {kind}: {describe(exc)}", field=f"{prefix}coordinates") from None
     if not np.all(np.isfinite(np.asarray(shapely.get_coordinates(geometry)))):
         raise DataFormatError(path, "coordinates must be finite numbers", field=f"{prefix}coordinates")
     return [geometry] if isinstance(geometry, Polygon) else list(geometry.geoms)
@@ -178,14 +181,13 @@ def load_dataset_map(path: str | PathLike[str]) -> DatasetMap:
             what a drivable-area map needs — one line naming the file and the field.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFormatError(path, f"cannot read the ROI map: {exc}") from None
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataFormatError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
+    text = read_text(path, "a GeoJSON drivable-area map")
+    check_json_depth(text, path)
+    with reading(path, "read the ROI map"):  # numbers Python cannot convert (over 4,300 digits)
+        try:
+            obj = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise DataFormatError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
     if not isinstance(obj, dict):
         raise DataFormatError(path, "expected a GeoJSON object", field="<root>")
     given = obj.get("properties")
@@ -197,7 +199,8 @@ def load_dataset_map(path: str | PathLike[str]) -> DatasetMap:
     polygons = _polygons(obj, "", path)
     if not polygons:
         raise DataFormatError(path, "no polygons: a drivable-area map needs at least one", field="features")
-    union = shapely.union_all(polygons)
+    with reading(path, "join the map's polygons", hint="check that the polygons' rings do not cross themselves"):
+        union = shapely.union_all(polygons)
     parts = list(union.geoms) if hasattr(union, "geoms") else [union]
     geometry = MultiPolygon([g for g in parts if isinstance(g, Polygon) and not g.is_empty])
     return DatasetMap(path, RoiMap(geometry), frame)

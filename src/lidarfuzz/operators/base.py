@@ -30,11 +30,11 @@ import math
 import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import Any, ClassVar, Generic, TypeVar
+from typing import Annotated, Any, ClassVar, Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 S = TypeVar("S")
 
@@ -55,6 +55,23 @@ class Target(enum.StrEnum):
     CALIB = "calib"
     MAP = "map"
     IMAGE = "image"  # a camera frame's pixels (and its depth map, moved with them)
+
+
+#: Bounds of interval parameters that hold by definition, never tuned: a share of points (or of a
+#: scale) lies in [0, 1]; a count, distance, standard deviation or magnitude is not negative; a scale
+#: factor or a visibility is positive; a coarser sensor's spacing is at least 1; a sector is at most a
+#: full turn. The params' JSON schema carries them, so a campaign is refused at the field (the web
+#: form's inputs get them as min and max).
+Share = Annotated[float, Field(ge=0, le=1)]
+NonNegative = Annotated[float, Field(ge=0)]
+Positive = Annotated[float, Field(gt=0)]
+AtLeastOne = Annotated[float, Field(ge=1)]
+Turn = Annotated[float, Field(ge=0, le=360)]
+ShareRange = tuple[Share, Share]
+NonNegativeRange = tuple[NonNegative, NonNegative]
+PositiveRange = tuple[Positive, Positive]
+AtLeastOneRange = tuple[AtLeastOne, AtLeastOne]
+TurnRange = tuple[Turn, Turn]
 
 
 class Config(BaseModel):

@@ -8,8 +8,9 @@ file or log.
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -21,6 +22,7 @@ from pydantic import ValidationError
 from lidarfuzz.errors import LidarfuzzError
 from lidarfuzz.io.atomic import atomic_folder, write_text
 from lidarfuzz.io.convert import FOLDER_TARGETS, ConvertResult, convert, destination_kind, write_scenes
+from lidarfuzz.io.guards import describe
 from lidarfuzz.io.open import open_dataset
 from lidarfuzz.io.options import DatasetOptions
 from lidarfuzz.operators.base import Operator, generator
@@ -91,23 +93,69 @@ def mutate(src: str | PathLike[str], dst: str | PathLike[str], operator: Operato
            on_frame: Callable[[int, int], None] | None = None,
            options: DatasetOptions | None = None) -> MutationResult:
     """Write ``operator`` applied to every frame of ``src`` (read with data-set ``options``) into
-    ``dst`` (any format ``convert`` writes)."""
+    ``dst`` (any format ``convert`` writes).
+
+    A folder destination is written into a temporary folder beside it and renamed at the end, its
+    ``mutations.jsonl`` included: a failure (a bad frame half-way, the operator failing on a frame)
+    leaves nothing at ``dst``.
+
+    Raises:
+        LidarfuzzError: ``dst`` is ``src``, inside it or holds it; a frame cannot be read, or the
+            operator fails on one (naming the frame).
+    """
     records: list[str] = []
     spec = operator.spec()
+    src_path, destination = Path(src), Path(dst)
+    _refuse_overlap(src_path, destination)
 
     def transform(scene: Scene) -> Scene:
         rng = generator(seed, scene.frame_id or len(records), 0, 0)
-        mutant, params = operator(scene, rng)
+        with _applying(operator.name, src_path, f"on frame {scene.frame_id or len(records)}"):
+            mutant, params = operator(scene, rng)
         records.append(json.dumps({"frame_id": scene.frame_id, "operator": spec, "seed": seed,
                                    "params": params.model_dump(mode="json")}))
         return mutant
 
-    result = convert(src, dst, to=to, overwrite=overwrite, on_frame=on_frame, transform=transform, options=options)
-    destination = Path(dst)
-    record = destination / "mutations.jsonl" if destination.is_dir() else destination.with_name(
-        destination.name + ".mutations.jsonl")
+    kind = _destination_kind(destination, to)
+    if kind in FOLDER_TARGETS:
+        with atomic_folder(destination, overwrite=overwrite) as tmp:
+            written = convert(src_path, tmp, to=kind, overwrite=True, on_frame=on_frame, transform=transform,
+                              options=options)
+            write_text(tmp / "mutations.jsonl", "\n".join(records) + "\n", overwrite=True)
+        return MutationResult(ConvertResult(destination, written.target, written.frames),
+                              destination / "mutations.jsonl")
+    result = convert(src_path, destination, to=to, overwrite=overwrite, on_frame=on_frame, transform=transform,
+                     options=options)
+    record = destination.with_name(destination.name + ".mutations.jsonl")
     write_text(record, "\n".join(records) + "\n", overwrite=True)
     return MutationResult(result, record)
+
+
+def _destination_kind(dst: Path, to: str | None) -> str:
+    try:
+        return destination_kind(dst, to)
+    except ValueError as exc:  # an unknown --to
+        raise LidarfuzzError(str(exc)) from None
+
+
+def _refuse_overlap(src: Path, dst: Path) -> None:
+    """Originals are never modified: refuse a destination that is the source, inside it, or holds it
+    (a folder destination replaced at the end would take the source with it)."""
+    source, target = src.resolve(), dst.resolve()
+    if target == source or source in target.parents or target in source.parents:
+        raise LidarfuzzError(f"{dst}: the destination is the source, inside it or holds it; "
+                             "originals are never modified (choose a new path)")
+
+
+@contextlib.contextmanager
+def _applying(name: str, src: Path, where: str) -> Iterator[None]:
+    """An operator failing on a frame: one line naming the operator, the source and ``where`` (the frame)."""
+    try:
+        yield
+    except LidarfuzzError:
+        raise
+    except Exception as err:
+        raise LidarfuzzError(f"{src}: {name} failed {where}: {describe(err)}") from err
 
 
 def is_frame_average(name: str) -> bool:
@@ -120,14 +168,26 @@ def mutate_log(src: str | PathLike[str], dst: str | PathLike[str], operator: Ope
     """A new log from an ordered source (a log, or a data set with timestamps): each mutant right
     after its source frame, or for AVG each averaged frame between its two sources (Neves et al.)."""
     src_path, dst_path = Path(src), Path(dst)
-    if dst_path.resolve() == src_path.resolve() or src_path.resolve() in dst_path.resolve().parents:
-        raise LidarfuzzError(f"{dst_path}: the destination is the source or inside it; originals are never modified")
+    _refuse_overlap(src_path, dst_path)
+    kind = _destination_kind(dst_path, to)
     dataset = open_dataset(src_path, options=options)
     if not dataset.ordered:
         raise LidarfuzzError(f"{src_path}: not a log (no timestamps): --interleave needs ordered frames")
-    kind = destination_kind(dst_path, to)
+    scenes = _named_failures(interleave(iter(dataset), operator, seed=seed), operator.name, src_path)
     if kind not in FOLDER_TARGETS:
-        return write_scenes(interleave(iter(dataset), operator, seed=seed), dst_path, kind, overwrite=overwrite)
+        return write_scenes(scenes, dst_path, kind, overwrite=overwrite)
     with atomic_folder(dst_path, overwrite=overwrite) as tmp:  # a failure mid-log leaves no partial folder
-        written = write_scenes(interleave(iter(dataset), operator, seed=seed), tmp, kind, overwrite=True)
+        written = write_scenes(scenes, tmp, kind, overwrite=True)
     return ConvertResult(dst_path, written.target, written.frames)
+
+
+def _named_failures(scenes: Iterator[Scene], name: str, src: Path) -> Iterator[Scene]:
+    """``scenes``, with an operator's failure turned into one line naming the last frame written before it."""
+    where = "on the first frame"
+    while True:
+        with _applying(name, src, where):
+            scene = next(scenes, None)
+        if scene is None:
+            return
+        where = f"after frame {scene.frame_id}" if scene.frame_id else "after an unnamed frame"
+        yield scene

@@ -11,12 +11,19 @@ conventions of its Python ports (OpenPCDet ``kitti_object_eval_python``, mmdetec
   difficulty (occlusion/truncation above the maximum, 2D height ``<=`` the minimum) are
   ignored: they absorb matching detections and never count as FN;
 * detections of other classes are dropped; detections whose 2D height is ``<`` the minimum
-  are ignored; unmatched detections overlapping a DontCare 2D box by more than the class
+  are ignored (the devkit's ``|y2 − y1|``, so a box given upside down keeps its height; a
+  ground-truth box's height is the signed ``y2 − y1``, so an upside-down one is ignored, as
+  there); unmatched detections overlapping a DontCare 2D box by more than the class
   threshold (intersection over the detection's own area) are not FPs (bbox metric only,
   as in the Python ports);
 * matches need overlap strictly ``>`` the threshold; 41 score thresholds sampled from the
   TP scores; precision made monotone; R11 averages samples 0, 4, …, 40, R40 samples 1…40;
-  AOS accumulates ``(1 + cos Δα) / 2`` over TPs of the bbox metric.
+  AOS accumulates ``(1 + cos Δα) / 2`` over TPs of the bbox metric;
+* a detection scored at or below ``-10000000`` (the devkit's ``NO_DETECTION`` marker) never
+  matches: the devkit only takes a candidate scoring strictly above the marker when it collects
+  the TP scores, so such a detection gives no threshold, and every threshold lies above it;
+* the results do not depend on the order of the frames: the frames' orientation
+  similarities (the only sum that is not of integers) are added in ascending order.
 
 Detections without a 2D box or alpha get them by projection through the calibration.
 """
@@ -53,6 +60,9 @@ LOOSE_OVERLAPS: dict[str, dict[str, float]] = {
 #: GT of these classes is ignored (neither TP nor FN) when evaluating the key class.
 NEIGHBOUR_CLASSES: dict[str, str] = {"car": "van", "pedestrian": "person_sitting"}
 MIN_HEIGHT = (40.0, 25.0, 25.0)
+#: The devkit stores a detection's 2D height in an ``int32_t``; a height that does not fit
+#: (or NaN) converts to ``INT_MIN`` on x86-64, the ``cvttsd2si`` result, so it counts as low.
+_INT32_LIMIT = 2.0**31
 MAX_OCCLUSION = (0, 1, 2)
 MAX_TRUNCATION = (0.15, 0.3, 0.5)
 NUM_SAMPLE_POINTS = 41
@@ -180,6 +190,23 @@ def image_box_overlap(a: NDArray[np.float64], b: NDArray[np.float64], criterion:
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(inter > 0, inter / union, 0.0)
     return np.nan_to_num(out, nan=0.0)
+
+
+def detection_too_low(bbox: NDArray[np.float64], min_height: float) -> NDArray[np.bool_]:
+    """Whether each detection's 2D box is lower than ``min_height``, as the devkit's ``cleanData`` decides.
+
+    The devkit computes ``int32_t height = fabs(det.box.y1 - det.box.y2)``: the absolute height
+    (a box given with ``y1 > y2`` is as tall as the right way up), truncated to an integer,
+    then ``height < MIN_HEIGHT``. For a whole ``min_height`` truncation changes nothing
+    (``⌊h⌋ < m ⇔ h < m``); a height beyond ``int32`` (or NaN) converts to ``INT_MIN``, low.
+
+    Example:
+        >>> detection_too_low(np.array([[0, 100, 50, 60], [0, 60, 50, 100], [0, 0, 9, 39.9]]), 40.0)
+        array([False, False,  True])
+    """
+    height = np.abs(bbox[:, 3] - bbox[:, 1])
+    with np.errstate(invalid="ignore"):
+        return ~(height < _INT32_LIMIT) | (height < min_height)
 
 
 # -- all frames at once --------------------------------------------------------------------
@@ -397,10 +424,8 @@ def _clean(fr: _Frame, cls: str, difficulty: int) -> _Clean:
     ignored_gt = np.full(len(valid), -1, dtype=np.int64)
     ignored_gt[(valid == 0) | ((valid == 1) & ignore)] = 1
     ignored_gt[(valid == 1) & ~ignore] = 0
-    dt_h = fr.dt_bbox[:, 3] - fr.dt_bbox[:, 1]
     ignored_dt = np.where(fr.dt_labels == name, 0, -1).astype(np.int64)
-    with np.errstate(invalid="ignore"):
-        ignored_dt[dt_h < MIN_HEIGHT[difficulty]] = 1
+    ignored_dt[detection_too_low(fr.dt_bbox, MIN_HEIGHT[difficulty])] = 1
     dontcare = fr.gt_bbox[fr.gt_labels == "dontcare"]
     return _Clean(ignored_gt, ignored_dt, dontcare, int(np.count_nonzero(ignored_gt == 0)))
 
@@ -496,11 +521,11 @@ def _precision_curves(
     if not all_scores:
         return precision, aos
     thresholds = np.asarray(get_thresholds(np.asarray(all_scores), num_valid))
-    pr = np.zeros((len(thresholds), 4))
-    for fr, c in zip(frames, cleans, strict=True):
+    per_frame = np.zeros((len(frames), len(thresholds), 4))
+    for f, (fr, c) in enumerate(zip(frames, cleans, strict=True)):
         if not np.any(c.ignored_dt != -1):
             # no detection of the class (an ignored one could still absorb a GT): only misses
-            pr[:, 2] += c.num_valid_gt
+            per_frame[f, :, 2] = c.num_valid_gt
             continue
         # the result only depends on how many detections pass the threshold: one evaluation
         # per distinct count, scattered to all thresholds at once
@@ -512,7 +537,8 @@ def _precision_curves(
             thresh = float(thresholds[int(np.argmax(active == key))])
             tp, fp, fn, sim, _ = _statistics(fr, c, metric, min_overlap, thresh, True)
             stats[u] = (tp, fp, fn, sim if sim != -1 else 0.0)
-        pr += stats[inverse.reshape(-1)]
+        per_frame[f] = stats[inverse.reshape(-1)]
+    pr = _sum_over_frames(per_frame)
     n = len(thresholds)
     with np.errstate(invalid="ignore", divide="ignore"):
         precision[:n] = pr[:, 0] / (pr[:, 0] + pr[:, 1])
@@ -555,8 +581,7 @@ def _class_view(b: _Batch, cls: str) -> _ClassView:
     gsel = np.flatnonzero((b.gt_labels == name) | (b.gt_labels == neighbour))
     # As in the devkit, a detection of any class lower than the difficulty's minimum height is
     # an *ignored* detection (it may absorb a GT); only taller ones of other classes drop out.
-    with np.errstate(invalid="ignore"):
-        low = (b.dt_bbox[:, 3] - b.dt_bbox[:, 1]) < max(MIN_HEIGHT)
+    low = detection_too_low(b.dt_bbox, max(MIN_HEIGHT))
     dsel = np.flatnonzero((b.dt_labels == name) | low)
     gt = _padded(gsel, b.gt_frame[gsel], b.num_frames)
     dt = _padded(dsel, b.dt_frame[dsel], b.num_frames)
@@ -620,8 +645,7 @@ def _ignored(b: _Batch, view: _ClassView, cls: str, difficulty: int) -> tuple[ND
     ignored_gt = np.where((b.gt_labels[g] == name) & ~outside, 0, 1)
     ignored_gt[view.gt < 0] = -1
     d = np.maximum(view.dt, 0)
-    with np.errstate(invalid="ignore"):
-        low = (b.dt_bbox[d, 3] - b.dt_bbox[d, 1]) < MIN_HEIGHT[difficulty]
+    low = detection_too_low(b.dt_bbox[d].reshape(-1, 4), MIN_HEIGHT[difficulty]).reshape(d.shape)
     ignored_dt = np.where(low, 1, np.where(b.dt_labels[d] == name, 0, -1))
     ignored_dt[view.dt < 0] = -1
     return ignored_gt.astype(np.int64), ignored_dt.astype(np.int64)
@@ -641,13 +665,18 @@ def _match(
     """The devkit's per-frame assignment for N instances at once (N × D detections, N × G GT).
 
     GT are visited in order. Without ``compute_fp`` the candidate with the highest score wins
-    (the first on ties); with it, the non-ignored candidate of highest overlap (the first on
-    ties), else the first ignored one. Returns (assigned N × D, TP N, FN N, similarity N,
-    and per GT the index of the detection that made it a true positive, -1 for none, N × G).
+    (the first on ties), and only a score above the devkit's ``NO_DETECTION`` (-10⁷) makes a
+    candidate (its ``det.thresh > valid_detection``, which starts at the marker); with it, the
+    non-ignored candidate of highest overlap (the first on ties), else the first ignored one.
+    Returns (assigned N × D, TP N, FN N, similarity N (summed over the TPs in GT order, as the
+    devkit sums a frame's), and per GT the index of the detection that made it a true positive,
+    -1 for none, N × G).
     """
     n, num_dt = active.shape
     rows = np.arange(n)
     usable = (ignored_dt != -1) & active
+    if not compute_fp:
+        usable &= scores > _NO_DETECTION
     assigned = np.zeros((n, num_dt), dtype=bool)
     tp = np.zeros(n, dtype=np.int64)
     fn = np.zeros(n, dtype=np.int64)
@@ -679,6 +708,18 @@ def _match(
             delta = gt_alpha[is_tp, i] - dt_alpha[rows[is_tp], det[is_tp]]
             similarity[is_tp] += (1.0 + np.cos(delta)) / 2.0
     return assigned, tp, fn, similarity, tp_det
+
+
+def _sum_over_frames(stats: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per threshold, the frames' TP, FP, FN and similarity (``F × T × 4``) summed over the frames.
+
+    TP, FP and FN are whole numbers, whose float sums are exact in any order; a float sum of
+    similarities is not, so they are added in ascending order: a permutation of the frames
+    gives the same bits (the devkit adds them in the files' order, a last-digit difference).
+    """
+    totals = stats.sum(axis=0)
+    totals[:, 3] = np.sort(stats[:, :, 3], axis=0).sum(axis=0)
+    return totals
 
 
 def _curves(
@@ -727,7 +768,7 @@ def _curves(
     if metric == "bbox":
         fp -= np.count_nonzero(counted & np.any(view.dontcare[frame] > min_overlap, axis=2), axis=1)
     stats = np.stack([tp, fp, fn, similarity], axis=1)[inverse.reshape(-1)].reshape(num_frames, num_thr, 4)
-    pr = stats.sum(axis=0)
+    pr = _sum_over_frames(stats)
     n = len(thresholds)
     with np.errstate(invalid="ignore", divide="ignore"):
         precision[:n] = pr[:, 0] / (pr[:, 0] + pr[:, 1])
@@ -835,6 +876,7 @@ __all__ = [
     "ap_ceiling",
     "ap_r11",
     "ap_r40",
+    "detection_too_low",
     "evaluate_kitti",
     "get_thresholds",
     "image_box_overlap",

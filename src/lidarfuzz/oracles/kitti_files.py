@@ -5,7 +5,8 @@ The ground truth is a KITTI ``label_2`` folder (or a KITTI root holding ``label_
 16th ``score`` column, matched to the ground truth by file name stem (``000042.txt``), as
 the devkit and OpenPCDet's ``kitti_object_eval_python`` expect them. Detection lines
 whose 2D box is ``-1 -1 -1 -1`` or whose alpha is ``-10`` get both by projection at
-evaluation time.
+evaluation time. Class names are matched whatever their case, as the devkit compares them
+(``strcasecmp``): ``car`` is a Car, ``dontcare`` a DontCare region.
 
 Example:
     >>> from lidarfuzz.oracles.kitti_eval import evaluate_kitti
@@ -15,6 +16,7 @@ Example:
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -22,7 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from lidarfuzz.errors import DataFormatError
-from lidarfuzz.io.kitti import png_size, read_label_file
+from lidarfuzz.io.guards import reading
+from lidarfuzz.io.kitti import png_size
+from lidarfuzz.io.kitti.labels import KITTI_CLASSES, parse_labels
 from lidarfuzz.oracles.kitti_eval import KittiFrame
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
@@ -73,6 +77,36 @@ def find_label_dir(path: str | PathLike[str]) -> Path:
         "no label files here (*.txt) and no label_2/ or training/label_2/ below",
         hint="pass a KITTI label_2 folder or the KITTI root that holds it",
     )
+
+
+_CANONICAL_CLASSES = {name.lower(): name for name in KITTI_CLASSES}
+_FIRST_TOKEN = re.compile(r"^(\s*)(\S+)")
+
+
+def canonical_class_names(text: str) -> str:
+    r"""Label lines with each known class name in KITTI's spelling, whatever its case.
+
+    The devkit compares class names with ``strcasecmp`` (in ``cleanData`` and when it decides
+    which classes were detected), so ``car``, ``CAR`` and ``Car`` are one class and ``dontcare``
+    marks a DontCare region. Unknown names are left as written (the reader names them).
+    Lines keep their numbers, so an error still points at the right line.
+
+    Example:
+        >>> canonical_class_names("car 0 0 -10 ...\n  DONTCARE -1 -1 ...\nbus 0 0 ...")
+        'Car 0 0 -10 ...\n  DontCare -1 -1 ...\nbus 0 0 ...'
+    """
+
+    def canonical(match: re.Match[str]) -> str:
+        return match.group(1) + _CANONICAL_CLASSES.get(match.group(2).lower(), match.group(2))
+
+    return "\n".join(_FIRST_TOKEN.sub(canonical, line, count=1) for line in text.splitlines())
+
+
+def read_eval_labels(path: Path, calib: KittiCalibration) -> Boxes3D:
+    """A ground-truth or detection file, class names matched case-insensitively (see :func:`canonical_class_names`)."""
+    with reading(path, "read the KITTI label lines"):
+        text = path.read_bytes().decode("utf-8")
+    return parse_labels(canonical_class_names(text), calib, path)
 
 
 def _label_files(folder: Path) -> dict[str, Path]:
@@ -176,13 +210,13 @@ def load_kitti_eval_frames(
     missing: list[str] = []
     for frame_id, gt_path in gt_files.items():
         calib = _calibration(calib_path, image_dir, frame_id)
-        gt = read_label_file(gt_path, calib)
+        gt = read_eval_labels(gt_path, calib)
         dt_path = dt_files.get(frame_id)
         if dt_path is None:
             missing.append(frame_id)
             detections = Boxes3D.empty()
         else:
-            detections = read_label_file(dt_path, calib)
+            detections = read_eval_labels(dt_path, calib)
             if len(detections) and not np.all(np.isfinite(detections.scores)):
                 raise DataFormatError(
                     dt_path,
@@ -202,4 +236,4 @@ def load_kitti_eval_frames(
     )
 
 
-__all__ = ["KittiEvalFiles", "find_label_dir", "load_kitti_eval_frames"]
+__all__ = ["KittiEvalFiles", "canonical_class_names", "find_label_dir", "load_kitti_eval_frames", "read_eval_labels"]

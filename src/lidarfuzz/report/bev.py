@@ -33,6 +33,7 @@ from lidarfuzz.report.charts import figure_png
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.geometry import box_corners, transform_boxes
 from lidarfuzz.scene.scene import Scene
+from lidarfuzz.store.contracts import TOOL_ERRORS
 from lidarfuzz.store.models import Finding, FrameResult, Subtask, Task
 from lidarfuzz.store.store import Store
 
@@ -64,6 +65,8 @@ class FindingPair:
         lost_gt_follow: The same objects' indices in the mutant's ground truth (-1: gone).
         spurious: Indices of follow-up detections nothing maps to.
         transform: The operator's 4×4 source → mutant map, when it has one.
+        tool_error: lidarfuzz's own error on the mutant (a relation or the operator raised), never
+            the system's: its message; the system's output is still drawn.
     """
 
     finding: Mapping[str, Any]
@@ -77,6 +80,12 @@ class FindingPair:
     spurious: tuple[int, ...] = ()
     transform: NDArray[np.float64] | None = None
     source_failed: bool = False
+    tool_error: str = ""
+
+
+def _system_failed(row: FrameResult | None) -> bool:
+    """Whether the system under test failed on ``row`` (lidarfuzz's own errors do not count)."""
+    return row is None or (row.failure is not None and row.failure.kind not in TOOL_ERRORS)
 
 
 def _indices(violations: Iterable[Mapping[str, Any]], key: str, size: int, object_level: bool = False) -> tuple[
@@ -126,11 +135,11 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
                 "label": subtask_label(sub.name, sub.severity), "frame_id": row.frame_id, "trial": row.trial}
         violations = list(finding.detail.get("violations", []))
         on_original = sub.name == ORIGINAL
-        follow_failed = row.failure is not None
-        follow_detections = None if follow_failed else row.detections.boxes()
+        follow_detections = None if _system_failed(row) else row.detections.boxes()
+        tool_error = row.failure.message if row.failure is not None and row.failure.kind in TOOL_ERRORS else ""
         source_detections = Boxes3D.empty()
-        source_failed = original is None or original.failure is not None
-        if original is not None and original.failure is None:
+        source_failed = _system_failed(original)
+        if original is not None and not source_failed:
             source_detections = original.detections.boxes()
 
     path = replay.dataset
@@ -166,7 +175,7 @@ def load_pair(store: Store, finding_id: int, *, datasets: dict[str, Any] | None 
                        lost_source=_indices(violations, "source_index", len(source_detections)),
                        lost_gt=lost_gt, lost_gt_follow=lost_gt_follow,
                        spurious=_indices(violations, "follow_index", size), transform=transform,
-                       source_failed=source_failed)
+                       source_failed=source_failed, tool_error=tool_error)
 
 
 # -- drawing ------------------------------------------------------------------------------
@@ -247,18 +256,12 @@ def _note(ax: Any, text: str) -> None:
             bbox={"facecolor": "white", "edgecolor": HIGHLIGHT_COLOUR, "boxstyle": "round,pad=0.3"})
 
 
-def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
-    """The before/after figure of ``pair`` (a matplotlib figure, no pyplot state)."""
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
-    fig = Figure(figsize=(12.0, 6.4), dpi=90, layout="constrained")
-    left, right = fig.subplots(1, 2)
-    seed = int(pair.finding.get("id", 0))
-    source, mutant = pair.source, pair.mutant
-
-    shown = mutant if mutant is not None else source
-    follow = pair.follow_detections
+def _highlights(pair: FindingPair) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                                            list[NDArray[np.float64]]]:
+    """The boxes a finding is about: the source detections and ground truth the follow-up lost
+    (original frame), the follow-up's unexplained detections, and where the lost objects were
+    expected in the mutant."""
+    source, shown, follow = pair.source, pair.mutant if pair.mutant is not None else pair.source, pair.follow_detections
     lost_source = pair.source_detections.select(_ids(pair.lost_source)).as_array()
     lost_gt = source.boxes.select(_ids(pair.lost_gt)).as_array()
     spurious = follow.select(_ids(pair.spurious)).as_array() if follow is not None else np.zeros((0, 7))
@@ -273,6 +276,72 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
         if gone:
             boxes = source.boxes.select(_ids(gone)).as_array()
             expected.append(boxes if pair.transform is None else transform_boxes(boxes, pair.transform))
+    return lost_source, lost_gt, spurious, expected
+
+
+def _thumbnail_limits(boxes: Sequence[NDArray[np.float64]], aspect: float, margin: float = 10.0) -> Limits:
+    """A crop around the boxes a finding is about (``aspect``: width over height of the picture), or
+    the default view's near half when there is none (a failure)."""
+    centres = np.concatenate([b[np.all(np.isfinite(b), axis=1), :2] for b in boxes] or [np.zeros((0, 2))])
+    if len(centres) == 0:
+        (x0, _), (y0, y1) = X_RANGE, Y_RANGE
+        height = (y1 - y0) / 2 / aspect
+        return (x0, x0 + height), (y0 / 2, y1 / 2)
+    (x0, y0), (x1, y1) = centres.min(axis=0) - margin, centres.max(axis=0) + margin
+    width, height = max(y1 - y0, (x1 - x0) * aspect), max(x1 - x0, (y1 - y0) / aspect)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    return (cx - height / 2, cx + height / 2), (cy - width / 2, cy + width / 2)
+
+
+def draw_thumbnail(pair: FindingPair, *, width: int = 160, height: int = 120, max_points: int = 8_000) -> Figure:
+    """A small picture of ``pair``'s mutant (``width`` × ``height`` pixels), cropped to the boxes the
+    finding is about, drawn as :func:`draw_pair`'s right panel without axes or text: a finding
+    list's thumbnail. A failure (no output) is framed in red."""
+    from matplotlib.figure import Figure
+
+    dpi = 80
+    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    shown = pair.mutant if pair.mutant is not None else pair.source
+    follow = pair.follow_detections
+    lost_source, lost_gt, spurious, expected = _highlights(pair)
+    limits = _thumbnail_limits([spurious, *expected] if spurious.size or expected else [lost_source, lost_gt],
+                               width / height)
+    _draw_points(ax, shown, max_points, int(pair.finding.get("id", 0)), limits)
+    _draw_boxes(ax, shown.boxes, GT_COLOUR, 0.8)
+    if follow is not None:
+        _draw_boxes(ax, follow, DETECTION_COLOUR, 0.8)
+        _draw_boxes(ax, spurious, HIGHLIGHT_COLOUR, 1.6)
+    for boxes in expected:
+        _draw_boxes(ax, boxes, HIGHLIGHT_COLOUR, 1.2, style="dashed")
+    (x0, x1), (y0, y1) = limits
+    ax.set_xlim(-y1, -y0)
+    ax.set_ylim(x0, x1)
+    ax.set_axis_off()
+    if follow is None:  # the system failed here: nothing to draw of its own
+        for side in ax.spines.values():
+            side.set_visible(True)
+            side.set_edgecolor(HIGHLIGHT_COLOUR)
+            side.set_linewidth(3)
+        ax.set_axis_on()
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return fig
+
+
+def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
+    """The before/after figure of ``pair`` (a matplotlib figure, no pyplot state)."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    fig = Figure(figsize=(12.0, 6.4), dpi=90, layout="constrained")
+    left, right = fig.subplots(1, 2)
+    seed = int(pair.finding.get("id", 0))
+    source, mutant = pair.source, pair.mutant
+
+    shown = mutant if mutant is not None else source
+    follow = pair.follow_detections
+    lost_source, lost_gt, spurious, expected = _highlights(pair)
     limits = _limits([lost_source, lost_gt, spurious, *expected])
 
     _draw_points(left, source, max_points, seed, limits)
@@ -296,6 +365,8 @@ def draw_pair(pair: FindingPair, *, max_points: int = MAX_POINTS) -> Figure:
     _frame_axes(right, f"{pair.finding.get('label', 'mutant')}: {len(shown.boxes)} objects, {count}", limits)
     if follow is None:
         _note(right, f"the system failed here ({pair.finding.get('kind')}): no detections")
+    elif pair.tool_error:
+        _note(right, f"lidarfuzz's own error here, not the system's: {pair.tool_error}")
 
     handles = [Line2D([], [], color=GT_COLOUR, lw=1.2, label="ground truth"),
                Line2D([], [], color=DETECTION_COLOUR, lw=1.2, label="detection"),
@@ -328,4 +399,4 @@ def finding_images(store: Store, finding_ids: Sequence[int], *, limit: int = 12,
     return images
 
 
-__all__ = ["FindingPair", "draw_pair", "finding_images", "finding_png", "load_pair"]
+__all__ = ["FindingPair", "draw_pair", "draw_thumbnail", "finding_images", "finding_png", "load_pair"]

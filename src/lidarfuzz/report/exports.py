@@ -12,7 +12,15 @@ CSV files (stdlib :mod:`csv`, one header row, ``""`` for a missing figure):
     ``frame``) and objects checked and violated (``per`` = ``object``); class ``*`` is the
     relation over all classes, class ``""`` a frame-level relation (DeepTest's).
 ``findings.csv``
-    Every finding of the task from the store (not only the summary's top ones).
+    Every finding of the task from the store (not only the summary's top ones), in unit order
+    (subtask, frame, trial; a unit's findings as its run found them).
+
+Identical runs give byte-identical CSV files, whatever the number of workers or the order units
+finished in: results are stored in unit order (so findings are numbered alike), figures are
+computed over frames in frame order, and rows are listed in unit order. The JSON summary and
+JUnit XML also hold the run's own record — when it ran and how fast, how many outputs came from the
+cache — which differs between runs by nature; :func:`without_run_record` leaves it out (it is
+what two runs' JSON are compared on).
 
 JUnit XML (``junit.xml``) turns gates (:mod:`lidarfuzz.report.gates`) into test cases a CI
 system understands: one ``<testcase>`` per gate, with a ``<failure>`` listing the offending
@@ -104,16 +112,35 @@ def violation_rows(summary: TaskSummary) -> list[dict[str, Any]]:
 
 
 def finding_rows(store: Store, task_id: int) -> list[dict[str, Any]]:
-    """Every finding of task ``task_id``, in id order."""
+    """Every finding of task ``task_id``, in unit order (subtask, frame, trial, then as found)."""
     with store.session() as s:
         rows = s.execute(select(Finding, FrameResult.frame_id, FrameResult.trial, Subtask.name, Subtask.severity)
                          .join(FrameResult, Finding.frame_result_id == FrameResult.id)
                          .join(Subtask, FrameResult.subtask_id == Subtask.id)
-                         .where(Finding.task_id == task_id).order_by(Finding.id)).all()
+                         .where(Finding.task_id == task_id)
+                         .order_by(Subtask.id, FrameResult.frame_id, FrameResult.trial, Finding.id)).all()
         return [{"id": f.id, "kind": f.kind, "class": f.cls, "operator": name, "severity": severity,
                  "label": subtask_label(name, severity), "frame_id": frame_id, "trial": trial,
                  "magnitude": f.magnitude, "message": f.message, "replay": f"lidarfuzz replay {f.id}"}
                 for f, frame_id, trial, name, severity in rows]
+
+
+#: The summary's fields that record the run rather than its results (see the module docstring):
+#: the task's times, and per subtask its times, the system's seconds and the cache's hits.
+RUN_RECORD_TASK = ("created_at", "started_at", "finished_at")
+RUN_RECORD_SUBTASK = ("started_at", "finished_at", "sut_seconds", "cached")
+
+
+def without_run_record(data: Mapping[str, Any]) -> dict[str, Any]:
+    """A summary's JSON form (:meth:`TaskSummary.dump`) less the run's own record: what identical
+    runs must agree on to the last byte."""
+    out = {key: value for key, value in data.items() if key != "run"}
+    if isinstance(out.get("task"), Mapping):
+        out["task"] = {k: v for k, v in out["task"].items() if k not in RUN_RECORD_TASK}
+    if isinstance(out.get("subtasks"), list):
+        out["subtasks"] = [{k: v for k, v in entry.items() if k not in RUN_RECORD_SUBTASK}
+                           if isinstance(entry, Mapping) else entry for entry in out["subtasks"]]
+    return out
 
 
 def write_csvs(summary: TaskSummary, out_dir: str | Path, findings: Iterable[Mapping[str, Any]],
@@ -167,5 +194,5 @@ def junit_xml(summary: TaskSummary, gates: Iterable[Gate | str] = ()) -> str:
     return junit_from_results(summary, evaluate(summary, gates))
 
 
-__all__ = ["ap_rows", "finding_rows", "junit_from_results", "junit_xml", "violation_rows", "write_csv",
-           "write_csvs", "write_json"]
+__all__ = ["RUN_RECORD_SUBTASK", "RUN_RECORD_TASK", "ap_rows", "finding_rows", "junit_from_results", "junit_xml",
+           "violation_rows", "without_run_record", "write_csv", "write_csvs", "write_json"]

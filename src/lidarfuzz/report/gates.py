@@ -21,7 +21,7 @@ Grammar (one rule per gate; spaces around ``>`` allowed; every gate fails when i
     Frames on which the system under test crashed, timed out or returned invalid output;
     KIND narrows it to ``crash``, ``timeout``, ``invalid_output``, or one of lidarfuzz's own
     errors, ``operator_error`` (an operator failing) or ``oracle_error`` (a relation failing),
-    which are not counted otherwise.
+    or ``data_error`` (a frame that could not be read), which are not counted otherwise.
 
 SUBTASK is a subtask's label (``fog@3``, ``fog (config)``), an operator's name (``fog``: all
 its severities) or ``*`` (all; the default).
@@ -58,7 +58,7 @@ METRIC_NAMES = {"bbox": "bbox", "bev": "BEV", "3d": "3D"}
 CLASSES = ("Car", "Pedestrian", "Cyclist", "mAP")
 DIFFICULTIES = ("easy", "moderate", "hard")
 SUT_FAILURES = ("crash", "timeout", "invalid_output")
-FAILURE_KINDS = (*SUT_FAILURES, "operator_error", "oracle_error")
+FAILURE_KINDS = (*SUT_FAILURES, "operator_error", "oracle_error", "data_error")
 GRAMMAR = ("ap_drop:METRIC:CLASS:SUBTASK[:DIFFICULTY]>POINTS, violations:RELATION[:SUBTASK]>FRAMES, "
            "violation_rate:RELATION[:SUBTASK]>RATE or failures[:KIND]>COUNT")
 _RULE = re.compile(r"^\s*(?P<lhs>[^<>=]+?)\s*>\s*(?P<value>[^<>=]+?)\s*$")

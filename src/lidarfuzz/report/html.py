@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import base64
 import math
+from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
@@ -26,6 +27,7 @@ from lidarfuzz.report.deeptest import deeptest_view
 
 if TYPE_CHECKING:
     from lidarfuzz.campaign.compare import TaskComparison
+    from lidarfuzz.campaign.ratings import RatingTally
     from lidarfuzz.store.contracts import DeltaRow, RateRow, TaskSummary
 
 DIFFICULTIES = ("easy", "moderate", "hard")
@@ -191,6 +193,18 @@ def _headline(summary: TaskSummary) -> str:
                      + " (see SUT failures).")
     else:
         parts.append("The system never crashed, timed out or returned invalid output.")
+    tool: dict[str, int] = defaultdict(int)
+    for entry in subtasks:
+        for kind, n in entry.tool_errors.items():
+            tool[kind] += n
+    if any(tool.values()):
+        causes = (("operator_error", "where a mutation operator failed"), ("oracle_error", "where a relation failed"))
+        said = [f"{_plural(n, 'frame')} {what}" for kind, what in causes if (n := tool.get(kind, 0))]
+        if said:
+            parts.append("lidarfuzz's own errors, not the system's: " + " and ".join(said) + " (see SUT failures).")
+        if faults := tool.get("data_error", 0):
+            parts.append(f"Not the system's either: {_plural(faults, 'unit')} whose frame could not be read (data "
+                         "faults, left out of AP: restore the files and resume the task).")
     return " ".join(parts)
 
 
@@ -302,7 +316,8 @@ def _failures(summary: TaskSummary) -> dict[str, Any]:
         for kind, n in entry.tool_errors.items():
             tool[kind] = tool.get(kind, 0) + n
     return {"kinds": kinds, "total": sum(k["count"] for k in kinds), "per_subtask": per_subtask,
-            "operator_errors": tool["operator_error"], "oracle_errors": tool["oracle_error"]}
+            "operator_errors": tool["operator_error"], "oracle_errors": tool["oracle_error"],
+            "data_faults": tool.get("data_error", 0)}
 
 
 def _findings(summary: TaskSummary, images: Mapping[int, bytes | str] | None) -> list[dict[str, Any]]:
@@ -320,11 +335,13 @@ def _findings(summary: TaskSummary, images: Mapping[int, bytes | str] | None) ->
 
 def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = None,
             chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None,
-            comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = ()) -> dict[str, Any]:
+            comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = (),
+            ratings: RatingTally | None = None) -> dict[str, Any]:
     """Everything the template shows, formatted."""
     from lidarfuzz import __version__
     from lidarfuzz.report.camera import is_camera
     from lidarfuzz.report.comparison import comparison_view
+    from lidarfuzz.report.ratings import ratings_view
     from lidarfuzz.report.structural import structural_view
 
     task = summary.task
@@ -360,6 +377,7 @@ def context(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = 
         "baseline": task.baseline,
         "comparisons": [comparison_view(c) for c in comparisons],
         "comparison_notes": list(comparison_notes),
+        "ratings": ratings_view(ratings),
     }
 
 
@@ -375,7 +393,8 @@ def _environment() -> Any:
 
 def render_html(summary: TaskSummary, *, images: Mapping[int, bytes | str] | None = None,
                 chart_pngs: Mapping[str, bytes] | None = None, image_limit: int | None = None,
-                comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = ()) -> str:
+                comparisons: Sequence[TaskComparison] = (), comparison_notes: Sequence[str] = (),
+                ratings: RatingTally | None = None) -> str:
     """The report of ``summary`` as one HTML document.
 
     Args:
@@ -386,10 +405,12 @@ def render_html(summary: TaskSummary, *, images: Mapping[int, bytes | str] | Non
         image_limit: How many pictures were asked for (shown when findings have none).
         comparisons: Comparisons with reference or baseline tasks (:mod:`lidarfuzz.report.comparison`).
         comparison_notes: Why a comparison that was asked for could not be made.
+        ratings: Raters' verdicts on the task's pairs (:func:`lidarfuzz.campaign.ratings.tally`):
+            the thesis's Table 6-7 section, shown when there are any.
     """
     template = _environment().get_template("report.html.j2")
     return template.render(**context(summary, images=images, chart_pngs=chart_pngs, image_limit=image_limit,
-                                     comparisons=comparisons, comparison_notes=comparison_notes))
+                                     comparisons=comparisons, comparison_notes=comparison_notes, ratings=ratings))
 
 
 __all__ = ["context", "fmt_ap", "fmt_delta", "fmt_pct", "render_html"]

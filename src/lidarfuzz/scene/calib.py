@@ -116,6 +116,7 @@ class KittiCalibration:
         """Parse the text of a KITTI calib file; errors name the file, line and key."""
         shapes = {key: (rows, cols) for key, rows, cols in CALIB_KEYS}
         found: dict[str, NDArray[np.float64]] = {}
+        lines: dict[str, int] = {}
         for lineno, raw in enumerate(text.splitlines(), start=1):
             line = raw.strip()
             if not line:
@@ -143,12 +144,19 @@ class KittiCalibration:
             if not np.all(np.isfinite(values)):
                 raise DataFormatError(path, "values must be finite", line=lineno, field=key)
             found[key] = values.reshape(rows, cols)
+            lines[key] = lineno
         missing = [k for k in REQUIRED_KEYS if k not in found]
         if missing:
             raise DataFormatError(
                 path, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}",
                 hint=f"a KITTI calib file needs {', '.join(REQUIRED_KEYS)}",
             )
+        for key in ("R0_rect", "Tr_velo_to_cam"):
+            if not invertible(found[key][:, :3]):
+                raise DataFormatError(path, "its 3×3 rotation is not invertible (labels cannot be placed in the "
+                                      "LiDAR frame)", line=lines[key], field=key)
+        # P2 is left as it is: LiDAR-only data sets write placeholders, and only the camera modality,
+        # which needs its inverse, refuses a singular one (lidarfuzz.io.images.kitti)
         return cls.from_mapping(found)
 
     @classmethod
@@ -291,6 +299,14 @@ class KittiCalibration:
         rotation_y = -b[:, 6] - np.pi / 2.0
         alpha: NDArray[np.float64] = wrap_angle(-np.arctan2(-b[:, 1], b[:, 0]) + rotation_y)
         return alpha
+
+
+def invertible(matrix: NDArray[np.float64]) -> bool:
+    """Whether a 3×3 matrix has an inverse that float64 arithmetic can use: a rotation's condition
+    number is 1; beyond 1e12 the inverse loses all but a few digits (or does not exist)."""
+    with np.errstate(all="ignore"):
+        condition = float(np.linalg.cond(matrix))
+    return bool(np.isfinite(condition) and condition < 1e12)
 
 
 def _is_float(token: str) -> bool:

@@ -35,18 +35,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from lidarfuzz.errors import DataFormatError, validation_error
+from lidarfuzz.io.guards import reading
+from lidarfuzz.io.textfiles import load_structured
 
 
 class ShadowSector(BaseModel):
     """Rays the vehicle itself blocks: those fired within ``azimuth_deg`` (from, to; degrees,
     counter-clockwise from ahead, −180…180) at or below ``below_deg`` elevation."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     azimuth_deg: tuple[float, float]
     below_deg: float = Field(ge=-90, le=90)
@@ -110,7 +111,7 @@ class Receiver(BaseModel):
     ``Receiver.clean()`` is the idealised reading of earlier versions: ``e`` itself.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     scale: float = Field(default=0.45, gt=0, le=10)
     dark: float = Field(default=0.065, ge=0, le=1, description="backscatter that reads 0")
@@ -199,7 +200,7 @@ class Dropouts(BaseModel):
     * **the vehicle's shadow**: rays blocked by the car and its roof rack (:class:`ShadowSector`).
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     specular_cos: float = Field(default=0.4, ge=0, le=1)
     beam_loss_spread: float = Field(default=0.5, ge=0, le=3)
@@ -218,6 +219,12 @@ class Dropouts(BaseModel):
         if not 1 <= value[0] <= value[1]:
             raise ValueError("gap_columns must be (min, max) with 1 <= min <= max")
         return value
+
+
+#: Most beams a simulated sensor may have (the largest made have 128).
+MAX_BEAMS = 1024
+#: Most rays per revolution (beams × columns) simulated: 16 times a 128-beam sensor at 2,048 columns.
+MAX_RAYS = 1 << 22
 
 
 class LidarSensor(BaseModel):
@@ -246,19 +253,20 @@ class LidarSensor(BaseModel):
         dropouts: Losses of returns (:class:`Dropouts`).
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     name: str = "custom"
-    elevations_deg: tuple[float, ...] = Field(min_length=1)
+    elevations_deg: tuple[float, ...] = Field(min_length=1, max_length=MAX_BEAMS)
     columns: int = Field(gt=0, le=100_000)
-    max_range: float = Field(gt=0)
-    min_range: float = Field(default=0.9, ge=0)
-    mount_height: float = 1.73
-    rotation_hz: float = Field(default=10.0, gt=0)
-    range_noise: float = Field(default=0.02, ge=0)
+    # bounds far beyond any sensor made: a value past them (1e300) overflowed the simulator's arithmetic
+    max_range: float = Field(gt=0, le=10_000)
+    min_range: float = Field(default=0.9, ge=0, le=10_000)
+    mount_height: float = Field(default=1.73, gt=0, le=100)
+    rotation_hz: float = Field(default=10.0, ge=0.1, le=1000)
+    range_noise: float = Field(default=0.02, ge=0, le=100)
     drop_rate: float = Field(default=0.01, ge=0, le=1)
-    detection_threshold: float = Field(default=0.4, ge=0)
-    intensity_noise: float = Field(default=0.03, ge=0)
+    detection_threshold: float = Field(default=0.4, ge=0, le=1e9)
+    intensity_noise: float = Field(default=0.03, ge=0, le=100)
     mount_pitch_deg: float = Field(default=0.0, ge=-10, le=10)
     mount_roll_deg: float = Field(default=0.0, ge=-10, le=10)
     receiver: Receiver = Field(default_factory=Receiver)
@@ -270,6 +278,13 @@ class LidarSensor(BaseModel):
         if any(not -90.0 < e < 90.0 for e in value):
             raise ValueError("every elevation must lie strictly between -90 and 90 degrees")
         return value
+
+    @model_validator(mode="after")
+    def _rays_bounded(self) -> LidarSensor:
+        if self.rays > MAX_RAYS:
+            raise ValueError(f"{self.beams} beams × {self.columns} columns = {self.rays:,} rays per revolution; "
+                             f"at most {MAX_RAYS:,} are simulated")
+        return self
 
     @property
     def beams(self) -> int:
@@ -427,10 +442,7 @@ def load_sensor(spec: str | PathLike[str] | LidarSensor | dict[str, Any]) -> Lid
     path = Path(text)
     if not path.exists():
         raise DataFormatError(path, f"is neither a sensor preset ({', '.join(SENSOR_PRESETS)}) nor a file")
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise DataFormatError(path, f"cannot read sensor description: {exc}") from None
+    raw = load_structured(path, "a sensor description")
     if not isinstance(raw, dict):
         raise DataFormatError(path, "a sensor description must be a mapping of fields such as preset, "
                               "elevations_deg, columns, max_range, mount_height (see docs/simulator.md)")
@@ -441,13 +453,20 @@ def _sensor_from_mapping(raw: dict[str, Any], source: Path | None) -> LidarSenso
     raw = dict(raw)
     base: dict[str, Any] = {}
     preset = raw.pop("preset", None)
+    where = source or Path("<sensor>")
     if preset is not None:
-        base = load_sensor(str(preset)).model_dump()
+        # a preset's name only: a file naming a file (itself, say) would be read again and again
+        known = {name.lower(): sensor for name, sensor in SENSOR_PRESETS.items()}
+        if not isinstance(preset, str) or preset.lower() not in known:
+            raise DataFormatError(where, f"{preset!r} is not a sensor preset ({', '.join(SENSOR_PRESETS)})",
+                                  field="preset")
+        base = known[preset.lower()].model_dump()
     base.update(raw)
-    try:
-        return LidarSensor.model_validate(base)
-    except ValidationError as exc:
-        raise validation_error(source or Path("<sensor>"), exc) from None
+    with reading(where, "read the sensor description"):  # what pydantic's validators do not turn into errors
+        try:
+            return LidarSensor.model_validate(base)
+        except ValidationError as exc:
+            raise validation_error(where, exc) from None
 
 
 def sensor_summary(sensor: LidarSensor) -> dict[str, Any]:

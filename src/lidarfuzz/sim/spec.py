@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections import deque
 from os import PathLike
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -39,6 +40,8 @@ from pydantic import (
 )
 
 from lidarfuzz.errors import DataFormatError, validation_error
+from lidarfuzz.io.guards import reading
+from lidarfuzz.io.textfiles import load_structured
 from lidarfuzz.sim.actors import ACTOR_CLASSES
 from lidarfuzz.sim.materials import MATERIALS
 from lidarfuzz.sim.sensor import DEFAULT_SENSOR, LidarSensor
@@ -47,7 +50,7 @@ Point2 = tuple[float, float]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True, allow_inf_nan=False)
 
 
 def _known_material(value: str | None) -> str | None:
@@ -328,7 +331,7 @@ class SceneSpec(_Model):
     """A whole scene: layout, actors, the ego vehicle and its sensor."""
 
     name: str = "scene"
-    seed: int = Field(default=0, description="seeds the sensor noise; the layout is fixed by the description")
+    seed: int = Field(default=0, ge=0, description="seeds the sensor noise; the layout is fixed by the description")
     ground: Literal["grass", "soil", "paving"] = "grass"
     extent: float = Field(default=140.0, gt=10, le=2000, description="half-size of the ground square around the route")
     terrain: Terrain = Field(default_factory=Terrain)
@@ -345,30 +348,48 @@ class SceneSpec(_Model):
         return yaml.safe_dump(json.loads(self.model_dump_json(by_alias=True)), sort_keys=False)
 
 
+#: Largest magnitude of a number in a scene description (metres, seconds, m/s; the seed aside): 10 km
+#: is five times the largest ground square (``extent`` ≤ 2,000). A building wall of 10^300 m asked the
+#: simulator for more window panes than memory holds.
+MAX_SCENE_NUMBER = 10_000.0
+
+
+def _number_out_of_range(data: Any, where: str = "") -> tuple[str, float] | None:
+    """The key path and value of the first number in ``data`` beyond :data:`MAX_SCENE_NUMBER` (seeds aside)."""
+    pending: deque[tuple[str, Any]] = deque([(where, data)])
+    while pending:
+        path, value = pending.popleft()
+        if isinstance(value, dict):
+            pending += [(f"{path}.{key}" if path else str(key), item) for key, item in value.items()
+                        if key != "seed"]
+        elif isinstance(value, (list, tuple)):
+            pending += [(f"{path}.{index}", item) for index, item in enumerate(value)]
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) > MAX_SCENE_NUMBER:
+            return path or "<root>", value
+    return None
+
+
 def parse_scene(data: Any, source: str | PathLike[str] = "<scene>") -> SceneSpec:
     """Validate a mapping as a :class:`SceneSpec`; errors name the offending key."""
     if not isinstance(data, dict):
         raise DataFormatError(source, "a scene description must be a mapping with keys such as roads, actors, ego")
-    try:
-        return SceneSpec.model_validate(data)
-    except ValidationError as exc:
-        raise validation_error(Path(source), exc) from None
+    with reading(source, "read the scene description"):  # what pydantic's validators do not turn into errors
+        try:
+            spec = SceneSpec.model_validate(data)
+        except ValidationError as exc:
+            raise validation_error(Path(source), exc) from None
+    # the numbers as validated: YAML 1.1 reads 1e300 (no dot) as text, which pydantic then makes a float
+    beyond = _number_out_of_range(spec.model_dump(by_alias=True))
+    if beyond is not None:
+        raise DataFormatError(source, f"{beyond[1]:g} is beyond ±{MAX_SCENE_NUMBER:,.0f} (metres, seconds, m/s)",
+                              field=beyond[0])
+    return spec
 
 
 def load_scene(path: str | PathLike[str]) -> SceneSpec:
     """Read a scene description from a YAML or JSON file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFormatError(path, f"cannot read scene description: {exc}") from None
-    try:
-        data = yaml.safe_load(text)  # YAML is a superset of JSON
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(exc, 'problem', exc)}", line=line) from None
-    return parse_scene(data, path)
+    return parse_scene(load_structured(path, "a scene description"), path)
 
 
 __all__ = [

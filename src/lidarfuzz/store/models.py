@@ -123,6 +123,11 @@ class Task(Base):
     worker: Mapped[str] = mapped_column(String(200), default="",
                                         server_default="")  # host:pid of the process running it
     heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    tags: Mapped[list[Any]] = mapped_column(default=list, server_default="[]")  # the user's labels, strings
+    notes: Mapped[str] = mapped_column(Text, default="", server_default="")
+    #: the list's sortable figures once the task is done (None before): {"map", "delta_map",
+    #: "violations", "failures"}; written with the summary
+    headline: Mapped[dict[str, Any] | None] = mapped_column(SafeJSON(none_as_null=True), nullable=True, default=None)
 
     dataset: Mapped[Dataset] = relationship()
     model: Mapped[Model] = relationship()
@@ -153,6 +158,8 @@ class Subtask(Base):
     state: Mapped[dict[str, Any] | None] = mapped_column(SafeJSON(none_as_null=True), nullable=True,
                                                           default=None)  # the kind's, to resume (a search's)
     results: Mapped[SubtaskResults] = mapped_column(ContractJSON(SubtaskResults), default=SubtaskResults)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)  # its first unit ran
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)  # its figures written
 
     task: Mapped[Task] = relationship(back_populates="subtasks")
 
@@ -285,3 +292,38 @@ class CoverageRecord(Base):
     covered_count: Mapped[int] = mapped_column(Integer)
     total_count: Mapped[int] = mapped_column(Integer)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+
+
+# -- the thesis's first experiment: people judge original/mutant pairs -----------------------
+class Rating(Base):
+    """One rater's verdict on one original/mutant pair (the thesis's Table 6-7 experiment): the pair
+    is the mutant's frame result (its original is the same frame of the task's originals). A rater
+    rates a pair once: rating it again replaces the verdict, keeping when it was first rated."""
+
+    __tablename__ = "ratings"
+    __table_args__ = (UniqueConstraint("frame_result_id", "rater"),
+                      CheckConstraint("verdict IN ('same', 'similar', 'different')", name="ck_rating_verdict"))
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), index=True)
+    frame_result_id: Mapped[int] = mapped_column(ForeignKey("frame_results.id", ondelete="CASCADE"), index=True)
+    rater: Mapped[str] = mapped_column(String(100))
+    verdict: Mapped[str] = mapped_column(String(16))
+    first_rated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+    rated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)  # the latest verdict's time
+
+
+# -- one runner per task: the claim ``run_task`` holds while it runs (lidarfuzz.store.claims) -------------
+class TaskClaim(Base):
+    """Which process runs a task now: at most one row per task (its primary key), taken by a
+    compare-and-set on ``token`` and renewed by a heartbeat; a claim whose process is gone (same
+    host) or whose heartbeat stopped is taken over (:mod:`lidarfuzz.store.claims`)."""
+
+    __tablename__ = "task_claims"
+
+    task_id: Mapped[int] = mapped_column(ForeignKey("tasks.id", ondelete="CASCADE"), primary_key=True)
+    token: Mapped[str] = mapped_column(String(64))  # this claim's own id: only its holder renews or releases it
+    host: Mapped[str] = mapped_column(String(255))
+    pid: Mapped[int] = mapped_column(Integer)
+    claimed_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)
+    renewed_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=now)

@@ -7,39 +7,54 @@
 * :class:`IsolatedSut` hosts any SUT, named by its spec, in a worker process. A hang is cut
   off after ``timeout`` seconds by killing the worker (``timeout``), a worker that dies —
   segfault, ``os._exit``, out of memory — is a ``crash``; either way the next call starts a
-  fresh worker, so a campaign goes on.
+  fresh worker, so a campaign goes on. The worker runs fenced as programs under test do
+  (:mod:`lidarfuzz.suts.processes`): in a session of its own, under ``memory_limit`` (address
+  space, default 8 GiB; a leak ends as the system's ``MemoryError``, a ``crash``), and a stopped
+  worker takes every process it started with it (:func:`stop_served`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
+import signal
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
+from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.suts.base import Failure, FailureKind, SutResult, SystemUnderTest
 from lidarfuzz.suts.errors import SutError
+from lidarfuzz.suts.processes import MAX_BOXES, MEMORY_LIMIT, Limits, apply_limits, kill_all_groups
 from lidarfuzz.suts.registry import create
 
 
 def _failure_of(exc: BaseException) -> Failure:
     if isinstance(exc, SutError):
         return exc.failure()
+    if isinstance(exc, MemoryError):  # past the worker's memory_limit, or the machine's memory
+        detail = "".join(traceback.format_exception(exc))[-8000:]
+        return Failure(FailureKind.CRASH, f"out of memory (MemoryError{f': {exc}' if str(exc) else ''})", detail)
     message = f"{type(exc).__name__}: {exc}".splitlines()[0][:500]
     return Failure(FailureKind.CRASH, message, "".join(traceback.format_exception(exc))[-8000:])
 
 
 def run_guarded(sut: SystemUnderTest[Any, Any], sample: Any) -> SutResult[Any]:
-    """One call of ``sut.detect`` that never raises for a failure of the SUT itself."""
+    """One call of ``sut.detect`` that never raises for a failure of the SUT itself; more
+    detections than the system's ``max_boxes`` (default 10,000) are an ``invalid_output``."""
     start = time.perf_counter()
     try:
         output = sut.detect(sample)
     except Exception as exc:  # the system under test's failure is a result
         return SutResult(None, _failure_of(exc), time.perf_counter() - start)
     elapsed = time.perf_counter() - start
+    limit = getattr(sut, "max_boxes", MAX_BOXES)
+    if isinstance(output, Boxes3D) and len(output) > limit:
+        message = f"{len(output)} detections, more than max_boxes={limit} (a SUT option)"
+        return SutResult(None, Failure(FailureKind.INVALID_OUTPUT, message), elapsed)
     problem = sut.validate(output)
     if problem is not None:
         return SutResult(None, Failure(FailureKind.INVALID_OUTPUT, problem), elapsed)
@@ -69,10 +84,45 @@ def _serve(spec: str, conn: Connection, options: dict[str, Any] | None = None) -
     sut.close()
 
 
+def _stop_on_term(signum: int, frame: Any) -> None:
+    """A served worker told to stop: the programs its system started go with it."""
+    kill_all_groups()
+    os._exit(128 + signum)
+
+
+def _fenced(serve: Callable[..., None], memory_limit: int | None, spec: str, conn: Connection,
+            options: Any) -> None:
+    """The served worker's entry: its own session (so that :func:`stop_served` kills what it
+    starts), its memory limit, then ``serve``."""
+    os.setsid()
+    apply_limits(Limits(memory=memory_limit))
+    signal.signal(signal.SIGTERM, _stop_on_term)
+    try:
+        serve(spec, conn, options)
+    finally:
+        kill_all_groups()
+
+
+def stop_served(process: Any, grace: float = 1.0) -> None:
+    """Stop a worker of :func:`spawn_served` and everything it started: ``SIGTERM`` (it kills the
+    programs its system started), then ``SIGKILL`` to its whole process group after ``grace`` s."""
+    if process.is_alive():
+        with contextlib.suppress(ProcessLookupError, OSError):
+            os.kill(process.pid, signal.SIGTERM)
+        process.join(grace)
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(process.pid, signal.SIGKILL)  # its group: the worker leads it (setsid)
+    if process.is_alive():
+        process.kill()
+    process.join()
+
+
 def spawn_served(serve: Callable[..., None], spec: str, options: Any, name: str,
-                 start_timeout: float) -> tuple[Any, Any, tuple[Any, Any, Any, Any]]:
-    """Start ``serve(spec, connection, options)`` in a spawned process and wait for it to load
-    the system: (the process, the parent's end of the pipe, the system's identity as sent).
+                 start_timeout: float, memory_limit: int | None = MEMORY_LIMIT,
+                 ) -> tuple[Any, Any, tuple[Any, Any, Any, Any]]:
+    """Start ``serve(spec, connection, options)`` in a spawned process — in a session of its
+    own, its address space limited to ``memory_limit`` bytes (None: unlimited) — and wait for it
+    to load the system: (the process, the parent's end of the pipe, the system's identity as sent).
 
     Raises:
         SutError: ``timeout`` when it is not ready within ``start_timeout``; ``crash`` when it
@@ -80,20 +130,21 @@ def spawn_served(serve: Callable[..., None], spec: str, options: Any, name: str,
     """
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe()
-    process = ctx.Process(target=serve, args=(spec, child, options), daemon=True, name=name)
+    process = ctx.Process(target=_fenced, args=(serve, memory_limit, spec, child, options), daemon=True, name=name)
     process.start()
     child.close()
     if not parent.poll(start_timeout):
-        process.kill()
-        process.join()
+        stop_served(process)
         raise SutError(FailureKind.TIMEOUT, f"{spec}: not ready after {start_timeout:g} s")
     try:
         reply = parent.recv()
     except EOFError:
-        process.join()
-        raise SutError(FailureKind.CRASH, f"{spec}: died while loading (exit code {process.exitcode})") from None
+        process.join(5)
+        code = process.exitcode
+        stop_served(process)
+        raise SutError(FailureKind.CRASH, f"{spec}: died while loading (exit code {code})") from None
     if reply[0] == "error":
-        process.join()
+        stop_served(process)
         failure: Failure = reply[1]
         raise SutError(failure.kind, f"{spec}: could not load: {failure.message}", failure.detail)
     return process, parent, (reply[1], reply[2], reply[3], reply[4])
@@ -137,14 +188,20 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
         timeout: Seconds one sample may take; the worker is killed beyond it.
         start_timeout: Seconds the worker may take to import and load the SUT.
         options: Keyword options for :func:`~lidarfuzz.suts.registry.create`.
+        memory_limit: The worker's address space (bytes or a size such as ``"4GiB"``; default
+            8 GiB; 0 or None: unlimited, e.g. for a system on a GPU, whose driver reserves more
+            address space than that).
     """
 
     def __init__(self, spec: str, *, timeout: float = 60.0, start_timeout: float = 120.0,
-                 options: dict[str, Any] | None = None) -> None:
+                 options: dict[str, Any] | None = None, memory_limit: int | str | None = MEMORY_LIMIT) -> None:
         self.spec = spec
         self.options = dict(options or {})
         self.timeout = timeout
         self.start_timeout = start_timeout
+        self.memory_limit = Limits.of(memory_limit).memory
+        boxes = self.options.get("max_boxes", MAX_BOXES)  # the hosted system's limit, checked here too
+        self.max_boxes = boxes if isinstance(boxes, int) and not isinstance(boxes, bool) else MAX_BOXES
         self._process: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
         self._identity: tuple[str, str, str, tuple[str, ...] | None] | None = None
@@ -180,12 +237,12 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
         if self._process is not None and self._process.is_alive():
             return
         self._process, self._conn, self._identity = spawn_served(_serve, self.spec, self.options,
-                                                                 f"sut:{self.spec}", self.start_timeout)
+                                                                 f"sut:{self.spec}", self.start_timeout,
+                                                                 self.memory_limit)
 
     def _kill(self) -> None:
         if self._process is not None:
-            self._process.kill()
-            self._process.join()
+            stop_served(self._process)
         if self._conn is not None:
             self._conn.close()
         self._process = self._conn = None
@@ -206,9 +263,7 @@ class IsolatedSut(SystemUnderTest[Any, Any]):
                 self._conn.send(None)
         if self._process is not None:
             self._process.join(5)
-            if self._process.is_alive():
-                self._process.kill()
-                self._process.join()
+            stop_served(self._process)  # what it started too, whether it exited or not
         if self._conn is not None:
             self._conn.close()
         self._process = self._conn = None

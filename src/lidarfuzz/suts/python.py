@@ -24,6 +24,7 @@ from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import SystemUnderTest
 from lidarfuzz.suts.conventions import Convention, detections
+from lidarfuzz.suts.processes import MAX_BOXES
 
 
 def _numpy(value: Any) -> Any:
@@ -78,6 +79,8 @@ class PythonSut(SystemUnderTest[Scene, Boxes3D]):
         class_names: Names of integer class ids.
         classes: Classes it may output (None: any).
         config: Extra JSON-able configuration for the fingerprint (e.g. a checkpoint hash).
+        max_boxes: Most detections accepted per sample (default 10,000; more are an
+            ``invalid_output`` when the call is guarded).
     """
 
     def __init__(
@@ -91,6 +94,7 @@ class PythonSut(SystemUnderTest[Scene, Boxes3D]):
         class_names: Sequence[str] | None = None,
         classes: Sequence[str] | None = ("Car", "Pedestrian", "Cyclist"),
         config: Mapping[str, Any] | None = None,
+        max_boxes: int = MAX_BOXES,
     ) -> None:
         self.target = target
         self.name = name or str(getattr(target, "__qualname__", type(target).__name__))  # type: ignore[misc]
@@ -100,6 +104,9 @@ class PythonSut(SystemUnderTest[Scene, Boxes3D]):
         self.class_names = list(class_names) if class_names is not None else None
         self.classes = tuple(classes) if classes is not None else None  # type: ignore[misc]
         self._config = dict(config or {})
+        if isinstance(max_boxes, bool) or not isinstance(max_boxes, int) or max_boxes < 0:
+            raise ValueError(f"max_boxes: expected a whole number >= 0, got {max_boxes!r}")
+        self.max_boxes = max_boxes
 
     def config(self) -> dict[str, Any]:
         module = getattr(self.target, "__module__", "")

@@ -57,7 +57,8 @@ from lidarfuzz.suts.steering.pytorch import TorchSteering
 from lidarfuzz.suts.steering.worker import WorkerSteering
 
 __all__ = ["CAMERA_GROUP", "GROUP", "SCHEMES", "SEQUENCE_GROUP", "SutSpecError", "available", "available_camera",
-           "available_sequences", "create", "create_camera", "create_sequence", "split_spec", "sut_factory"]
+           "available_sequences", "create", "create_camera", "create_sequence", "split_spec", "sut_factory",
+           "system_type"]
 
 GROUP = "lidarfuzz.suts"
 SEQUENCE_GROUP = "lidarfuzz.sequence_suts"
@@ -229,6 +230,48 @@ def create_camera(spec: str, **options: Any) -> SteeringSystem:
         return _torch_steering(spec, made, options)
     raise SutSpecError(f"SUT spec {spec!r}: {base} gave {type(made).__name__}, which is neither a SteeringSystem "
                        "nor a torch.nn.Module")
+
+
+def system_type(system: SystemUnderTest[Any, Any] | SequenceSystem) -> tuple[str, str]:
+    """What kind of system a built one is, as ``(code, label)`` — the model list's *type* column:
+    ``classic`` (the classic pipeline), ``bugzoo`` (a bug-zoo variant of it), ``pillars``
+    (lidarfuzz's learned PointPillars), ``open3d``, ``onnx``, ``subprocess``, ``worker``, ``python``
+    (a detector callable), ``steering`` (a built-in steering network), ``onnx-steering``,
+    ``torch-steering``, ``worker-steering``, ``sequence`` (a system consuming logs in order: the
+    controller, its bug-zoo variants, ...), or ``plugin`` (any other class, named in the label).
+
+    Read from the class :func:`create`, :func:`create_camera` or :func:`create_sequence` built, so
+    it is what will run, not a guess from the spec's text.
+
+    >>> system_type(create("classic-bug-roi-cache"))
+    ('bugzoo', 'bug-zoo variant of the classic pipeline')
+    """
+    from lidarfuzz.suts.bugzoo import BuggyPipeline
+    from lidarfuzz.suts.classic import ClassicPipeline
+    from lidarfuzz.suts.learned.sut import PillarsDetector
+    from lidarfuzz.suts.steering.builtin import BuiltinSteering
+
+    known: tuple[tuple[type, str, str], ...] = (  # subclasses before their bases
+        (BuggyPipeline, "bugzoo", "bug-zoo variant of the classic pipeline"),
+        (ClassicPipeline, "classic", "classic pipeline"),
+        (PillarsDetector, "pillars", "learned PointPillars"),
+        (Open3DPointPillars, "open3d", "Open3D-ML PointPillars"),
+        (OnnxSut, "onnx", "ONNX model"),
+        (SubprocessSut, "subprocess", "program run once per frame"),
+        (WorkerSut, "worker", "worker process"),
+        (PythonSut, "python", "Python detector callable"),
+        (BuiltinSteering, "steering", "built-in steering network"),
+        (OnnxSteering, "onnx-steering", "ONNX steering network"),
+        (TorchSteering, "torch-steering", "torch steering network"),
+        (WorkerSteering, "worker-steering", "steering worker process"),
+    )
+    for cls, code, label in known:
+        if isinstance(system, cls):
+            return code, label
+    if isinstance(system, SequenceSystem):
+        return "sequence", f"system consuming logs in order ({system.name})"
+    kind = "steering system" if isinstance(system, SteeringSystem) else "system"
+    return "plugin", f"plugin {kind} ({type(system).__name__})"
 
 
 def sut_factory(fn: Any) -> Any:

@@ -54,6 +54,7 @@ from lidarfuzz.suts.base import Failure, FailureKind, SystemIdentity, validate_d
 from lidarfuzz.suts.code import program_code
 from lidarfuzz.suts.errors import SutError
 from lidarfuzz.suts.external import PointsFormat, WorkerSut, parse_response
+from lidarfuzz.suts.processes import MAX_ANSWER_BYTES, MEMORY_LIMIT
 
 #: The steering limit (radians) of a decision unless the system declares its own.
 MAX_STEERING = math.pi / 2
@@ -371,13 +372,17 @@ class WorkerSequence(SequenceSystem):
         points_format: ``bin`` or ``pcd``.
         max_steering: Steering limit of a valid decision (rad).
         cwd: Working directory.
+        memory_limit, cpu_limit, max_answer_bytes: The program's limits, as for
+            :class:`~lidarfuzz.suts.external.WorkerSut`.
     """
 
     def __init__(self, command: str, *, name: str | None = None, version: str = "0", timeout: float = 60.0,
                  points_format: PointsFormat = "bin", max_steering: float = MAX_STEERING,
-                 cwd: str | None = None) -> None:
+                 cwd: str | None = None, memory_limit: int | str | None = MEMORY_LIMIT,
+                 cpu_limit: float | None = None, max_answer_bytes: int | str = MAX_ANSWER_BYTES) -> None:
         self.worker = WorkerSut(command, name=name, version=version, timeout=timeout, points_format=points_format,
-                                cwd=cwd)
+                                cwd=cwd, memory_limit=memory_limit, cpu_limit=cpu_limit,
+                                max_answer_bytes=max_answer_bytes)
         self.name = self.worker.name  # type: ignore[misc]
         self.version = version  # type: ignore[misc]
         self.max_steering = max_steering  # type: ignore[misc]

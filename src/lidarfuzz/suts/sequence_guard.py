@@ -20,7 +20,7 @@ from typing import Any
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.suts.base import FailureKind
 from lidarfuzz.suts.errors import SutError
-from lidarfuzz.suts.guard import ask_served, spawn_served
+from lidarfuzz.suts.guard import ask_served, spawn_served, stop_served
 from lidarfuzz.suts.registry import create_sequence
 from lidarfuzz.suts.sequence import Decision, SequenceSystem, failure_of
 
@@ -113,8 +113,7 @@ class IsolatedSequence(SequenceSystem):
 
     def _kill(self) -> None:
         if self._process is not None:
-            self._process.kill()
-            self._process.join()
+            stop_served(self._process)  # the host and every program its system started
         if self._conn is not None:
             self._conn.close()
         self._process = self._conn = None
@@ -140,9 +139,7 @@ class IsolatedSequence(SequenceSystem):
                 self._conn.send(None)
         if self._process is not None:
             self._process.join(5)
-            if self._process.is_alive():
-                self._process.kill()
-                self._process.join()
+            stop_served(self._process)  # still running, or programs its system started still are
         if self._conn is not None:
             self._conn.close()
         self._process = self._conn = None

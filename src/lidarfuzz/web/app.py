@@ -19,14 +19,15 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.middleware.gzip import GZipMiddleware
 
 from lidarfuzz import __version__
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
 from lidarfuzz.store.errors import NotFoundError
 from lidarfuzz.store.store import Store, StoreError
 from lidarfuzz.web.context import WebContext, files_root
-from lidarfuzz.web.routes import catalogue, datasets, findings, frames, models, reports, tasks
-from lidarfuzz.web.security import Limits, RequestGuard, token_dependency
+from lidarfuzz.web.routes import catalogue, compare, datasets, findings, frames, models, ratings, reports, tasks
+from lidarfuzz.web.security import Limits, RequestGuard, install_redaction, token_dependency
 from lidarfuzz.web.workers import TaskWorkers
 
 STATIC = Path(__file__).with_name("static")
@@ -62,6 +63,7 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        install_redaction()  # after the server configured its logging: no token= in any log line
         context.workers.start()
         try:
             yield
@@ -76,13 +78,17 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
                   description="Mutation-based and metamorphic testing of LiDAR perception software: the web API. "
                               "Every call drives the same campaign engine as the lidarfuzz CLI.")
     app.state.web = context
+    # compressed answers for clients that accept them (a remote user on a slow link): a finding's pair, 8.9 MB
+    # of float32 LFZ1, goes as 3.6 MB; level 1 costs about 150 ms per pair where level 9 (Starlette's
+    # default) costs 600 ms for 0.3 MB less (benchmarks/web.py); event streams are never compressed
+    app.add_middleware(GZipMiddleware, minimum_size=1024, compresslevel=1)
     app.add_middleware(RequestGuard, limits=context.limits,  # type: ignore[arg-type]
                        loopback_only=token is None if loopback_only is None else loopback_only,
                        same_origin_writes=token is None)
     _errors(app)
 
     api = [Depends(token_dependency(token))]
-    for module in (tasks, reports, findings, frames, datasets, models, catalogue):
+    for module in (tasks, compare, reports, findings, frames, datasets, models, catalogue, ratings):
         app.include_router(module.router, prefix="/api", dependencies=api)
 
     @app.get("/api/health", tags=["health"], dependencies=api)
@@ -120,11 +126,11 @@ def _errors(app: FastAPI) -> None:
     @app.exception_handler(StoreError)
     async def store_error(_request: Request, exc: StoreError) -> JSONResponse:
         code = 404 if isinstance(exc, NotFoundError) else 409
-        return JSONResponse({"detail": str(exc)}, status_code=code)
+        return JSONResponse({"detail": exc.plain}, status_code=code)  # no command-line advice in a web page
 
     @app.exception_handler(LidarfuzzError)
     async def lidarfuzz_error(_request: Request, exc: LidarfuzzError) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=422)
+        return JSONResponse({"detail": exc.plain}, status_code=422)
 
 
 __all__ = ["create_app"]

@@ -11,7 +11,12 @@ Event data (JSON)::
     {"id": 3, "status": "running", "done": 12, "total": 40, "error": "",
      "running": {"id": 9, "label": "fog@3", "done": 2, "total": 10} | null,
      "subtasks": [{"id": 8, "label": "original", "status": "done", "done": 10, "total": 10}, ...],
-     "heartbeat_at": "...", "started_at": "...", "finished_at": null}
+     "heartbeat_at": "...", "started_at": "...", "finished_at": null, "loading": false}
+
+``loading`` is true while the task runs and no unit of the run has finished yet: the system under
+test is loading (a model can take many seconds). The web app's workers know it of the runs they
+drive (:meth:`lidarfuzz.web.workers.TaskWorkers.loading`); without them (a task a CLI process
+runs) it is read from the store: running, and no unit done.
 """
 
 from __future__ import annotations
@@ -43,8 +48,16 @@ def iso(value: Any) -> str | None:
     return str(value.isoformat())
 
 
-def progress_snapshot(store: Store, task_id: int) -> dict[str, Any] | None:
-    """A task's counters and state (None: no such task), read in one short transaction."""
+def progress_snapshot(store: Store, task_id: int,
+                      loading: Callable[[int], bool] | None = None) -> dict[str, Any] | None:
+    """A task's counters and state (None: no such task), read in one short transaction.
+
+    Args:
+        store: The campaign store.
+        task_id: The task.
+        loading: Whether the server's own run of a task has finished no unit yet (its workers'
+            :meth:`~lidarfuzz.web.workers.TaskWorkers.loading`); None: running with no unit done.
+    """
     with store.session() as s:
         task = s.execute(select(Task.id, Task.status, Task.done, Task.total, Task.error, Task.started_at,
                                 Task.finished_at, Task.heartbeat_at, Task.worker).where(Task.id == task_id)).first()
@@ -69,7 +82,16 @@ def progress_snapshot(store: Store, task_id: int) -> dict[str, Any] | None:
                                                                                               running.severity),
                                                      "done": running.done, "total": running.total},
             "subtasks": subtasks, "started_at": iso(task.started_at), "finished_at": iso(task.finished_at),
-            "heartbeat_at": iso(task.heartbeat_at)}
+            "heartbeat_at": iso(task.heartbeat_at), "loading": _loading(task, loading)}
+
+
+def _loading(task: Any, loading: Callable[[int], bool] | None) -> bool:
+    """Whether ``task`` runs and its system under test is still loading (see the module's docstring)."""
+    if task.status != Status.RUNNING:
+        return False
+    if loading is not None and loading(task.id):
+        return True
+    return bool(task.done == 0)
 
 
 def _event(name: str, data: dict[str, Any]) -> str:
@@ -77,19 +99,21 @@ def _event(name: str, data: dict[str, Any]) -> str:
 
 
 async def progress_events(store: Store, task_id: int, disconnected: Callable[[], Any], *,
-                          poll: float = POLL, keepalive: float = KEEPALIVE) -> AsyncIterator[str]:
-    """The ``text/event-stream`` lines of task ``task_id`` until it ends or the client leaves."""
+                          poll: float = POLL, keepalive: float = KEEPALIVE,
+                          loading: Callable[[int], bool] | None = None) -> AsyncIterator[str]:
+    """The ``text/event-stream`` lines of task ``task_id`` until it ends or the client leaves
+    (``loading``: as :func:`progress_snapshot` takes it)."""
     from starlette.concurrency import run_in_threadpool
 
     last: Any = None
     last_sent = time.monotonic()
     yield f"retry: {int(poll * 2000)}\n\n"
     while True:
-        snapshot = await run_in_threadpool(progress_snapshot, store, task_id)
+        snapshot = await run_in_threadpool(progress_snapshot, store, task_id, loading)
         if snapshot is None:
             yield _event("end", {"id": task_id, "status": "deleted"})
             return
-        key = (snapshot["status"], snapshot["done"], snapshot["running"], snapshot["error"],
+        key = (snapshot["status"], snapshot["done"], snapshot["running"], snapshot["error"], snapshot["loading"],
                [(s["status"], s["done"]) for s in snapshot["subtasks"]])
         if key != last:
             last, last_sent = key, time.monotonic()

@@ -10,6 +10,13 @@ On start, unfinished tasks are queued again: pending ones, and running ones whos
 gone (:func:`lidarfuzz.campaign.tasks.looks_alive`, the rule ``lidarfuzz resume`` applies).
 A task interrupted because the server shuts down goes back to pending (it is resumed on the
 next start); one a user stopped stays cancelled.
+
+A server started while the previous one is still shutting down (a restart soon after Ctrl-C)
+finds the task still running in a live process; that process then puts it back to pending, or
+dies with it marked running. So the workers keep looking (every :data:`SWEEP_EVERY` seconds) for
+such orphans — pending with :data:`~lidarfuzz.campaign.lifecycle.STOPPED_NOTE` or
+:data:`~lidarfuzz.campaign.lifecycle.INTERRUPTED_NOTE`, or running in a process that is gone —
+and queue them: a task running when the server stopped is always picked up.
 """
 
 from __future__ import annotations
@@ -19,19 +26,26 @@ import queue
 import threading
 from dataclasses import dataclass, field
 
+from sqlalchemy import select
+from sqlalchemy.orm import load_only
+
+from lidarfuzz.campaign.lifecycle import INTERRUPTED_NOTE, STOPPED_NOTE, ProgressEvent, StopSignal
 from lidarfuzz.campaign.tasks import cancel_task, get_task, list_tasks, looks_alive
-from lidarfuzz.store.errors import NotFoundError
+from lidarfuzz.store.errors import NotFoundError, TaskClaimedError
 from lidarfuzz.store.models import Status, Task
 from lidarfuzz.store.store import Store, StoreError
 
 log = logging.getLogger("lidarfuzz.web")
-SHUTDOWN_NOTE = "the server stopped while it ran; resumed when the server starts again"
+SHUTDOWN_NOTE = STOPPED_NOTE  # the name earlier versions exported
+SWEEP_EVERY = 2.0  # seconds between looks for orphaned tasks (see the module's docstring)
+ORPHAN_NOTES = (STOPPED_NOTE, INTERRUPTED_NOTE)
 
 
 @dataclass
 class _Running:
-    stop: threading.Event = field(default_factory=threading.Event)
+    stop: StopSignal = field(default_factory=StopSignal)
     by_user: bool = False
+    units: int = 0  # units this run committed (0: the system under test is still loading)
 
 
 class TaskWorkers:
@@ -45,8 +59,10 @@ class TaskWorkers:
         inline: Run every unit in the worker thread itself (no process pool; tests, debugging).
     """
 
-    def __init__(self, store: Store, *, threads: int = 1, processes: int | None = None, inline: bool = False) -> None:
+    def __init__(self, store: Store, *, threads: int = 1, processes: int | None = None, inline: bool = False,
+                 sweep_every: float = SWEEP_EVERY) -> None:
         self.store, self.threads, self.processes, self.inline = store, max(0, threads), processes, inline
+        self.sweep_every = sweep_every
         self._queue: queue.Queue[int | None] = queue.Queue()
         self._queued: set[int] = set()
         self._running: dict[int, _Running] = {}
@@ -62,6 +78,9 @@ class TaskWorkers:
                 thread = threading.Thread(target=self._loop, name=f"lidarfuzz-task-worker-{number}", daemon=True)
                 thread.start()
                 self._threads.append(thread)
+            sweeper = threading.Thread(target=self._sweep_loop, name="lidarfuzz-task-sweeper", daemon=True)
+            sweeper.start()
+            self._threads.append(sweeper)
         resumed = []
         for task in reversed(list_tasks(self.store)):  # oldest first
             if task.status == Status.PENDING or (task.status == Status.RUNNING and not looks_alive(task)):
@@ -76,8 +95,8 @@ class TaskWorkers:
         self._closing.set()
         with self._lock:
             for running in self._running.values():
-                running.stop.set()
-        for _ in self._threads:
+                running.stop.interrupt()  # the run ends as pending (STOPPED_NOTE), resumed on the next start
+        for _ in range(self.threads):
             self._queue.put(None)
         for thread in self._threads:
             thread.join(timeout)
@@ -92,6 +111,17 @@ class TaskWorkers:
             self._queued.add(task_id)
         self._queue.put(task_id)
 
+    def resumable(self, task: Task) -> bool:
+        """Whether :meth:`resume` would queue ``task``: not done, not run by a live process, not queued here
+        (cancelled, failed, or interrupted: pending or running with its process gone)."""
+        if task.status == Status.DONE or looks_alive(task):
+            return False
+        with self._lock:
+            running = self._running.get(task.id)
+            queued = task.id in self._queued
+        # a run told to stop a moment ago still finishes its unit: resume waits for it
+        return not queued and (running is None or running.stop.is_set())
+
     def resume(self, task_id: int) -> Status:
         """Queue a cancelled, failed or interrupted task again (only units without a result run, as
         with ``lidarfuzz resume``); a done task, or one another process runs, is left alone."""
@@ -102,12 +132,39 @@ class TaskWorkers:
         with self.store.session() as s:
             task = s.get(Task, task_id)
             if task is None:
-                raise NotFoundError(f"no task {task_id} (lidarfuzz list)")
-            if task.status == Status.DONE or looks_alive(task) or self.is_active(task_id):
+                raise NotFoundError(f"no task {task_id}")
+            if not self.resumable(task):
                 return task.status
             task.status, task.error = Status.PENDING, ""
         self.submit(task_id)
         return Status.PENDING
+
+    def sweep(self) -> list[int]:
+        """Queue the orphans (see the module's docstring): tasks put back to pending by a process
+        that stopped, and running tasks whose process is gone; returns the ids queued."""
+        found = []
+        with self.store.session() as s:  # only what the rule reads: this runs every few seconds
+            tasks = list(s.scalars(select(Task).options(load_only(
+                Task.id, Task.status, Task.error, Task.worker, Task.heartbeat_at)).where(
+                Task.status.in_((Status.PENDING, Status.RUNNING))).order_by(Task.id)))
+        for task in tasks:  # oldest first
+            if self.is_active(task.id):
+                continue
+            orphan = (task.status == Status.PENDING and task.error in ORPHAN_NOTES) or (
+                task.status == Status.RUNNING and not looks_alive(task))
+            if orphan:
+                self.submit(task.id)
+                found.append(task.id)
+        if found:
+            log.info("picked up interrupted task(s) %s", ", ".join(map(str, found)))
+        return found
+
+    def loading(self, task_id: int) -> bool:
+        """Whether this server runs ``task_id`` and no unit of this run has finished yet (the
+        system under test loading)."""
+        with self._lock:
+            running = self._running.get(task_id)
+            return running is not None and running.units == 0
 
     def is_active(self, task_id: int) -> bool:
         """Whether this server has the task queued or running."""
@@ -151,6 +208,13 @@ class TaskWorkers:
             return False  # deleted while queued
         return task.status == Status.PENDING or (task.status == Status.RUNNING and not looks_alive(task))
 
+    def _sweep_loop(self) -> None:
+        while not self._closing.wait(self.sweep_every):
+            try:
+                self.sweep()
+            except Exception:  # a busy or closing store: the next sweep looks again
+                log.debug("sweep failed", exc_info=True)
+
     def _loop(self) -> None:
         while True:
             task_id = self._queue.get()
@@ -162,6 +226,10 @@ class TaskWorkers:
             try:
                 if self._runnable(task_id):
                     self._run(task_id, running)
+            except KeyboardInterrupt:  # Ctrl-C reached the run's worker processes: pending again (INTERRUPTED_NOTE)
+                log.info("task %s interrupted; it resumes when the server starts again", task_id)
+            except TaskClaimedError as exc:  # another process (a CLI resume) runs it: not a failure
+                log.info("task %s is run by another process: %s", task_id, exc)
             except Exception:  # the task records its own failure; the worker keeps serving
                 log.exception("task %s failed", task_id)
             finally:
@@ -172,18 +240,13 @@ class TaskWorkers:
         from lidarfuzz.campaign.executor import InlineExecutor
         from lidarfuzz.campaign.runner import run_task
 
-        executor = InlineExecutor() if self.inline else None
-        outcome = run_task(self.store, task_id, executor=executor, workers=self.processes, stop=running.stop)
-        if outcome.status == Status.CANCELLED and not running.by_user and self._closing.is_set():
-            self._requeue(task_id)
-        log.info("task %s: %s", task_id, outcome.status.value)
+        def progress(_event: ProgressEvent) -> None:
+            running.units += 1
 
-    def _requeue(self, task_id: int) -> None:
-        """Back to pending after a shutdown (unless someone cancelled it meanwhile)."""
-        with self.store.session() as s:
-            task = s.get(Task, task_id)
-            if task is not None and task.status == Status.CANCELLED and not task.error:
-                task.status, task.error = Status.PENDING, SHUTDOWN_NOTE
+        executor = InlineExecutor() if self.inline else None
+        outcome = run_task(self.store, task_id, executor=executor, workers=self.processes, stop=running.stop,
+                           progress=progress)
+        log.info("task %s: %s", task_id, outcome.status.value)
 
 
 __all__ = ["TaskWorkers"]

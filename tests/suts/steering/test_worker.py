@@ -51,6 +51,7 @@ def test_failures_are_results_and_the_program_is_restarted() -> None:
         assert system.restarts == 2
         garbage = run_guarded(system, frame("garbage"))
         assert garbage.failure is not None and garbage.failure.kind is FailureKind.INVALID_OUTPUT
+        assert system.restarts == 3  # a line that is not the answer restarts it: later answers stay paired
         error = run_guarded(system, frame("error"))
         assert error.failure is not None and error.failure.kind is FailureKind.CRASH
         assert "failing as asked" in error.failure.message
@@ -60,7 +61,7 @@ def test_failures_are_results_and_the_program_is_restarted() -> None:
         huge = run_guarded(system, frame("huge"))
         assert huge.failure is not None and huge.failure.kind is FailureKind.INVALID_OUTPUT
         assert "outside the declared range" in huge.failure.message
-        assert system.restarts == 2  # answers the program survived restart nothing
+        assert system.restarts == 3  # answers the program survived (error, NaN, out of range) restart nothing
 
 
 def test_spec_and_fingerprint() -> None:

@@ -2,10 +2,12 @@
 // one point per subtask in task order, the originals' values as dashed reference lines.
 import { h, svg } from "./dom.js";
 
+// three hues far apart (blue, orange, green: told apart with the common colour-vision deficiencies
+// too), each line also with its own dash, named in the legend
 export const METRICS = [
-  { key: "bbox", name: "bbox (2D)", colour: "#6baed6" },
-  { key: "bev", name: "BEV", colour: "#2171b5" },
-  { key: "3d", name: "3D", colour: "#08306b" },
+  { key: "bbox", name: "bbox (2D)", colour: "#1f77b4", dash: "" },
+  { key: "bev", name: "BEV", colour: "#e6550d", dash: "6 3" },
+  { key: "3d", name: "3D", colour: "#2ca02c", dash: "2 3" },
 ];
 
 // One AP figure of a subtask: its KITTI result (the contract's APRecord: {ap: {metric: {class:
@@ -78,7 +80,7 @@ export function apChart(subtasks, { cls = "Car", difficulty = "moderate", points
       path += `${pen ? "L" : "M"}${x(i).toFixed(1)},${y(v).toFixed(1)}`;
       pen = true;
     });
-    if (path) root.append(svg("path", { d: path, stroke: s.colour, class: "series", "data-metric": s.key }));
+    if (path) root.append(svg("path", { d: path, stroke: s.colour, "stroke-dasharray": s.dash || null, class: "series", "data-metric": s.key }));
     s.values.forEach((v, i) => {
       if (v === null) return;
       drawn++;
@@ -91,7 +93,7 @@ export function apChart(subtasks, { cls = "Car", difficulty = "moderate", points
   const legend = h(
     "div",
     { class: "legend" },
-    series.map((s) => h("span", { class: "legend-item" }, h("span", { class: "swatch", style: { background: s.colour } }), s.name)),
+    series.map((s) => h("span", { class: "legend-item", dataset: { metric: s.key }, testid: `legend-${s.key}` }, h("span", { class: "swatch", style: { background: s.colour } }), s.name)),
     h("span", { class: "legend-item muted" }, "dashed: the originals"),
   );
   return h("figure", { class: "chart-figure" }, h("div", { class: "chart-scroll" }, root), legend);

@@ -56,11 +56,14 @@ export function statusBadge(status) {
   return h("span", { class: `badge status-${value}`, testid: "status" }, value);
 }
 
+// ISO 8601 in local time, "YYYY-MM-DD HH:MM:SS": one format in every page, whatever the browser's locale.
 export function formatTime(value) {
   if (!value) return "—";
   const date = new Date(value);
   if (Number.isNaN(date.getTime())) return String(value);
-  return date.toLocaleString(undefined, { dateStyle: "short", timeStyle: "medium" });
+  const two = (n) => String(n).padStart(2, "0");
+  const day = `${date.getFullYear()}-${two(date.getMonth() + 1)}-${two(date.getDate())}`;
+  return `${day} ${two(date.getHours())}:${two(date.getMinutes())}:${two(date.getSeconds())}`;
 }
 
 export function formatNumber(value, digits = 2) {

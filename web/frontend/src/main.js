@@ -2,12 +2,14 @@
 // a clean-up function (close its event stream, dispose its viewer) called when the route changes.
 import { api, initToken } from "./api.js";
 import { clear, h, notice } from "./dom.js";
-import { datasetsPage } from "./pages/datasets.js";
+import { datasetDetailPage, datasetsPage } from "./pages/datasets.js";
 import { browsePage, frameViewerPage } from "./pages/browse.js";
+import { comparePage } from "./pages/compare.js";
 import { findingsPage } from "./pages/findings.js";
 import { findingViewerPage } from "./pages/finding.js";
-import { modelsPage } from "./pages/models.js";
+import { modelDetailPage, modelsPage } from "./pages/models.js";
 import { newTaskPage } from "./pages/newtask.js";
+import { ratingPage } from "./pages/rating.js";
 import { reportPage } from "./pages/report.js";
 import { taskDetailPage } from "./pages/taskdetail.js";
 import { tasksPage } from "./pages/tasks.js";
@@ -16,12 +18,16 @@ const routes = [
   [/^\/?$/, () => tasksPage, "tasks"],
   [/^\/tasks$/, () => tasksPage, "tasks"],
   [/^\/tasks\/new$/, () => newTaskPage, "tasks"],
+  [/^\/compare$/, () => comparePage, "tasks"],
   [/^\/tasks\/(\d+)$/, (m) => (root) => taskDetailPage(root, Number(m[1])), "tasks"],
   [/^\/tasks\/(\d+)\/report$/, (m) => (root) => reportPage(root, Number(m[1])), "tasks"],
+  [/^\/tasks\/(\d+)\/rate$/, (m) => (root, q) => ratingPage(root, Number(m[1]), q), "tasks"],
   [/^\/tasks\/(\d+)\/findings$/, (m) => (root, q) => findingsPage(root, Number(m[1]), q), "tasks"],
   [/^\/findings\/(\d+)$/, (m) => (root, q) => findingViewerPage(root, Number(m[1]), q), "tasks"],
   [/^\/datasets$/, () => datasetsPage, "datasets"],
+  [/^\/datasets\/([^/]+)$/, (m) => (root) => datasetDetailPage(root, decodeURIComponent(m[1])), "datasets"],
   [/^\/models$/, () => modelsPage, "models"],
+  [/^\/models\/([^/]+)$/, (m) => (root) => modelDetailPage(root, decodeURIComponent(m[1])), "models"],
   [/^\/browse$/, () => (root) => browsePage(root, null), "browse"],
   [/^\/browse\/([^/]+)$/, (m) => (root, q) => browsePage(root, decodeURIComponent(m[1]), q), "browse"],
   [

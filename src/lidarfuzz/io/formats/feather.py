@@ -21,6 +21,7 @@ import numpy as np
 from lidarfuzz.errors import DataFormatError, MissingDependencyError
 from lidarfuzz.io.atomic import atomic_path
 from lidarfuzz.io.common import NonFinitePolicy, cloud_from_columns, map_field_names
+from lidarfuzz.io.guards import reading
 from lidarfuzz.io.layouts import LAYOUTS, PointLayout, resolve_layout
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
@@ -57,23 +58,25 @@ def read_points(path: str | PathLike[str], *, nonfinite: NonFinitePolicy = "drop
         raise DataFormatError(path, "file not found") from None
     except Exception as exc:  # pyarrow raises its own ArrowInvalid / OSError kinds
         raise DataFormatError(path, f"not a readable .feather file: {exc}") from None
-    names = list(table.column_names)
-    columns: dict[str, Any] = {}
-    for column in chosen.columns:
-        if column.source not in names:
-            raise DataFormatError(path, f"no column {column.source!r}; found {', '.join(names)}", field=column.source)
-        values = table.column(column.source).to_numpy()
-        columns[column.channel] = values * NANOSECONDS if column.source.endswith("_ns") else values
-    known = {c.source for c in chosen.columns}
-    others = [n for n in names if n not in known]
-    for name, channel in map_field_names(others).items():
-        if channel in columns:
-            channel = f"{channel}_"
-        try:
-            columns[channel] = table.column(name).to_numpy().astype(np.float32)
-        except (TypeError, ValueError):
-            continue  # a non-numeric column (strings) is not a point channel
-    return cloud_from_columns(columns, path, nonfinite=nonfinite)
+    with reading(path, "read the .feather file"):  # pyarrow's errors on odd column types
+        names = list(table.column_names)
+        columns: dict[str, Any] = {}
+        for column in chosen.columns:
+            if column.source not in names:
+                raise DataFormatError(path, f"no column {column.source!r}; found {', '.join(names)}",
+                                      field=column.source)
+            values = table.column(column.source).to_numpy()
+            columns[column.channel] = values * NANOSECONDS if column.source.endswith("_ns") else values
+        known = {c.source for c in chosen.columns}
+        others = [n for n in names if n not in known]
+        for name, channel in map_field_names(others).items():
+            if channel in columns:
+                channel = f"{channel}_"
+            try:
+                columns[channel] = table.column(name).to_numpy().astype(np.float32)
+            except (TypeError, ValueError):
+                continue  # a non-numeric column (strings) is not a point channel
+        return cloud_from_columns(columns, path, nonfinite=nonfinite)
 
 
 def read(path: str | PathLike[str], *, nonfinite: NonFinitePolicy = "drop",

@@ -22,13 +22,15 @@ error. The file's contents, not its suffix, tell ``.npy`` from ``.npz`` on readi
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
+import math
 import zipfile
 from collections.abc import Mapping
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +39,7 @@ from shapely.errors import ShapelyError  # type: ignore[import-untyped]
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.atomic import atomic_path
 from lidarfuzz.io.common import NonFinitePolicy, cloud_from_columns, finish_cloud, map_field_names
+from lidarfuzz.io.guards import describe, file_size, reading, require_bytes
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import CALIB_KEYS, KittiCalibration
 from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud, frozen
@@ -109,8 +112,101 @@ def _columns_from_array(array: NDArray[Any], path: Path, key: str | None = None)
     return {name: array[:, i] for i, name in enumerate(names)}
 
 
+# -- headers, checked before numpy allocates ------------------------------------------------
+#: Longest .npy header read (numpy's own default refusal is at 10,000 bytes).
+_MAX_HEADER = 10_000
+#: Deepest nesting of brackets in a header's dict (a structured dtype nests one level per field level).
+_MAX_NESTING = 16
+#: DEFLATE's densest packing is about 1,032:1; a member declaring more than this is refused.
+_MAX_DEFLATE_RATIO = 1100
+
+
+def _nesting(text: str) -> int:
+    depth = deepest = 0
+    for char in text:
+        if char in "([{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in ")]}":
+            depth -= 1
+    return deepest
+
+
+def _check_npy_header(handle: IO[bytes], path: Path, available: int, key: str | None = None) -> None:
+    """Parse a ``.npy`` header ourselves (bounded length and nesting, :func:`ast.literal_eval` only)
+    and check the array it declares against the ``available`` bytes, before numpy reads it.
+
+    Raises:
+        DataFormatError: naming the file, the archive member (``key``) and the header field.
+    """
+    magic = handle.read(len(NPY_MAGIC) + 2)
+    if len(magic) < len(NPY_MAGIC) + 2 or magic[: len(NPY_MAGIC)] != NPY_MAGIC:
+        raise DataFormatError(path, "cannot load: not a .npy array (no NumPy magic)", field=key)
+    major = magic[-2]
+    if major not in (1, 2, 3):
+        raise DataFormatError(path, f"cannot load: unknown .npy format version {major}.{magic[-1]}", field=key)
+    width = 2 if major == 1 else 4
+    field = handle.read(width)
+    if len(field) < width:
+        raise DataFormatError(path, "cannot load: the .npy header is truncated", field=key)
+    length = int.from_bytes(field, "little")
+    if length > _MAX_HEADER:
+        raise DataFormatError(path, f"cannot load: the .npy header claims {length:,} bytes; at most "
+                              f"{_MAX_HEADER:,} are read", field=key or "header_len")
+    raw = handle.read(length)
+    if len(raw) < length:
+        raise DataFormatError(path, f"cannot load: the .npy header is truncated ({len(raw)} of {length} bytes)",
+                              field=key)
+    try:
+        text = raw.decode("utf-8" if major == 3 else "latin1")
+    except UnicodeDecodeError:
+        raise DataFormatError(path, "cannot load: the .npy header is not text", field=key) from None
+    if _nesting(text) > _MAX_NESTING:
+        raise DataFormatError(path, f"cannot load: the .npy header nests deeper than {_MAX_NESTING} levels", field=key)
+    try:
+        header = ast.literal_eval(text.strip())
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError) as exc:
+        raise DataFormatError(path, f"cannot load: the .npy header is not a Python literal ({type(exc).__name__})",
+                              field=key) from None
+    if not isinstance(header, dict) or set(header) != {"descr", "fortran_order", "shape"}:
+        raise DataFormatError(path, "cannot load: the .npy header must be a dict with keys descr, fortran_order "
+                              "and shape", field=key)
+    shape = header["shape"]
+    if not isinstance(shape, tuple) or not all(isinstance(n, int) and n >= 0 for n in shape):
+        raise DataFormatError(path, f"cannot load: shape must be a tuple of non-negative integers, got {shape!r:.80}",
+                              field=f"{key}.shape" if key else "shape")
+    try:
+        dtype = np.lib.format.descr_to_dtype(header["descr"])
+    except Exception as exc:  # numpy raises ValueError, TypeError, KeyError... for a bad descr
+        raise DataFormatError(path, f"cannot load: not a NumPy dtype: {describe(exc)}",
+                              field=f"{key}.descr" if key else "descr") from None
+    needed, holds = math.prod(shape) * max(dtype.itemsize, 1), max(available - handle.tell(), 0)
+    if needed > holds:
+        raise DataFormatError(path, f"cannot load: the header declares a {dtype} array of shape {shape} "
+                              f"({needed:,} bytes) but {holds:,} bytes follow it",
+                              field=f"{key}.shape" if key else "shape",
+                              hint="the file is truncated or its header is damaged")
+
+
+def _check_npz(path: Path, archive: zipfile.ZipFile) -> None:
+    """Every member's declared size against its compressed size, then its .npy header."""
+    size = file_size(path)
+    for info in archive.infolist():
+        if info.compress_size > size:
+            raise DataFormatError(path, f"member claims {info.compress_size:,} compressed bytes but the archive "
+                                  f"holds {size:,}", field=info.filename)
+        ratio = 1 if info.compress_type == zipfile.ZIP_STORED else _MAX_DEFLATE_RATIO
+        require_bytes(path, info.file_size, ratio * info.compress_size + 64, field=info.filename,
+                      what="decompressed data (more than DEFLATE can pack)")
+        if info.filename.endswith(".npy"):
+            with archive.open(info) as member:
+                _check_npy_header(member, path, info.file_size, key=info.filename.removesuffix(".npy"))
+
+
 # -- .npy -------------------------------------------------------------------------------
 def _read_npy(path: Path, nonfinite: NonFinitePolicy) -> tuple[Scene, int]:
+    with open(path, "rb") as handle:
+        _check_npy_header(handle, path, file_size(path))
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -235,6 +331,7 @@ def _read_npz(path: Path, nonfinite: NonFinitePolicy) -> tuple[Scene, int]:
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFormatError(path, f"not a readable .npz archive: {exc}") from exc
     with archive:
+        _check_npz(path, archive.zip)
         keys = list(archive.files)
         if ARCHIVE_KEY in keys:
             wanted = keys
@@ -267,6 +364,11 @@ def _read_npz(path: Path, nonfinite: NonFinitePolicy) -> tuple[Scene, int]:
 
 # -- public -------------------------------------------------------------------------------
 def _read(path: Path, nonfinite: NonFinitePolicy) -> tuple[Scene, int]:
+    with reading(path, "read the NumPy file"):
+        return _read_checked(path, nonfinite)
+
+
+def _read_checked(path: Path, nonfinite: NonFinitePolicy) -> tuple[Scene, int]:
     magic = _sniff(path)
     if magic.startswith(ZIP_MAGIC):
         return _read_npz(path, nonfinite)

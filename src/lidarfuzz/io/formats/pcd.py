@@ -12,7 +12,8 @@ Reading:
   (``reflectance`` → ``intensity``, ``t`` → ``time``, ...); integer fields wider than
   24 bits and ``F8`` fields are rounded to float32;
 * a field with ``COUNT`` k > 1 becomes channels ``name_0`` … ``name_{k-1}``;
-  padding fields named ``_`` are skipped;
+  padding fields named ``_`` are skipped; a header may claim at most 65,536 values per
+  point in all, and binary_compressed data at most LZF's 88:1 of its compressed size;
 * PCL's packed colour (a 4-byte ``rgb``/``rgba`` field) becomes ``red, green, blue``
   (and ``alpha`` for ``rgba``) channels of 0…255 — as a float it is often NaN;
 * an organised cloud (``HEIGHT`` > 1) is flattened row by row;
@@ -42,6 +43,7 @@ from numpy.typing import NDArray
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.atomic import atomic_path
 from lidarfuzz.io.common import NonFinitePolicy, cloud_from_columns, finish_cloud, map_field_names
+from lidarfuzz.io.guards import reading, require_bytes
 from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -70,6 +72,11 @@ PADDING_FIELD = "_"
 #: Fields holding PCL's packed 0xAARRGGBB colour, read as ``red, green, blue`` (and ``alpha``).
 PACKED_COLOUR = ("rgb", "rgba")
 _MAX_HEADER_LINE = 65536
+#: Values per point (the sum of COUNT) a header may claim: PCL's widest descriptor (SHOT colour)
+#: has 1,344; a claim of 10⁶ took minutes to lay out and 10¹² exhausted memory.
+MAX_VALUES_PER_POINT = 65536
+#: LZF's densest packing: a 3-byte back-reference copies at most 264 bytes (88:1).
+_MAX_LZF_RATIO = 88
 
 
 @dataclass(frozen=True)
@@ -184,6 +191,9 @@ def parse_header(data: bytes, path: str | PathLike[str] = "<pcd>") -> PcdHeader:
                 f"{key} lists {len(values)} values but FIELDS names {len(fields)} fields",
                 line=found[key][0],
             )
+    if sum(counts) > MAX_VALUES_PER_POINT:
+        raise DataFormatError(path, f"COUNT claims {sum(counts):,} values per point; lidarfuzz reads at most "
+                              f"{MAX_VALUES_PER_POINT:,}", line=found["COUNT"][0], field="COUNT")
     named = [f for f in fields if f != PADDING_FIELD]
     for name in named:
         if named.count(name) > 1:
@@ -305,6 +315,9 @@ def _decode_binary(data: bytes, header: PcdHeader, path: Path) -> NDArray[np.voi
                 f"compressed data block claims {compressed_size} bytes but only {len(body) - 8} follow the header",
                 hint="the file is truncated",
             )
+        # checked before pypcd4 allocates the decompressed block
+        require_bytes(path, uncompressed_size, _MAX_LZF_RATIO * compressed_size + 8, field="POINTS",
+                      what="decompressed data (LZF packs at most 88:1)")
     # pypcd4 gets a canonical header: it reads at most 10 header lines, needs COUNT and
     # randomises padding names, none of which matters once fields are named by position.
     canonical = (
@@ -412,6 +425,11 @@ def _read_packed_float32(
 
 
 def _read(path: Path, nonfinite: NonFinitePolicy) -> tuple[PointCloud, int, PcdHeader]:
+    with reading(path, "read the PCD file"):
+        return _read_checked(path, nonfinite)
+
+
+def _read_checked(path: Path, nonfinite: NonFinitePolicy) -> tuple[PointCloud, int, PcdHeader]:
     try:
         data = path.read_bytes()
     except FileNotFoundError:

@@ -20,6 +20,7 @@ Example:
 from __future__ import annotations
 
 import re
+import zlib
 from os import PathLike
 from typing import Literal
 
@@ -70,6 +71,36 @@ def _png_walk(data: bytes) -> tuple[tuple[int, int] | None, bool]:
             return size, True
         at = stop
     return size, False
+
+
+def _png_damage(data: bytes, height: int, width: int) -> str | None:
+    """Why a complete PNG's chunks are damaged (a CRC that does not match, image data that is not a
+    whole zlib stream), or None: checked here so that libpng neither prints to stderr nor decodes it."""
+    at, stream = 8, zlib.decompressobj()
+    # 8 bytes per pixel (16-bit RGBA) and a filter byte per row: no valid image inflates to more
+    budget = height * (1 + width * 8)
+    inflated, ended = 0, False
+    while at + 12 <= len(data):
+        length = int.from_bytes(data[at:at + 4], "big")
+        kind, body = data[at + 4:at + 8], data[at + 8:at + 8 + length]
+        crc = int.from_bytes(data[at + 8 + length:at + 12 + length], "big")
+        name = kind.decode("latin-1")
+        if zlib.crc32(kind + body) != crc:
+            return f"chunk {name!r} at byte {at} fails its CRC check"
+        if kind == b"IDAT" and not ended:
+            try:
+                while body and inflated <= budget:
+                    inflated += len(stream.decompress(body, 1 << 20))
+                    body = stream.unconsumed_tail
+                ended = stream.eof
+            except zlib.error as exc:
+                return f"its image data is not a valid zlib stream ({exc})"
+            if inflated > budget:
+                return f"its image data inflates to more than {width}×{height} pixels hold"
+        if kind == b"IEND":
+            break
+        at += 12 + length
+    return None if ended else "its image data ends before the zlib stream does"
 
 
 def _jpeg_walk(data: bytes) -> tuple[tuple[int, int] | None, bool]:
@@ -126,6 +157,9 @@ def image_header(data: bytes, source: str | PathLike[str]) -> tuple[ImageKind, i
                               hint="the file was cut short; copy it again")
     height, width = size
     check_size(height, width, source)
+    damage = _png_damage(bytes(data), height, width) if kind == "png" else None
+    if damage is not None:
+        raise DataFormatError(source, f"corrupt PNG: {damage}")
     return kind, height, width
 
 

@@ -36,7 +36,7 @@ from lidarfuzz.io.dataset import Dataset, Log
 from lidarfuzz.io.images.decode import decode_depth, decode_image, image_header
 from lidarfuzz.io.images.tabular import number
 from lidarfuzz.io.kitti.dataset import _read_keyed_lines
-from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.calib import KittiCalibration, invertible
 from lidarfuzz.scene.image import ImageSample
 
 #: Camera folder → its projection matrix in calib files.
@@ -243,7 +243,20 @@ class KittiImages(Dataset[ImageSample]):
             return None
         lidar_pose = np.eye(4)
         lidar_pose[:3, :] = self._poses[frame_id].reshape(3, 4)
-        return camera_pose(lidar_pose, calib, np.asarray(getattr(calib, self.projection_key), dtype=np.float64))
+        return camera_pose(lidar_pose, calib, self._projection(frame_id, calib))
+
+    def _projection(self, frame_id: str, calib: KittiCalibration) -> NDArray[np.float64]:
+        """The camera's 3×4 projection from the frame's calib: present, with an invertible 3×3 part."""
+        matrix = getattr(calib, self.projection_key)
+        path = self.root / "calib" / f"{frame_id}.txt"
+        if matrix is None:
+            raise DataFormatError(path, f"no {self.projection_key}: the {self.camera} camera's projection is needed",
+                                  field=self.projection_key)
+        projection = np.asarray(matrix, dtype=np.float64)
+        if not invertible(projection[:, :3]):
+            raise DataFormatError(path, "its 3×3 part is not invertible: not a camera projection",
+                                  field=self.projection_key)
+        return projection
 
     def load(self, frame_id: str) -> ImageSample:
         path = self.image_path(frame_id)
@@ -257,7 +270,7 @@ class KittiImages(Dataset[ImageSample]):
         calib = self.load_calib(frame_id)
         intrinsics = None
         if calib is not None:
-            intrinsics = intrinsics_of(np.asarray(getattr(calib, self.projection_key), dtype=np.float64))
+            intrinsics = intrinsics_of(self._projection(frame_id, calib))
         depth = None
         depth_path = self.depth_folder / f"{frame_id}.png"
         if depth_path.is_file():

@@ -102,13 +102,14 @@ def _message(exc: DataFormatError) -> str:
 def number(text: str, source: Path, line: int, column: str) -> float:
     """A finite number from a CSV cell, or a DataFormatError naming the file, line and column."""
     value = text.strip()
+    shown = repr(value) if len(value) <= 40 else f"{value[:20]!r}… ({len(value):,} characters)"
     try:
         parsed = float(value)
     except ValueError:
-        raise DataFormatError(source, f"{value!r} is not a number" if value else "empty, expected a number",
+        raise DataFormatError(source, f"{shown} is not a number" if value else "empty, expected a number",
                               line=line, field=column) from None
     if not math.isfinite(parsed):
-        raise DataFormatError(source, f"{value!r} is not a finite number", line=line, field=column)
+        raise DataFormatError(source, f"{shown} is not a finite number", line=line, field=column)
     return parsed
 
 
@@ -154,13 +155,21 @@ def _image_path(named: str, base: Path, *, fallback_img: bool = False) -> Path |
     """The image a CSV names (relative to the CSV's folder), or None when it does not exist."""
     text = named.strip().replace("\\", "/")
     candidate = Path(text) if os.path.isabs(text) else base / text
-    if candidate.is_file():
+    if _is_file(candidate):
         return candidate
     if fallback_img:
         moved = base / "IMG" / text.rsplit("/", 1)[-1]
-        if moved.is_file():
+        if _is_file(moved):
             return moved
     return None
+
+
+def _is_file(path: Path) -> bool:
+    """Whether a file exists there; a name the system cannot look up (too long) names none."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
 
 
 def _missing(source: Path, line: int, column: str, named: str) -> DataFormatError:
@@ -188,8 +197,9 @@ def _udacity(source: Path, records: list[tuple[int, list[str]]], camera: str, ou
             named = _cell(cells, columns["filename"], source, line, "filename")
             steering = number(_cell(cells, columns["angle"], source, line, "angle"), source, line, "angle")
             stamp_text = _cell(cells, columns["timestamp"], source, line, "timestamp").strip()
-            stamp = int(stamp_text) / 1e9 if stamp_text.isdigit() else number(stamp_text, source, line,
-                                                                                   "timestamp") / 1e9
+            # integer nanoseconds exactly (a float loses the last digits); a 20-digit integer is ~3,000 years
+            exact = stamp_text.isascii() and stamp_text.isdigit() and len(stamp_text) <= 20
+            stamp = int(stamp_text) / 1e9 if exact else number(stamp_text, source, line, "timestamp") / 1e9
             extra: dict[str, Any] = {name: number(_cell(cells, i, source, line, name), source, line, name)
                      for name, i in optional.items() if name not in ("width", "height")}
             size = None

@@ -7,21 +7,26 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import zipfile
 from collections.abc import Iterable, Sequence
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import shapely
 from numpy.typing import NDArray
 
 from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.common import NonFinitePolicy, Problem
 from lidarfuzz.io.dataset import Dataset, Log
 from lidarfuzz.io.formats import bin as bin_format
+from lidarfuzz.io.guards import reading
 from lidarfuzz.io.kitti.labels import KITTI_CLASSES, read_label_file
 from lidarfuzz.io.layouts import LAYOUTS, PointLayout, layout_from_structure, parse_layout
+from lidarfuzz.io.textfiles import check_json_depth, read_text
 from lidarfuzz.scene.boxes import Boxes3D
-from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.calib import KittiCalibration, invertible
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
@@ -45,9 +50,13 @@ EGO_COLUMNS: tuple[str, ...] = ("speed", "yaw_rate", "curvature", "steering")
 
 
 def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
-    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt, ego.txt); ``#`` starts a comment line."""
+    """Lines of ``<frame_id> <width numbers>`` (timestamps.txt, poses.txt, ego.txt); ``#`` starts a comment line.
+
+    Twelve numbers are a pose (3×4, row-major): its rotation must be invertible (maps given in the
+    world frame are moved into the frame by the pose's inverse)."""
     out: dict[str, NDArray[np.float64]] = {}
-    for lineno, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    text = read_text(path, f"lines of a frame id and {width} number(s)")
+    for lineno, raw in enumerate(text.splitlines(), start=1):
         tokens = raw.split()
         if not tokens or tokens[0].startswith("#"):
             continue
@@ -58,6 +67,11 @@ def _read_keyed_lines(path: Path, width: int) -> dict[str, NDArray[np.float64]]:
             values = np.array([float(t) for t in tokens[1:]])
         except ValueError:
             raise DataFormatError(path, "not a number", line=lineno) from None
+        if not np.all(np.isfinite(values)):
+            raise DataFormatError(path, "not a finite number", line=lineno)
+        if width == 12 and not invertible(values.reshape(3, 4)[:, :3]):
+            raise DataFormatError(path, f"the pose of frame {tokens[0]!r} has no inverse (its 3×3 rotation is "
+                                  "singular)", line=lineno)
         if tokens[0] in out:
             raise DataFormatError(path, f"duplicate frame id {tokens[0]!r}", line=lineno)
         out[tokens[0]] = values
@@ -174,7 +188,7 @@ class KittiDataset(Dataset[Scene]):
                 raise DataFormatError(candidates[0], f"no ImageSets list named {subset!r}")
             chosen: list[str] = []
             seen: dict[str, int] = {}
-            for lineno, raw in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+            for lineno, raw in enumerate(read_text(listing, "a list of frame ids").splitlines(), start=1):
                 frame_id = raw.strip()
                 if not frame_id:
                     continue
@@ -261,22 +275,16 @@ class KittiDataset(Dataset[Scene]):
         boxes = read_label_file(path, calib, classes=self.classes)
         extra = self.root / "label_2_extra" / f"{frame_id}.json"
         if extra.is_file():
-            try:
-                track_ids = json.loads(extra.read_text(encoding="utf-8")).get("track_ids")
-                if track_ids is not None:
-                    boxes = boxes.replace(track_ids=track_ids)
-            except (ValueError, AttributeError) as exc:
-                raise DataFormatError(extra, f"expected {{\"track_ids\": [one per label line]}}: {exc}") from None
+            track_ids = _label_extras(extra).get("track_ids")
+            if track_ids is not None:
+                boxes = boxes.replace(track_ids=_track_ids(extra, track_ids, len(boxes)))
         return boxes
 
     def _object_extras(self, frame_id: str) -> dict[str, object] | None:
         extra = self.root / "label_2_extra" / f"{frame_id}.json"
         if not extra.is_file():
             return None
-        try:
-            objects = json.loads(extra.read_text(encoding="utf-8")).get("objects")
-        except (ValueError, AttributeError) as exc:
-            raise DataFormatError(extra, f"not a JSON object: {exc}") from None
+        objects = _label_extras(extra).get("objects")
         return objects if isinstance(objects, dict) else None
 
     def load_points(self, frame_id: str) -> tuple[PointCloud, int]:
@@ -303,10 +311,7 @@ class KittiDataset(Dataset[Scene]):
         roi_path = self.root / "roi" / f"{frame_id}.json"
         roi = None
         if roi_path.is_file():
-            try:
-                roi = RoiMap.from_geojson(roi_path.read_text(encoding="utf-8"))
-            except (ValueError, TypeError, KeyError, AttributeError) as exc:
-                raise DataFormatError(roi_path, f"not a GeoJSON Polygon/MultiPolygon: {exc}") from None
+            roi = _frame_map(roi_path)
         timestamp = float(self._timestamps[frame_id][0]) if self._timestamps and frame_id in self._timestamps else None
         pose = None
         if self._poses and frame_id in self._poses:
@@ -324,12 +329,59 @@ class KittiDataset(Dataset[Scene]):
                                   roi=roi, metadata=meta))
 
 
+def _label_extras(path: Path) -> dict[str, Any]:
+    """A ``label_2_extra/`` file: a JSON object (checked for depth before parsing)."""
+    text = read_text(path, "a JSON object of per-object fields")
+    check_json_depth(text, path)
+    with reading(path, "read the per-object fields"):
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise DataFormatError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
+    if not isinstance(data, dict):
+        raise DataFormatError(path, f"expected a JSON object, found {type(data).__name__}", field="<root>",
+                              hint='{"track_ids": [one per label line], "objects": {...}}')
+    return data
+
+
+def _track_ids(path: Path, values: object, boxes: int) -> NDArray[np.int64]:
+    """``track_ids``: one integer per label line."""
+    if not isinstance(values, list) or len(values) != boxes:
+        found = f"{len(values)} value(s)" if isinstance(values, list) else f"a {type(values).__name__}"
+        raise DataFormatError(path, f"expected a list of {boxes} integer(s), one per label line; found {found}",
+                              field="track_ids")
+    for index, value in enumerate(values):
+        if isinstance(value, bool) or not isinstance(value, int) or not -(2**63) <= value < 2**63:
+            raise DataFormatError(path, f"{value!r} is not a 64-bit integer", field=f"track_ids.{index}")
+    return np.array(values, dtype=np.int64).reshape(boxes)
+
+
+def _frame_map(path: Path) -> RoiMap:
+    """A ``roi/`` file: a GeoJSON Polygon or MultiPolygon of finite coordinates."""
+    text = read_text(path, "a GeoJSON Polygon/MultiPolygon")
+    check_json_depth(text, path)
+    with reading(path, "read the drivable-area map", hint="expected a GeoJSON Polygon or MultiPolygon"):
+        roi = RoiMap.from_geojson(text)
+    if not np.all(np.isfinite(np.asarray(shapely.get_coordinates(roi.geometry)))):
+        raise DataFormatError(path, "coordinates must be finite numbers", field="coordinates")
+    return roi
+
+
 def _attach_extra(cloud: PointCloud, path: Path, dropped: int) -> PointCloud:
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            columns = {name: archive[name] for name in archive.files}
-    except (OSError, ValueError) as exc:
-        raise DataFormatError(path, f"cannot read extra channels: {exc}") from None
+    # each member's .npy header is checked against the scan before numpy allocates what it claims
+    with reading(path, "read extra channels"), zipfile.ZipFile(path) as archive:
+        for member in archive.infolist():
+            with archive.open(member) as handle:
+                version = np.lib.format.read_magic(handle)
+                read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                               else np.lib.format.read_array_header_2_0)
+                shape, _, dtype = read_header(handle)
+            name = member.filename.removesuffix(".npy")
+            if tuple(shape) != (len(cloud),) or dtype.kind not in "biuf":
+                raise DataFormatError(path, f"holds values of shape {tuple(shape)} ({dtype}) but the scan has "
+                                      f"{len(cloud)} points", field=name)
+    with reading(path, "read extra channels"), np.load(path, allow_pickle=False) as npz:
+        columns = {name: npz[name] for name in npz.files}
     if dropped:
         raise DataFormatError(path, "extra channels cannot be matched to a scan whose NaN points were dropped",
                               hint="read with nonfinite='reject' to find the bad points")
@@ -347,7 +399,12 @@ class KittiLog(KittiDataset, Log[Scene]):
     def __init__(self, path: str | PathLike[str], **kwargs: object) -> None:
         super().__init__(path, **kwargs)  # type: ignore[arg-type]
         if self._timestamps is None:
-            raise DataFormatError(self.root / "timestamps.txt", "a log needs timestamps.txt")
+            stamps = self.root / "timestamps.txt"
+            # unreadable (recorded as a problem when not strict): that problem is why there is no log
+            why = next((p for p in self._problems if p.severity == "error" and Path(p.path) == stamps), None)
+            if why is not None:
+                raise DataFormatError(stamps, why.message, line=why.line)
+            raise DataFormatError(stamps, "a log needs timestamps.txt")
         self._frames = sorted(self._frames, key=lambda f: (self._stamp(f), f))
 
     def _stamp(self, frame_id: str) -> float:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.textfiles import read_text
 from lidarfuzz.scene.boxes import Boxes3D
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.geometry import box_corners
@@ -179,8 +180,5 @@ def format_labels(boxes: Boxes3D, calib: KittiCalibration | None, *, complete: b
 
 def read_label_file(path: str | PathLike[str], calib: KittiCalibration | None, **kwargs: object) -> Boxes3D:
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise DataFormatError(path, "not a text file (expected KITTI label lines)") from None
+    text = read_text(path, "KITTI label lines")
     return parse_labels(text, calib, path, **kwargs)  # type: ignore[arg-type]

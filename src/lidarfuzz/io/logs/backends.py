@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.logs.containers import LogKind, McapFooterError, reading
 from lidarfuzz.io.logs.messages import (
     POINTCLOUD2,
@@ -19,6 +20,7 @@ from lidarfuzz.io.logs.messages import (
     normalize_msgtype,
     typestore,
 )
+from lidarfuzz.io.textfiles import check_yaml, read_text
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,8 @@ class _RosbagsBackend(Backend):
     def topics(self) -> list[Topic]:
         found = []
         for name, info in self.reader.topics.items():
+            if not isinstance(name, str) or not name:
+                raise ValueError(f"a topic is named {name!r}, not a topic name")
             connections = info.connections
             msgtype = info.msgtype or ""
             if self.kind == "ros1":
@@ -170,6 +174,8 @@ class _McapBackend(Backend):
             counts: dict[int, int] = {}
             first = last = None
             total = 0
+            if summary is not None:
+                _check_chunks(path, summary.chunk_indexes)
             if summary is not None and summary.statistics is not None:
                 self.channels, self.schemas = dict(summary.channels), dict(summary.schemas)
                 counts = dict(summary.statistics.channel_message_counts)
@@ -258,6 +264,29 @@ class _McapBackend(Backend):
         self.stream.close()
 
 
+#: Largest chunk an MCAP file may ask to decompress (writers chunk at ~1–4 MiB): a bigger claim is damage,
+#: or a decompression bomb, refused before the reader allocates it.
+MAX_MCAP_CHUNK = 1 << 30
+
+
+def _check_chunks(path: Path, indexes: Any) -> None:
+    """Each chunk the summary lists lies inside the file and decompresses to at most :data:`MAX_MCAP_CHUNK`."""
+    size = path.stat().st_size
+    for number, chunk in enumerate(indexes):
+        end = chunk.chunk_start_offset + chunk.chunk_length
+        problem = None
+        if end > size or chunk.compressed_size > chunk.chunk_length:
+            problem = (f"claims bytes {chunk.chunk_start_offset:,} to {end:,} ({chunk.compressed_size:,} compressed) "
+                       f"of a file of {size:,}")
+        elif chunk.uncompressed_size > MAX_MCAP_CHUNK:
+            problem = f"claims {chunk.uncompressed_size:,} bytes once decompressed (at most {MAX_MCAP_CHUNK:,})"
+        elif not chunk.compression and chunk.uncompressed_size != chunk.compressed_size:
+            problem = f"is not compressed but claims {chunk.uncompressed_size:,} bytes from {chunk.compressed_size:,}"
+        if problem is not None:
+            raise DataFormatError(path, f"chunk {number} {problem}", field="chunk index",
+                                  hint="the file is damaged; 'mcap recover' can often repair it")
+
+
 def _mcap_bound_names(reader: Any) -> tuple[str, str]:
     """Keyword names of the time bounds (``starting_at`` since mcap 1.3, ``start_time`` before)."""
     parameters = inspect.signature(reader.iter_messages).parameters
@@ -266,8 +295,28 @@ def _mcap_bound_names(reader: Any) -> tuple[str, str]:
     return "start_time", "end_time"
 
 
+def _check_metadata(bag: Path) -> None:
+    """Refuse a ROS 2 bag's ``metadata.yaml`` that is not YAML, or that would make a YAML parser
+    recurse or expand without bound (:func:`lidarfuzz.io.textfiles.check_yaml`), before ``rosbags``
+    parses it: its pure-Python parser took 25 s to find the error in a line of a million characters."""
+    import yaml
+
+    metadata = bag / "metadata.yaml"
+    text = read_text(metadata, "a ROS 2 bag's metadata.yaml", limit=4 << 20)
+    try:
+        # rosbag2 writes short values (a topic's QoS profiles are ~1 KB): 600,000 characters took 3 s there
+        check_yaml(text, metadata, scalar_limit=64 << 10)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise DataFormatError(metadata, f"not valid YAML: {problem}",
+                              line=mark.line + 1 if mark is not None else None) from None
+
+
 def open_backend(path: Path, kind: LogKind) -> Backend:
     what = {"ros1": "open the ROS 1 bag", "ros2": "open the ROS 2 bag", "mcap": "open the MCAP file"}[kind]
+    if kind == "ros2":
+        _check_metadata(path)
     with reading(path, what):
         if kind == "mcap":
             return _McapBackend(path)

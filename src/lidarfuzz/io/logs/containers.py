@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Literal
 
 from lidarfuzz.errors import DataFormatError, LidarfuzzError
+from lidarfuzz.io import guards
 
 LogKind = Literal["ros1", "ros2", "mcap"]
 
@@ -32,18 +33,15 @@ class McapFooterError(Exception):
 
 @contextlib.contextmanager
 def reading(path: Path, what: str) -> Iterator[None]:
-    """Turn any library error on malformed input into a DataFormatError naming the file."""
+    """Turn any library error on malformed input into a DataFormatError naming the file
+    (:func:`lidarfuzz.io.guards.reading`, with advice for a truncated bag or MCAP file)."""
     try:
         yield
     except LidarfuzzError:
         raise
-    except FileNotFoundError:
-        raise DataFormatError(path, "file not found") from None
     except Exception as err:
-        detail = str(err) or type(err).__name__
-        if type(err).__module__ in ("builtins", "struct", "_struct"):  # a bare KeyError('x') says little alone
-            detail = f"{type(err).__name__}: {detail}"
-        raise DataFormatError(path, f"cannot {what}: {detail}", hint=_hint_for(err)) from err
+        with guards.reading(path, what, hint=_hint_for(err)):
+            raise err from None
 
 
 def detect_kind(path: str | PathLike[str]) -> tuple[Path, LogKind]:

@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from functools import cache
 from typing import Any
 
+from lidarfuzz.io.guards import describe
+
 #: The normalised (ROS 2 style) name of the point-cloud message type.
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 #: md5sum of the standard ROS 1 ``sensor_msgs/PointCloud2`` definition.
@@ -84,7 +86,7 @@ def definition_difference(text: str, fmt: str, encoding: str) -> str | None:
     try:
         types = _parse_definition(text, fmt)
     except Exception as err:
-        return f"its definition cannot be parsed ({err})"
+        return f"its definition cannot be parsed ({describe(err)})"
     reference = typestore(encoding).fielddefs
     if POINTCLOUD2 not in types:
         return f"its definition does not define {POINTCLOUD2}"

@@ -97,11 +97,18 @@ def _where(context: str) -> str:
     return f"{context}: " if context else ""
 
 
+#: The largest point a PointCloud2 message may declare (bytes): far above any driver's.
+MAX_POINT_STEP = 1 << 16
+
+
 def _layout(
     fields: Sequence[PointField], point_step: int, is_bigendian: bool, path: str | PathLike[str], context: str
 ) -> tuple[np.dtype[Any], list[tuple[str, PointField]]]:
     """The structured dtype of one point and the (dtype field name, point field) pairs used."""
     order = ">" if is_bigendian else "<"
+    if point_step > MAX_POINT_STEP:  # numpy's dtypes hold at most 2^31 - 1 bytes; real points a few dozen
+        raise DataFormatError(path, f"{_where(context)}point_step {point_step:,} bytes per point is more than "
+                              f"the {MAX_POINT_STEP:,} lidarfuzz reads", field="point_step")
     names: list[str] = []
     formats: list[Any] = []
     offsets: list[int] = []

@@ -134,6 +134,10 @@ class TopicLog(Log[S]):
         finally:
             backend.close()
         self._ids = tuple(f"{i:06d}" for i in range(len(self._entries)))
+        late = next((i for i, e in enumerate(self._entries) if not 0 <= e.time_ns < 1 << 63), None)
+        if late is not None:  # an MCAP log time is a uint64: past 2^63 - 1 ns (the year 2262) is damage
+            raise DataFormatError(source, f"message {late} on topic {chosen.name!r} is stamped "
+                                  f"{self._entries[late].time_ns:,} ns, outside 0 … 2^63 - 1", field="log_time")
         self._times = np.array([e.time_ns for e in self._entries], dtype=np.int64)
         # Python's int / int is correctly rounded, so these equal each loaded scene's timestamp.
         self._seconds = np.array([e.time_ns / NS for e in self._entries], dtype=np.float64)

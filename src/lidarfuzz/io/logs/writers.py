@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from lidarfuzz import __version__
+from lidarfuzz.errors import DataFormatError
 from lidarfuzz.io.atomic import check_destination
 from lidarfuzz.io.logs.containers import LogKind
 from lidarfuzz.io.logs.messages import NS, POINTCLOUD2, typestore
@@ -52,11 +53,16 @@ def _infer_kind(path: Path, kind: str | None) -> LogKind:
 def _to_ns(seconds: float, index: int, scene: Scene) -> int:
     """Seconds → integer nanoseconds, exactly (so reading back gives the same float)."""
     if not np.isfinite(seconds) or seconds < 0:
-        raise ValueError(
-            f"scene {index} (frame {scene.frame_id!r}): timestamp {seconds} cannot be stored in a log "
-            "(it must be finite and not negative)"
-        )
+        raise _unstorable(scene, index, f"timestamp {seconds} cannot be stored in a log (it must be finite and not "
+                          "negative)")
     return round(Fraction(seconds) * NS)
+
+
+def _unstorable(scene: Scene, index: int, message: str) -> DataFormatError:
+    """A scene's timestamp a log cannot hold, as a DataFormatError naming the file the scene was read from
+    (a ValueError, as before): the data's fault, said in one line, not a traceback."""
+    source = scene.metadata.get("source") or f"<scene {index}>"
+    return DataFormatError(str(source), f"scene {index} (frame {scene.frame_id!r}): {message}", field="timestamp")
 
 
 def _frames(scenes: Iterable[Scene], limit_sec: int) -> Iterator[tuple[int, int, int, dict[str, Any]]]:
@@ -67,9 +73,8 @@ def _frames(scenes: Iterable[Scene], limit_sec: int) -> Iterator[tuple[int, int,
             raise TypeError(f"scene {index} is a {type(scene).__name__}, not a Scene")
         stamp = index * _DEFAULT_PERIOD_NS if scene.timestamp is None else _to_ns(scene.timestamp, index, scene)
         if stamp // NS >= limit_sec:
-            raise ValueError(
-                f"scene {index} (frame {scene.frame_id!r}): timestamp {stamp / NS} s is too large for this log kind"
-            )
+            raise _unstorable(scene, index, f"timestamp {stamp / NS} s is too large for this log kind (at most "
+                              f"{limit_sec:,} s)")
         log_time = max(stamp, previous)
         previous = log_time
         yield index, log_time, stamp, encode(scene.points)

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, uniform
+from lidarfuzz.operators.base import Config, Operator, Params, PositiveRange, Relation, uniform
 from lidarfuzz.operators.camera.common import CAMERA, IMAGE, Range, table_pairs, warp_affine
 from lidarfuzz.scene.image import ImageSample
 
@@ -93,7 +93,7 @@ SCALES = [1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 5.5, 6.0]
 
 
 class ScaleConfig(Config):
-    factor_range: Range = Field((1.5, 2.0), description="zoom factor (sx = sy; below 1: smaller)")
+    factor_range: PositiveRange = Field((1.5, 2.0), description="zoom factor (sx = sy; below 1: smaller)")
     about: Literal["centre", "origin"] = Field("centre", description="fixed point: the image centre, or the "
                                                "top-left pixel (Table 2's matrix as printed)")
 

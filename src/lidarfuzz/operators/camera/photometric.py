@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, uniform
+from lidarfuzz.operators.base import Config, NonNegativeRange, Operator, Params, Relation, uniform
 from lidarfuzz.operators.camera.common import CAMERA, IMAGE, Range, table_pairs
 from lidarfuzz.scene.image import ImageSample
 
@@ -78,7 +78,7 @@ CONTRAST_GAINS = [1.2, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.6, 2.8, 3.0]
 
 
 class ContrastConfig(Config):
-    gain_range: Range = Field((1.2, 1.4), description="α multiplying every channel (1: unchanged)")
+    gain_range: NonNegativeRange = Field((1.2, 1.4), description="α multiplying every channel (1: unchanged)")
 
 
 class ContrastParams(Params):

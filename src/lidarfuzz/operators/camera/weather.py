@@ -38,7 +38,16 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, draw_seed, uniform
+from lidarfuzz.operators.base import (
+    Config,
+    NonNegativeRange,
+    Operator,
+    Params,
+    PositiveRange,
+    Relation,
+    draw_seed,
+    uniform,
+)
 from lidarfuzz.operators.camera.common import CAMERA, IMAGE, Range
 from lidarfuzz.scene.image import ImageSample
 
@@ -50,7 +59,7 @@ KOSCHMIEDER = 3.912
 
 # =========================================================================== fog
 class FogConfig(Config):
-    visibility_range: Range | None = Field((600.0, 1000.0), description="meteorological visibility V, metres "
+    visibility_range: PositiveRange | None = Field((600.0, 1000.0), description="meteorological visibility V, metres "
                                            "(β = 3.912 / V); None: no fog")
     airlight: float = Field(210.0, ge=0, le=255, description="brightness of the fog itself (grey), 0–255")
     camera_height: float = Field(1.65, gt=0, description="ground prior (no depth): camera above the road, metres")
@@ -169,8 +178,8 @@ class Fog(Operator[ImageSample, FogConfig, FogParams]):
 
 # =========================================================================== rain
 class RainConfig(Config):
-    density_range: Range = Field((500.0, 1000.0), description="drops per megapixel")
-    length_range: Range = Field((0.02, 0.04), description="streak length as a share of the image height")
+    density_range: NonNegativeRange = Field((500.0, 1000.0), description="drops per megapixel")
+    length_range: NonNegativeRange = Field((0.02, 0.04), description="streak length as a share of the image height")
     angle_range: Range = Field((-20.0, 20.0), description="wind: streak angle from the vertical, degrees "
                                                           "(positive: falling to the right)")
     opacity: float = Field(0.6, ge=0, le=1, description="how much a streak's core replaces the pixel")

@@ -18,7 +18,16 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, uniform
+from lidarfuzz.operators.base import (
+    Config,
+    NonNegativeRange,
+    Operator,
+    Params,
+    PositiveRange,
+    Relation,
+    Target,
+    uniform,
+)
 from lidarfuzz.operators.lidar.common import relabel_in_image, rigid_transform
 from lidarfuzz.scene.scene import Scene
 
@@ -27,7 +36,7 @@ GEOMETRY = frozenset({Target.POINTS, Target.BOXES, Target.MAP})
 
 
 class RotationConfig(Config):
-    angle_range: Range = Field((0.0, 180.0), description="rotation magnitude, degrees")
+    angle_range: NonNegativeRange = Field((0.0, 180.0), description="rotation magnitude, degrees")
     both_directions: bool = Field(True, description="draw the sign too (counter-clockwise or clockwise)")
 
 
@@ -172,7 +181,7 @@ class GlobalTranslate(Operator[Scene, TranslationConfig, TranslationParams]):
 
 
 class ScaleConfig(Config):
-    factor_range: Range = Field((0.95, 1.05), description="uniform scale about the sensor")
+    factor_range: PositiveRange = Field((0.95, 1.05), description="uniform scale about the sensor")
 
 
 class ScaleParams(Params):

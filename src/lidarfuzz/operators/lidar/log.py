@@ -84,16 +84,22 @@ class FrameAverage:
         return both_a, both_b, only_a, only_b
 
     def nearest_pairs(self, a: PointCloud, b: PointCloud) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Indices (into ``a``, into ``b``) of mutual nearest neighbours within :attr:`radius`."""
-        if not len(a) or not len(b):
+        """Indices (into ``a``, into ``b``) of mutual nearest neighbours within :attr:`radius`.
+
+        Points with a NaN or infinite coordinate have no neighbour (they are kept unpaired).
+        """
+        finite_a = np.flatnonzero(np.all(np.isfinite(a.xyz), axis=1))
+        finite_b = np.flatnonzero(np.all(np.isfinite(b.xyz), axis=1))
+        if not len(finite_a) or not len(finite_b):
             return np.zeros(0, np.intp), np.zeros(0, np.intp)
         from scipy.spatial import cKDTree
 
-        distance, to_b = cKDTree(b.xyz).query(a.xyz, distance_upper_bound=self.radius)
-        _, to_a = cKDTree(a.xyz).query(b.xyz, distance_upper_bound=self.radius)
+        xyz_a, xyz_b = a.xyz[finite_a], b.xyz[finite_b]
+        distance, to_b = cKDTree(xyz_b).query(xyz_a, distance_upper_bound=self.radius)
+        _, to_a = cKDTree(xyz_a).query(xyz_b, distance_upper_bound=self.radius)
         near = np.flatnonzero(np.isfinite(distance))
         mutual = near[to_a[to_b[near]] == near]
-        return mutual.astype(np.intp), to_b[mutual].astype(np.intp)
+        return finite_a[mutual].astype(np.intp), finite_b[to_b[mutual]].astype(np.intp)
 
     def apply(self, first: Scene, second: Scene) -> Scene:
         a, b = first.points, second.points.conform(first.points.channels)

@@ -13,7 +13,17 @@ import numpy as np
 import shapely
 from pydantic import Field, model_validator
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
+from lidarfuzz.operators.base import (
+    Config,
+    NonNegativeRange,
+    Operator,
+    Params,
+    Relation,
+    ShareRange,
+    Target,
+    draw_seed,
+    uniform,
+)
 from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, scene_intensity_scale, with_added_points
 from lidarfuzz.scene.drivable import ESTIMATED, FRAME_MAP, estimate_drivable, road_user_footprints
 from lidarfuzz.scene.geometry import points_in_boxes
@@ -28,8 +38,9 @@ Noise = Literal["uniform", "gaussian"]
 
 
 class UniformNoiseConfig(Config):
-    ratio_range: Range = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
-    jitter_range: Range = Field((0.1, 0.1), description="offset from the copied point, metres: the half-width a "
+    ratio_range: NonNegativeRange = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
+    jitter_range: NonNegativeRange = Field(
+        (0.1, 0.1), description="offset from the copied point, metres: the half-width a "
                                                         "(uniform, each axis in [-a, a]) or the std (gaussian)")
     distribution: Noise = Field("uniform", description="uniform (the thesis's UNA) or gaussian (lidarfuzz before "
                                                        "issue 19)")
@@ -92,7 +103,7 @@ class UniformNoiseAddition(Operator[Scene, UniformNoiseConfig, UniformNoiseParam
 
 # --------------------------------------------------------------------------- UPD
 class PointDeletionConfig(Config):
-    ratio_range: Range = Field((0.1, 0.1), description="share of points deleted")
+    ratio_range: ShareRange = Field((0.1, 0.1), description="share of points deleted")
 
 
 class PointDeletionParams(Params):
@@ -139,9 +150,10 @@ class UniformPointDeletion(Operator[Scene, PointDeletionConfig, PointDeletionPar
 
 # --------------------------------------------------------------------------- NNA
 class NearNoiseConfig(Config):
-    ratio_range: Range = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
-    spread_range: Range = Field((8.0, 8.0), description="std of the half-normal distance from the sensor, metres")
-    intensity_range: Range = Field((0.0, 0.1), description="intensity of the noise points (drawn per point)")
+    ratio_range: NonNegativeRange = Field((0.02, 0.02), description="noise points as a share of the cloud's points")
+    spread_range: NonNegativeRange = Field(
+        (8.0, 8.0), description="std of the half-normal distance from the sensor, metres")
+    intensity_range: NonNegativeRange = Field((0.0, 0.1), description="intensity of the noise points (drawn per point)")
 
 
 class NearNoiseParams(Params):
@@ -205,7 +217,7 @@ class GaussianNoiseAddition(Operator[Scene, NearNoiseConfig, NearNoiseParams]):
 
 # --------------------------------------------------------------------------- regions
 class RegionConfig(Config):
-    size_range: Range = Field((4.0, 4.0), description="edge of the (cubic in x, y) region, metres")
+    size_range: NonNegativeRange = Field((4.0, 4.0), description="edge of the (cubic in x, y) region, metres")
 
 
 def _draw_region(rng: np.random.Generator, sample: Scene, size: float) -> tuple[list[float], list[float]]:
@@ -236,7 +248,7 @@ def _draw_region_on_points(rng: np.random.Generator, sample: Scene,
 
 
 class RegionNoiseConfig(RegionConfig):
-    count_range: Range = Field((100, 100), description="number of noise points")
+    count_range: NonNegativeRange = Field((100, 100), description="number of noise points")
 
 
 class RegionNoiseParams(Params):
@@ -294,7 +306,7 @@ class RandomRegionNoiseAddition(Operator[Scene, RegionNoiseConfig, RegionNoisePa
 
 
 class RegionDeletionConfig(RegionConfig):
-    share_range: Range = Field((0.3, 0.9), description="share of the region's points deleted, drawn per mutant "
+    share_range: ShareRange = Field((0.3, 0.9), description="share of the region's points deleted, drawn per mutant "
                                                        "(1: every point, lidarfuzz's RRPD before issue 19)")
 
     @model_validator(mode="after")
@@ -364,8 +376,8 @@ class RandomRegionPointDeletion(Operator[Scene, RegionDeletionConfig, RegionDele
 
 # --------------------------------------------------------------------------- intensity
 class IntensityScaleConfig(Config):
-    ratio_range: Range = Field((0.2, 0.2), description="share of points rescaled")
-    factor_range: Range = Field((0.5, 1.5), description="per-point factor, drawn uniformly")
+    ratio_range: ShareRange = Field((0.2, 0.2), description="share of points rescaled")
+    factor_range: NonNegativeRange = Field((0.5, 1.5), description="per-point factor, drawn uniformly")
 
 
 class IntensityScaleParams(Params):
@@ -430,7 +442,7 @@ Direction = Literal["both", "lower", "raise"]
 
 
 class RegionIntensityConfig(RegionConfig):
-    factor_range: Range = Field((0.5, 0.5), description="one factor f for every point in the region: lower "
+    factor_range: NonNegativeRange = Field((0.5, 0.5), description="one factor f for every point in the region: lower "
                                                         "multiplies by min(f, 1/f), raise by max(f, 1/f)")
     direction: Direction = Field("both", description="both (lower or raise, even odds: the thesis's RIM), lower "
                                                      "(lidarfuzz before issue 19) or raise")
@@ -507,7 +519,7 @@ Region = Literal["auto", "map", "estimated", "boxes"]
 
 
 class OutsideRoiScatterConfig(Config):
-    count_range: Range = Field((100, 100), description="scattered points (the paper uses 10, 100, 1000)")
+    count_range: NonNegativeRange = Field((100, 100), description="scattered points (the paper uses 10, 100, 1000)")
     range_m: float | None = Field(None, gt=0, description="sensor range; default: the cloud's farthest point")
     region: Region = Field("auto", description="auto (the frame's map, else the estimate), map (required), "
                                                "estimated, or boxes (the fallback before the estimate)")

@@ -18,14 +18,14 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, draw_seed, uniform
-from lidarfuzz.operators.lidar.sensor import POINTS, Range, _rings_for, azimuth_rad, rings_of
+from lidarfuzz.operators.base import Config, Operator, Params, Relation, ShareRange, draw_seed, uniform
+from lidarfuzz.operators.lidar.sensor import POINTS, _rings_for, azimuth_rad, rings_of
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
 
 class DualReturnConfig(Config):
-    ratio_range: Range = Field((1.0, 1.0), description="share of firings whose pair of returns is published")
+    ratio_range: ShareRange = Field((1.0, 1.0), description="share of firings whose pair of returns is published")
     edge_m: float = Field(1.0, gt=0, description="a ring neighbour this much farther makes the second return distinct")
     max_gap_deg: float = Field(1.0, gt=0, description="farthest azimuth step to a neighbour on the same ring")
     behind_share: float = Field(0.5, ge=0, le=1, description="the far surface's intensity share in a distinct second "

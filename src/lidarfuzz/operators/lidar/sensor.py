@@ -30,7 +30,19 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
+from lidarfuzz.operators.base import (
+    AtLeastOneRange,
+    Config,
+    NonNegativeRange,
+    Operator,
+    Params,
+    Relation,
+    ShareRange,
+    Target,
+    TurnRange,
+    draw_seed,
+    uniform,
+)
 from lidarfuzz.operators.lidar.common import scene_intensity_scale
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
@@ -173,7 +185,7 @@ def _jittered(sample: Scene, offsets: Callable[[int], NDArray[np.float32]]) -> S
 
 # --------------------------------------------------------------------------- beam missing
 class BeamMissingConfig(Config):
-    ratio_range: Range = Field((0.25, 0.25), description="share of the frame's rings removed")
+    ratio_range: ShareRange = Field((0.25, 0.25), description="share of the frame's rings removed")
 
 
 class BeamMissingParams(Params):
@@ -225,9 +237,11 @@ class BeamMissing(Operator[Scene, BeamMissingConfig, BeamMissingParams]):
 
 # --------------------------------------------------------------------------- cross sensor
 class CrossSensorConfig(Config):
-    beam_factor_range: Range = Field((2.0, 2.0), description="ring spacing of the coarser sensor (≥ 1; 2 = every "
+    beam_factor_range: AtLeastOneRange = Field(
+        (2.0, 2.0), description="ring spacing of the coarser sensor (≥ 1; 2 = every "
                                      "second ring; fractional values resample, e.g. 4/3 keeps 48 of 64)")
-    azimuth_factor_range: Range = Field((2, 2), description="integer azimuth thinning (2 = every second firing)")
+    azimuth_factor_range: AtLeastOneRange = Field(
+        (2, 2), description="integer azimuth thinning (2 = every second firing)")
 
 
 class CrossSensorParams(Params):
@@ -297,9 +311,10 @@ class CrossSensor(Operator[Scene, CrossSensorConfig, CrossSensorParams]):
 
 # --------------------------------------------------------------------------- crosstalk
 class CrosstalkConfig(Config):
-    ratio_range: Range = Field((0.008, 0.008), description="share of returns replaced by interference")
+    ratio_range: ShareRange = Field((0.008, 0.008), description="share of returns replaced by interference")
     max_range_m: float | None = Field(None, gt=0, description="farthest false range; default: the farthest return")
-    intensity_range: Range = Field((0.0, 0.1), description="false returns' intensity, as a share of the data's scale")
+    intensity_range: ShareRange = Field(
+        (0.0, 0.1), description="false returns' intensity, as a share of the data's scale")
 
 
 class CrosstalkParams(Params):
@@ -374,7 +389,7 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
 # --------------------------------------------------------------------------- FOV loss
 class FovLossConfig(Config):
     center_range: Range = Field((-180.0, 180.0), description="sector centre azimuth, degrees (0 ahead, + left)")
-    width_range: Range = Field((90.0, 90.0), description="sector width, degrees")
+    width_range: TurnRange = Field((90.0, 90.0), description="sector width, degrees")
 
 
 class FovLossParams(Params):
@@ -425,7 +440,7 @@ class FovLoss(Operator[Scene, FovLossConfig, FovLossParams]):
 # --------------------------------------------------------------------------- motion distortion
 class MotionDistortionConfig(Config):
     speed_range: Range = Field((10.0, 10.0), description="ego speed along x, m/s")
-    yaw_rate_range: Range = Field((0.0, 0.0), description="yaw rate magnitude, deg/s (sign drawn)")
+    yaw_rate_range: NonNegativeRange = Field((0.0, 0.0), description="yaw rate magnitude, deg/s (sign drawn)")
     rotation_hz: float = Field(10.0, gt=0, description="head rotation rate, for times estimated from azimuth")
 
 
@@ -492,8 +507,10 @@ class MotionDistortion(Operator[Scene, MotionDistortionConfig, MotionDistortionP
 
 # --------------------------------------------------------------------------- spatial misalignment
 class MisalignmentConfig(Config):
-    rotation_range: Range = Field((0.0, 0.5), description="|roll|, |pitch|, |yaw| each, degrees (sign drawn)")
-    translation_range: Range = Field((0.0, 8.0), description="|x|, |y|, |z| offset each, centimetres (sign drawn)")
+    rotation_range: NonNegativeRange = Field(
+        (0.0, 0.5), description="|roll|, |pitch|, |yaw| each, degrees (sign drawn)")
+    translation_range: NonNegativeRange = Field(
+        (0.0, 8.0), description="|x|, |y|, |z| offset each, centimetres (sign drawn)")
 
 
 class MisalignmentParams(Params):
@@ -557,8 +574,9 @@ class SpatialMisalignment(Operator[Scene, MisalignmentConfig, MisalignmentParams
 
 # --------------------------------------------------------------------------- range degradation
 class RangeDegradationConfig(Config):
-    range_factor_range: Range = Field((0.7, 0.7), description="new maximum range, as a share of the farthest return")
-    noise_range: Range = Field((0.05, 0.05), description="range noise std at the new maximum range, metres")
+    range_factor_range: ShareRange = Field(
+        (0.7, 0.7), description="new maximum range, as a share of the farthest return")
+    noise_range: NonNegativeRange = Field((0.05, 0.05), description="range noise std at the new maximum range, metres")
 
 
 class RangeDegradationParams(Params):
@@ -629,8 +647,8 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
 
 # --------------------------------------------------------------------------- intensity
 class QuantisationConfig(Config):
-    levels_range: Range = Field((16, 16), description="number of intensity levels (0 = no quantisation)")
-    threshold_range: Range = Field((0.0, 1.0), description="comparator threshold within one step (0.5 = nearest)")
+    levels_range: NonNegativeRange = Field((16, 16), description="number of intensity levels (0 = no quantisation)")
+    threshold_range: ShareRange = Field((0.0, 1.0), description="comparator threshold within one step (0.5 = nearest)")
 
 
 class QuantisationParams(Params):
@@ -682,8 +700,8 @@ class IntensityQuantisation(Operator[Scene, QuantisationConfig, QuantisationPara
 
 
 class SaturationConfig(Config):
-    gain_range: Range = Field((1.0, 1.5), description="receiver gain applied before clipping")
-    level_range: Range = Field((0.5, 0.5), description="saturation level, as a share of the data's scale")
+    gain_range: NonNegativeRange = Field((1.0, 1.5), description="receiver gain applied before clipping")
+    level_range: ShareRange = Field((0.5, 0.5), description="saturation level, as a share of the data's scale")
 
 
 class SaturationParams(Params):
@@ -732,7 +750,7 @@ class IntensitySaturation(Operator[Scene, SaturationConfig, SaturationParams]):
 
 # --------------------------------------------------------------------------- jitter
 class GaussianJitterConfig(Config):
-    sigma_range: Range = Field((0.04, 0.04), description="std of the offset on each of x, y, z, metres")
+    sigma_range: NonNegativeRange = Field((0.04, 0.04), description="std of the offset on each of x, y, z, metres")
 
 
 class GaussianJitterParams(Params):
@@ -774,7 +792,8 @@ class GaussianJitter(Operator[Scene, GaussianJitterConfig, GaussianJitterParams]
 
 
 class UniformJitterConfig(Config):
-    amplitude_range: Range = Field((0.04, 0.04), description="offsets on x, y, z drawn in ±amplitude, metres")
+    amplitude_range: NonNegativeRange = Field(
+        (0.04, 0.04), description="offsets on x, y, z drawn in ±amplitude, metres")
 
 
 class UniformJitterParams(Params):
@@ -815,8 +834,9 @@ class UniformJitter(Operator[Scene, UniformJitterConfig, UniformJitterParams]):
 
 
 class ImpulseJitterConfig(Config):
-    ratio_range: Range = Field((1 / 20, 1 / 20), description="share of points displaced")
-    offset_range: Range = Field((0.3, 0.3), description="offset on each of x, y, z (sign drawn per axis), metres")
+    ratio_range: ShareRange = Field((1 / 20, 1 / 20), description="share of points displaced")
+    offset_range: NonNegativeRange = Field(
+        (0.3, 0.3), description="offset on each of x, y, z (sign drawn per axis), metres")
 
 
 class ImpulseJitterParams(Params):

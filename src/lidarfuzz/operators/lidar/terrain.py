@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, uniform
+from lidarfuzz.operators.base import Config, NonNegativeRange, Operator, Params, Relation, Target, uniform
 from lidarfuzz.operators.lidar.common import relabel_in_image
 from lidarfuzz.scene.scene import Scene
 
@@ -23,8 +23,10 @@ class TerrainConfig(Config):
     heading_range: Range = Field((-180.0, 180.0), description="direction of the road, degrees from straight ahead "
                                                               "(counter-clockwise): a slope rises along it, a crown's "
                                                               "centre line follows it")
-    ramp_start_range: Range = Field((5.0, 20.0), description="distance along the heading where a ramp begins, metres")
-    half_width_range: Range = Field((3.0, 6.0), description="a crown's fall stops this far from the centre line "
+    ramp_start_range: NonNegativeRange = Field(
+        (5.0, 20.0), description="distance along the heading where a ramp begins, metres")
+    half_width_range: NonNegativeRange = Field(
+        (3.0, 6.0), description="a crown's fall stops this far from the centre line "
                                                             "(the kerbs), metres")
 
 

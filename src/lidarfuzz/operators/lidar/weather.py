@@ -32,7 +32,18 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target, draw_seed, uniform
+from lidarfuzz.operators.base import (
+    Config,
+    NonNegativeRange,
+    Operator,
+    Params,
+    PositiveRange,
+    Relation,
+    ShareRange,
+    Target,
+    draw_seed,
+    uniform,
+)
 from lidarfuzz.operators.lidar.common import intensity_scale, scene_intensity_scale
 from lidarfuzz.operators.lidar.power import (
     HDL64E_DETECTION_THRESHOLD,
@@ -108,7 +119,8 @@ FOG_RETURN_JITTER = 10.0
 
 
 class FogConfig(Config):
-    mor_range: Range | None = Field((200.0, 200.0), description="meteorological optical range, metres; None: no fog")
+    mor_range: PositiveRange | None = Field(
+        (200.0, 200.0), description="meteorological optical range, metres; None: no fog")
     tau_h_ns: float = Field(20.0, gt=0, description="half-power width of the transmitted pulse, ns")
     threshold: float = Field(0.5 / 255, ge=0, description="threshold of a fog return, as a fraction of full intensity")
     detection_threshold: float = _detection_threshold()
@@ -272,7 +284,7 @@ _PARTICLE_REACH = 40.0
 
 
 class PrecipitationConfig(Config):
-    rate_range: Range = Field((5.0, 5.0), description="precipitation rate (water equivalent), mm/h")
+    rate_range: NonNegativeRange = Field((5.0, 5.0), description="precipitation rate (water equivalent), mm/h")
     beam_divergence: float = Field(3e-3, gt=0, description="full beam divergence, rad (LISA)")
     min_range: float = Field(1.5, ge=0, description="blind zone of the bistatic optics, metres: no particle returns")
     detection_threshold: float = _detection_threshold()
@@ -517,7 +529,7 @@ def ground_mask(cloud: PointCloud) -> NDArray[np.bool_]:
 
 
 class WetGroundConfig(Config):
-    wetness_range: Range = Field((0.5, 0.5), description="share of the ground under a continuous water film, 0–1")
+    wetness_range: ShareRange = Field((0.5, 0.5), description="share of the ground under a continuous water film, 0–1")
     detection_threshold: float = _detection_threshold()
     intensity_scale: float | None = Field(None, gt=0, description="intensity of reflectivity 1; None: the frame's "
                                           "declared scale, else inferred")

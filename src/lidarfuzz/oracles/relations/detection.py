@@ -504,7 +504,9 @@ class GroundTruthRecall(MetamorphicRelation[Any, Boxes3D, MatchConfig]):
             evidence_of = dict(zip(candidates.tolist(), evidence, strict=False))  # none when not judged
         ranges = _ranges(src_gt)
         violations = []
-        lost = considered & (found_fol[np.maximum(corr, 0)] < 0)
+        # a mutant with no labelled object left has nothing to index: its objects are gone from the ground
+        # truth (corr < 0), so none was considered, none is expected
+        lost = considered & ((found_fol[np.maximum(corr, 0)] < 0) if len(fol_gt) else False)
         best = _best_iou(
             fol_gt.select(corr[lost]),
             pair.follow_output.select(_found(pair.follow_output, cfg)),

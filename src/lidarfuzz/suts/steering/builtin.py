@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from lidarfuzz.errors import LidarfuzzError
+from lidarfuzz.io.atomic import atomic_path
 from lidarfuzz.scene.image import ImageSample
 from lidarfuzz.suts.steering.base import Steering, SteeringSystem
 from lidarfuzz.suts.steering.preprocess import Preprocess
@@ -81,7 +82,8 @@ def save_network(net: Any, network: str, path: Path, meta: dict[str, Any]) -> Pa
     torch = import_torch()
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().float().contiguous() for k, v in net.state_dict().items()}
-    torch.save({"state_dict": state, "meta": json.dumps({"network": network, **meta})}, path)
+    with atomic_path(path, overwrite=True) as tmp:  # a full disk leaves no truncated weights at ``path``
+        torch.save({"state_dict": state, "meta": json.dumps({"network": network, **meta})}, tmp)
     return path
 
 

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lidarfuzz.errors import DataFormatError
+from lidarfuzz.io.atomic import atomic_path
 from lidarfuzz.suts.steering.preprocess import Preprocess
 from lidarfuzz.suts.steering.pytorch import import_torch
 
@@ -107,9 +108,9 @@ def read_frames(roots: Sequence[Path], preprocess: Preprocess, cache: Path | Non
     frames = Frames(np.stack(images) if images else np.zeros((0, preprocess.height, preprocess.width, 3), np.uint8),
                     np.asarray(labels, np.float64), np.asarray(groups, np.int64), tuple(ids))
     if cached is not None:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cached, images=frames.images, labels=frames.labels, groups=frames.groups,
-                 frame_ids=np.asarray(frames.frame_ids))
+        with atomic_path(cached, overwrite=True) as tmp, open(tmp, "wb") as handle:  # never a truncated cache
+            np.savez(handle, images=frames.images, labels=frames.labels, groups=frames.groups,
+                     frame_ids=np.asarray(frames.frame_ids))
     return frames
 
 

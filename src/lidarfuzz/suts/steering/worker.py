@@ -12,12 +12,14 @@ temporary file and one line of JSON to the program's stdin::
 ``format`` is ``png`` (an ordinary 8-bit PNG; decoders return it in their own channel order,
 OpenCV's ``imread`` BGR) or, with ``image_format="raw"``, ``raw``: ``height × width × 3``
 bytes, RGB, row after row (``numpy.fromfile(path, numpy.uint8).reshape(height, width, 3)``).
-The program answers one line: ``{"steering": 0.05}`` or ``{"error": "message"}``. An empty
+The request also carries an ``"id"`` (the frame id and a sequence number) that the answer
+echoes: ``{"id": "000042#7", "steering": 0.05}`` or ``{"id": …, "error": "message"}``. An empty
 line (or end of input) asks it to exit.
 
 Failures: a program that exits is a ``crash`` (restarted for the next frame); one that does
 not answer within ``timeout`` seconds is killed (``timeout``, restarted next time); an answer
-that is not JSON or has no numeric ``steering`` is an ``invalid_output``, and so is a number
+line that is not JSON or does not echo the request's id is an ``invalid_output`` (restarted:
+it may be another frame's answer); an answer with no numeric ``steering`` is one too, and so is a number
 that :meth:`~lidarfuzz.suts.steering.base.SteeringSystem.validate` rejects (NaN, infinite,
 outside ``steering_range``) when the call is guarded.
 
@@ -38,6 +40,7 @@ from lidarfuzz.suts.base import FailureKind
 from lidarfuzz.suts.code import program_code
 from lidarfuzz.suts.errors import SutError
 from lidarfuzz.suts.external import WorkerSut
+from lidarfuzz.suts.processes import MAX_ANSWER_BYTES, MEMORY_LIMIT
 from lidarfuzz.suts.steering.base import Steering, SteeringSystem, checked_range
 
 ImageFormat = Literal["png", "raw"]
@@ -54,14 +57,18 @@ class WorkerSteering(SteeringSystem):
         image_format: ``png`` or ``raw``.
         steering_range: (low, high) of a valid answer (default ±π/2).
         cwd: Working directory.
+        memory_limit, cpu_limit, max_answer_bytes: The program's limits, as for a detection
+            worker (:class:`~lidarfuzz.suts.external.WorkerSut`).
     """
 
     def __init__(self, command: str, *, name: str | None = None, version: str = "0", timeout: float = 60.0,
                  image_format: ImageFormat = "png", steering_range: Sequence[float] | None = None,
-                 cwd: str | None = None) -> None:
+                 cwd: str | None = None, memory_limit: int | str | None = MEMORY_LIMIT, cpu_limit: float | None = None,
+                 max_answer_bytes: int | str = MAX_ANSWER_BYTES) -> None:
         if image_format not in ("png", "raw"):
             raise ValueError(f"image_format must be 'png' or 'raw', got {image_format!r}")
-        self.worker = WorkerSut(command, name=name, version=version, timeout=timeout, cwd=cwd)
+        self.worker = WorkerSut(command, name=name, version=version, timeout=timeout, cwd=cwd,
+                                memory_limit=memory_limit, cpu_limit=cpu_limit, max_answer_bytes=max_answer_bytes)
         self.name = self.worker.name  # type: ignore[misc]
         self.version = version  # type: ignore[misc]
         self.image_format = image_format

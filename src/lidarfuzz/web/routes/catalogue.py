@@ -53,8 +53,31 @@ def operators(ctx: Web, modality: Annotated[Literal["lidar", "camera", "all"], Q
     """The mutation operators of one modality by family (LiDAR ones unless ``modality`` says
     ``camera`` or ``all``): name, aliases, modality, description, relation, targets, the severity
     table (config per severity 1-5, and a row per field for severities 0-5) and the JSON schema
-    of the config a campaign may give instead of severities."""
+    of the config a campaign may give instead of severities. The first call starts rendering the
+    previews' frame in the background, so the form's first preview is not kept waiting for it."""
+    if modality != "camera":
+        _prepare_previews(ctx)
     return {"families": operator_catalogue(modality)}
+
+
+def _prepare_previews(ctx: WebContext) -> None:
+    """Render the preview frame (:func:`lidarfuzz.web.previews.preview_frame`) in a thread, once per app."""
+    import threading
+
+    from lidarfuzz.web.previews import preview_frame
+
+    with ctx.lock("preview-frame-started"):
+        if ctx.extras.get("preview-frame-started"):
+            return
+        ctx.extras["preview-frame-started"] = True
+
+    def render() -> None:
+        try:
+            preview_frame(ctx.cache)
+        except Exception:  # the preview's own request renders it again and says why
+            return
+
+    threading.Thread(target=render, name="preview-frame", daemon=True).start()
 
 
 @router.get("/operators/{name}/preview.png", response_class=Response,

@@ -1,4 +1,5 @@
-"""``/api/datasets``: list, upload (validated by ``inspect_source``), generate with the simulator, forget.
+"""``/api/datasets``: list, upload (validated by ``inspect_source``), generate with the simulator, one
+data set's detail (its labels counted, the tasks using it), its notes changed (``PATCH``), forget.
 
 Uploads are stored under ``<workspace>/uploads/<generated id>/`` and never executed:
 
@@ -14,13 +15,16 @@ Uploads are stored under ``<workspace>/uploads/<generated id>/`` and never execu
 (images: a KITTI folder's ``image_2/``, Udacity, images + CSV, the image topic of a bag), or by
 default what the data holds (images only: the camera; anything with point clouds: LiDAR).
 
-Before it is recorded the data is inspected as ``lidarfuzz info`` does; any error makes the
-upload a 422 that lists every problem with its file (relative to the upload) and line.
+Before it is recorded the data is inspected as ``lidarfuzz info`` does, in a worker process
+(:mod:`lidarfuzz.web.inspection`: a reader that aborts cannot take the server down); any error
+makes the upload a 422 that lists every problem with its file (relative to the upload) and line.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
+import threading
 import uuid
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -32,9 +36,22 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
 from lidarfuzz.errors import DataFormatError
-from lidarfuzz.store.inventory import add_dataset, get_dataset, list_datasets, remove_dataset
+from lidarfuzz.store.errors import NotFoundError
+from lidarfuzz.store.inventory import (
+    add_dataset,
+    dataset_options,
+    get_dataset,
+    list_datasets,
+    open_registered,
+    printable,
+    remove_dataset,
+    set_dataset_notes,
+    tasks_using,
+)
+from lidarfuzz.store.models import Dataset
 from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.events import iso
+from lidarfuzz.web.inspection import inspector, relative
 from lidarfuzz.web.jobs import jobs_of
 from lidarfuzz.web.security import check_name, extract_zip, remove_tree, safe_component, within
 
@@ -44,6 +61,9 @@ Web = Annotated[WebContext, Depends(web)]
 FRAME_SUFFIXES = (".bin", ".pcd", ".ply", ".las", ".laz", ".npy", ".npz")
 LOG_SUFFIXES = (".bag", ".mcap")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: KITTI's camera folders: a zip holding one alone is that layout (images need no calib/), not a
+#: folder's zip (a zip of velodyne/ alone is still read as the folder of frames it holds)
+KITTI_FOLDERS = ("image_2", "image_3")
 UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
     "type": "object", "required": ["name", "files"],
     "properties": {"name": {"type": "string", "description": "a name for the data set"},
@@ -58,6 +78,18 @@ UPLOAD_FORM = {"requestBody": {"required": True, "content": {"multipart/form-dat
                    "files": {"type": "array", "items": {"type": "string", "format": "binary"},
                              "description": "one .zip; or frames (+ KITTI label and calib files); or one "
                                             ".bag / .mcap; or images + one CSV of steering angles"}}}}}}}
+
+
+#: The longest notes a data set or model keeps (characters)
+NOTES_LIMIT = 10_000
+
+
+class NotesUpdate(BaseModel):
+    """A change to a data set's or model's notes (``PATCH``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    notes: str = Field(max_length=NOTES_LIMIT, description="free text: where it came from, what it is for, ...")
 
 
 def dataset_row(row: Any, uploads: Path) -> dict[str, Any]:
@@ -78,7 +110,6 @@ def datasets_list(ctx: Web) -> dict[str, Any]:
 
 
 def _log_rows(ctx: WebContext) -> dict[str, Any]:
-    from lidarfuzz.store.inventory import dataset_options
     from lidarfuzz.structural.logs import open_log
 
     logs, refused = [], []
@@ -105,6 +136,70 @@ def _name_free(ctx: WebContext, name: str) -> None:
     job = jobs_of(ctx).get(name)
     if job is not None or name in {d.name for d in list_datasets(ctx.store)}:
         raise HTTPException(status.HTTP_409_CONFLICT, f"name: a data set called {name!r} exists already")
+
+
+# -- labels ----------------------------------------------------------------------------------
+#: Frames loaded to count labels when the data set does not say which frames have them (a KITTI
+#: ``label_2/`` does; point-cloud files, ``.npz`` scenes and images are read one by one)
+LABEL_SCAN = 500
+_labels: dict[tuple[str, str, int], dict[str, Any]] = {}
+_labels_lock = threading.Lock()
+
+
+def _label_warning(facts: dict[str, Any], allow_unlabelled: bool) -> str | None:
+    """One line for a data set some or all of whose frames have no labels, saying what that
+    costs (AP, or a camera data set's MSE and DeepTest relation) and what still runs."""
+    labelled, checked, frames = facts["labelled"], facts["checked"], facts["frames"]
+    if labelled >= checked:
+        return None
+    scope = f"{labelled} of {checked} {facts['unit']}" + (f" (the first {checked} of {frames} checked)"
+                                                          if checked < frames else "")
+    if facts["unit"] == "images":
+        if not labelled:
+            return (f"No image has a steering label ({scope}): MSE and DeepTest's relation compare outputs with "
+                    "the labels, so they have nothing to score")
+        return f"Only {scope} have a steering label: MSE and DeepTest's relation are computed on the labelled ones"
+    if not labelled:
+        return (f"No frame has labels ({scope}): AP needs labels and will be shown as — (no labels); the "
+                "metamorphic relations still run")
+    if facts["label_files"] and not allow_unlabelled:
+        return (f"Only {scope} have a label file: AP needs labels, and tasks on this data set are refused "
+                "because it does not allow unlabelled frames (upload it again with 'Frames without labels' "
+                "ticked to score AP on the labelled ones); the relations still run")
+    return f"Only {scope} have labels: AP is scored on the labelled frames; the relations run on all"
+
+
+def label_facts(row: Dataset, report: Any = None) -> dict[str, Any]:
+    """How many of a data set's frames have labels: ``{"frames", "checked", "labelled", "unit",
+    "label_files", "warning"}`` (``checked``: frames looked at — all of a KITTI folder, whose
+    ``label_2/`` says which frames have a label file, else up to :data:`LABEL_SCAN` loaded;
+    ``warning``: None when all checked have labels). ``report``: the upload's inspection of every
+    frame, when there is one. Kept per path, options and frame count."""
+    from lidarfuzz.io.inspect import inspect_source
+
+    key = (row.path, json.dumps(row.options or {}, sort_keys=True, default=str), row.frame_count)
+    with _labels_lock:
+        known = _labels.get(key)
+    if known is not None:
+        return known
+    options = dataset_options(row)
+    facts: dict[str, Any] | None = None
+    if options.modality != "camera":
+        dataset = open_registered(row)
+        if dataset.has_labels():
+            frames = len(dataset.frame_ids())
+            facts = {"frames": frames, "checked": frames, "labelled": frames - len(dataset.unlabelled_ids()),
+                     "unit": "frames", "label_files": True}
+    if facts is None:
+        if report is None:
+            report = inspect_source(row.path, options=options, limit=LABEL_SCAN)
+        camera = report.images is not None
+        facts = {"frames": row.frame_count, "checked": report.inspected, "unit": "images" if camera else "frames",
+                 "labelled": report.images.labelled if camera else report.labelled_frames, "label_files": False}
+    facts["warning"] = _label_warning(facts, options.allow_unlabelled)
+    with _labels_lock:
+        _labels[key] = facts
+    return facts
 
 
 # -- upload ----------------------------------------------------------------------------------
@@ -158,8 +253,8 @@ async def _store_files(ctx: WebContext, files: list[UploadFile], folder: Path) -
         await run_in_threadpool(extract_zip, archive, root, ctx.limits)
         archive.unlink()
         entries = [p for p in root.iterdir()]
-        if len(entries) == 1 and entries[0].is_dir():
-            root = entries[0]  # the zip of a folder
+        if len(entries) == 1 and entries[0].is_dir() and entries[0].name not in KITTI_FOLDERS:
+            root = entries[0]  # the zip of a folder (not of KITTI's image_2/ alone)
         return root, names
     if len(files) == 1 and suffixes[0] in LOG_SUFFIXES:
         target = folder / f"log{suffixes[0]}"
@@ -202,25 +297,10 @@ async def _store_files(ctx: WebContext, files: list[UploadFile], folder: Path) -
     return root, names
 
 
-def _relative(text: str, root: Path) -> str:
-    for base in (root, root.resolve()):
-        text = text.replace(f"{base}/", "").replace(str(base), ".")
-    return text
-
-
-def _inspect(root: Path, base: Path, options: Any = None) -> tuple[list[dict[str, Any]], Any]:
-    from lidarfuzz.io.inspect import inspect_source
-
-    try:
-        report = inspect_source(root, options=options)
-    except DataFormatError as exc:
-        return [{"severity": "error", "file": _relative(str(exc.path), base), "line": exc.line,
-                 "message": _relative(exc.message, base)}], None
-    problems = [{"severity": p.severity, "file": _relative(p.path, base), "line": p.line,
-                 "message": _relative(p.message, base)} for p in report.problems]
-    if report.frames == 0:
-        problems.append({"severity": "error", "file": ".", "line": None, "message": "no frames to test"})
-    return problems, report
+def _inspect(ctx: WebContext, root: Path, base: Path, options: Any = None) -> tuple[list[dict[str, Any]], Any]:
+    """The upload's problems and report, from the inspecting worker process (a reader that
+    crashes, hangs or exhausts memory there is a problem of the upload, not the server's end)."""
+    return inspector(ctx.limits.inspect_memory, ctx.limits.inspect_seconds).inspect(root, base, options)
 
 
 def _options(form: Any) -> Any:
@@ -233,6 +313,15 @@ def _options(form: Any) -> Any:
         return options_from_flags(str(form.get("layout") or "") or None, allow)
     except LidarfuzzError as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace("--layout", "layout", 1)) from None
+
+
+def _notes(form: Any) -> str:
+    """The upload form's ``notes`` (at most :data:`NOTES_LIMIT` characters)."""
+    notes = str(form.get("notes") or "").replace("\r\n", "\n").strip()  # a form sends a textarea's lines as CRLF
+    if len(notes) > NOTES_LIMIT:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"notes: {len(notes)} characters; at most {NOTES_LIMIT}")
+    return notes
 
 
 def _modality(form: Any) -> str | None:
@@ -264,6 +353,21 @@ def _problem_line(problem: dict[str, Any]) -> str:
     return f"{where}: {problem['message']}"
 
 
+def _record(ctx: WebContext, name: str, root: Path, notes: str, options: Any, base: Path) -> Dataset:
+    """:func:`add_dataset`, its errors naming the upload's files (never the server's folder)."""
+    from lidarfuzz.errors import LidarfuzzError
+
+    try:
+        return add_dataset(ctx.store, name, root, notes, options)
+    except DataFormatError as exc:
+        where = relative(str(exc.path), base) + (f":{exc.line}" if exc.line is not None else "")
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{where}: {relative(exc.message, base)}") from None
+    except LidarfuzzError as exc:
+        if "exists already" in str(exc):  # another upload took the name meanwhile
+            raise HTTPException(status.HTTP_409_CONFLICT, f"name: a data set called {name!r} exists already") from None
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, relative(str(exc), base)) from None
+
+
 @router.post("/datasets/upload", status_code=status.HTTP_201_CREATED, openapi_extra=UPLOAD_FORM,
              responses={422: {"description": "every problem found, each naming its file and line"}})
 async def datasets_upload(ctx: Web, request: Request) -> Any:
@@ -272,6 +376,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     form = await request.form(max_files=100_000, max_fields=20)
     name = str(form.get("name") or "")
     _name_free(ctx, name)
+    given_notes = _notes(form)
     options = _options(form)
     modality = _modality(form)
     files = [f for f in form.getlist("files") + form.getlist("file") if isinstance(f, UploadFile)]
@@ -283,15 +388,16 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
         root, names = await _store_files(ctx, files, folder)
         base = root if root.is_dir() else root.parent
         options = _with_modality(options, root, modality)
-        problems, report = await run_in_threadpool(_inspect, root, base, options)
+        problems, report = await run_in_threadpool(_inspect, ctx, root, base, options)
         errors = [p for p in problems if p["severity"] == "error"]
         if errors:
             remove_tree(folder, ctx.uploads)
             return JSONResponse({"detail": "\n".join(_problem_line(p) for p in errors), "problems": errors},
                                 status_code=422)
-        notes = str(form.get("notes") or "") or f"uploaded: {', '.join(names[:5])}" + (
+        shown = [printable(n) for n in names[:5]]  # a file's name may hold control characters
+        notes = given_notes or f"uploaded: {', '.join(shown)}" + (
             f" and {len(names) - 5} more" if len(names) > 5 else "")
-        row = await run_in_threadpool(add_dataset, ctx.store, name, root, notes, options)
+        row = await run_in_threadpool(_record, ctx, name, root, notes, options, base)
     except BaseException:
         remove_tree(folder, ctx.uploads)
         raise
@@ -300,6 +406,7 @@ async def datasets_upload(ctx: Web, request: Request) -> Any:
     out = dataset_row(row, ctx.uploads)
     out["warnings"] = [_problem_line(p) for p in problems if p["severity"] != "error"]
     out["frames_inspected"] = report.inspected if report is not None else 0
+    out["labels"] = await run_in_threadpool(label_facts, row, report)
     return out
 
 
@@ -337,6 +444,45 @@ def datasets_generate(ctx: Web, body: GenerateRequest) -> dict[str, Any]:
     camera = None if body.camera is None else (int(body.camera.split("x")[0]), int(body.camera.split("x")[1]))
     job = jobs_of(ctx).start(body.name, body.frames, body.seed, body.kind, body.sensor, body.scenes, camera)
     return job.as_dict()
+
+
+def _dataset(ctx: WebContext, name: str) -> Dataset:
+    """The data set ``name``, or a 404 that says so (without the CLI's advice)."""
+    try:
+        return get_dataset(ctx.store, name)
+    except NotFoundError:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"name: no data set called {name!r} (deleted?)") from None
+
+
+def _detail(ctx: WebContext, name: str) -> dict[str, Any]:
+    job = jobs_of(ctx).get(name)
+    if job is not None and name not in {d.name for d in list_datasets(ctx.store)}:
+        return {**job.as_dict(), "used_by": [], "labels": None}
+    row = _dataset(ctx, name)
+    out = dataset_row(row, ctx.uploads)
+    tasks = tasks_using(ctx.store, Dataset, name)
+    out["used_by"] = [{"id": task_id, "name": task_name} for task_id, task_name in tasks]
+    try:
+        out["labels"] = label_facts(row)
+    except DataFormatError as exc:  # its files changed since it was recorded
+        out["labels"] = None
+        out["labels_error"] = exc.message
+    return out
+
+
+@router.get("/datasets/{name}")
+async def datasets_get(ctx: Web, name: str) -> dict[str, Any]:
+    """One data set with its facts (as in the list), ``labels`` (how many frames have labels, and a
+    ``warning`` when not all do: :func:`label_facts`) and ``used_by``: the tasks that run on it
+    (``[{id, name}]``, oldest first; while there are any it cannot be forgotten)."""
+    return await run_in_threadpool(_detail, ctx, name)
+
+
+@router.patch("/datasets/{name}")
+def datasets_patch(ctx: Web, name: str, body: NotesUpdate) -> dict[str, Any]:
+    """Change a data set's notes (its frames, path and options stay as they were recorded)."""
+    _dataset(ctx, name)
+    return dataset_row(set_dataset_notes(ctx.store, name, body.notes), ctx.uploads)
 
 
 @router.delete("/datasets/{name}", status_code=status.HTTP_204_NO_CONTENT)

@@ -16,6 +16,7 @@ from lidarfuzz.store.models import Finding
 from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.frames import MEDIA_TYPE, pair_payload, scene_payload
 from lidarfuzz.web.security import check_frame_id
+from lidarfuzz.web.security.ids import MAX_COUNT, Offset, RowId
 
 router = APIRouter(tags=["frames"])
 Web = Annotated[WebContext, Depends(web)]
@@ -36,7 +37,7 @@ def _unprocessable(detail: str) -> HTTPException:
 
 
 @router.get("/findings/{finding_id}/frames", response_class=Response, responses=BINARY)
-async def finding_frames(ctx: Web, finding_id: int) -> Response:
+async def finding_frames(ctx: Web, finding_id: RowId) -> Response:
     """Original and mutant of a finding, rebuilt exactly from the stored params, with ground truth,
     detections, the ``change`` channel and the finding's highlights."""
     from lidarfuzz.report.bev import load_pair
@@ -59,16 +60,38 @@ async def finding_frames(ctx: Web, finding_id: int) -> Response:
         raise
 
 
+def _replay_order(dataset: Any) -> tuple[list[str], list[float] | None, str | None]:
+    """A data set's frame ids in replay order, their timestamps (None: no clock) and what the order
+    comes from (:mod:`lidarfuzz.structural.logs`); its listing order and ``None`` when it has none."""
+    from lidarfuzz.structural.logs import NotALogError, order_of
+
+    try:
+        log = order_of(dataset)
+    except NotALogError:
+        return list(dataset.frame_ids()), None, None
+    stamps = None if log.timestamps is None else [round(float(t), 6) for t in log.timestamps]
+    return list(log.frame_ids), stamps, log.order
+
+
 @router.get("/datasets/{name}/frames")
-def dataset_frames(ctx: Web, name: str, limit: int | None = None, offset: int = 0) -> dict[str, Any]:
-    """The frame ids of a data set: ``{"name", "modality", "total", "frame_ids"}`` (``modality``
-    ``camera``: its frames are images, ``/api/datasets/{name}/images`` lists them with their labels)."""
+def dataset_frames(ctx: Web, name: str, limit: Annotated[int | None, Query(ge=0, le=MAX_COUNT)] = None,
+                   offset: Offset = 0) -> dict[str, Any]:
+    """The frame ids of a data set: ``{"name", "modality", "total", "frame_ids", "order", "timestamps"}``
+    (``modality`` ``camera``: its frames are images, ``/api/datasets/{name}/images`` lists them with their
+    labels). A log (frames with an order: timestamps, a bag's order or poses) lists its frames in replay
+    order, ``order`` saying where it comes from and ``timestamps`` the frames' seconds (null without a
+    clock); for any other data set both are null (the viewer's playback is for logs)."""
     from lidarfuzz.store.inventory import dataset_options
 
     row = get_dataset(ctx.store, name)
-    ids = list(ctx.dataset(row.path).frame_ids())
-    chosen = ids[offset: None if limit is None else offset + limit]
-    return {"name": name, "modality": dataset_options(row).modality, "total": len(ids), "frame_ids": chosen}
+    options = dataset_options(row)
+    if options.modality == "camera":
+        ids, stamps, order = list(ctx.dataset(row.path).frame_ids()), None, None
+    else:
+        ids, stamps, order = _replay_order(ctx.dataset(row.path))
+    window = slice(offset, None if limit is None else offset + limit)
+    return {"name": name, "modality": options.modality, "total": len(ids), "frame_ids": ids[window],
+            "order": order, "timestamps": None if stamps is None else stamps[window]}
 
 
 @router.get("/datasets/{name}/frames/{frame_id}", response_class=Response, responses=BINARY)
@@ -93,7 +116,7 @@ async def dataset_frame(ctx: Web, name: str, frame_id: str) -> Response:
 
 # -- camera data: pictures -------------------------------------------------------------------
 @router.get("/findings/{finding_id}/pair.png", response_class=Response, responses=PNG)
-async def finding_pair_png(ctx: Web, finding_id: int) -> Response:
+async def finding_pair_png(ctx: Web, finding_id: RowId) -> Response:
     """A camera task's finding as the report draws it: the original and the transformed image (rebuilt
     from the stored operator and params) side by side, with the label (green) and the predictions on
     the original (blue) and on the transformed image (red) as arrows. 422 for a LiDAR task's finding
@@ -154,7 +177,7 @@ def image_facts(ctx: WebContext, name: str, dataset: Any, frame_id: str) -> dict
 
 @router.get("/datasets/{name}/images")
 async def dataset_images(ctx: Web, name: str, limit: Annotated[int, Query(ge=1, le=500)] = 60,
-                         offset: Annotated[int, Query(ge=0)] = 0) -> dict[str, Any]:
+                         offset: Offset = 0) -> dict[str, Any]:
     """A camera data set's images, a page at a time: ``{"name", "total", "limit", "offset", "items":
     [{"frame_id", "steering", "width", "height", "image"}]}`` (``steering``: the label in the data set's
     units, None for an unlabelled image; ``image``: its picture's URL)."""

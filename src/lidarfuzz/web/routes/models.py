@@ -1,4 +1,5 @@
-"""``/api/models``: systems under test — list, register by spec, upload a model file, remove.
+"""``/api/models``: systems under test — list (each with its type and modality), register by spec,
+upload a model file, one model's detail (with the tasks using it), its notes changed (``PATCH``), remove.
 
 Registration is :func:`lidarfuzz.store.inventory.add_model`, as ``lidarfuzz models add`` does: the
 spec is built once (a bad one fails now) and recorded with its fingerprint. What the API
@@ -15,16 +16,27 @@ import re
 import threading
 import uuid
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NamedTuple
 
 from fastapi import APIRouter, Depends, HTTPException, Request, status
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
-from lidarfuzz.store.inventory import add_model, get_model, list_models, remove_model
+from lidarfuzz.store.errors import NotFoundError
+from lidarfuzz.store.inventory import (
+    add_model,
+    get_model,
+    list_models,
+    printable,
+    remove_model,
+    set_model_notes,
+    tasks_using,
+)
+from lidarfuzz.store.models import Model
 from lidarfuzz.web.context import WebContext, web
 from lidarfuzz.web.events import iso
+from lidarfuzz.web.routes.datasets import NOTES_LIMIT, NotesUpdate
 from lidarfuzz.web.security import check_model_spec, check_name, remove_tree, within
 
 router = APIRouter(tags=["models"])
@@ -51,40 +63,56 @@ def model_kind(spec: str) -> str:
     return "plugin" if ":" in spec.partition("?")[0] else "builtin"
 
 
-_modalities: dict[tuple[str, str, str], str] = {}
-_modalities_lock = threading.Lock()
+class SystemFacts(NamedTuple):
+    """What a registered spec builds: its ``modality`` (``lidar`` or ``camera``) and its type
+    (:func:`~lidarfuzz.suts.registry.system_type`; ``unavailable`` when it cannot be built here)."""
+
+    modality: str
+    type: str
+    type_label: str
 
 
-def _builds(factory: Any, spec: str, options: dict[str, Any]) -> Any:
+_facts: dict[tuple[str, str, str], SystemFacts] = {}
+_facts_lock = threading.Lock()
+
+
+def _builds(factory: Any, spec: str, options: dict[str, Any]) -> tuple[Any, str | None]:
+    """The system ``factory`` builds from the spec, or None and why not."""
     try:
-        return factory(spec, **options)
-    except Exception:  # not this modality's system (or not buildable here at all)
-        return None
+        return factory(spec, **options), None
+    except Exception as exc:  # not this modality's system (or not buildable here at all)
+        return None, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
-def model_modality(row: Any) -> str:
-    """``camera`` for a registered steering system, else ``lidar``: the system the spec builds as a
-    steering system (:func:`~lidarfuzz.suts.registry.create_camera`) when its fingerprint is the one
-    recorded, or when only that builds (the store keeps no modality with a model). Kept per spec,
-    options and fingerprint."""
-    from lidarfuzz.suts.registry import create, create_camera
+def system_facts(row: Any, modality: str | None = None) -> SystemFacts:
+    """A registered model's modality and type. The store keeps no modality with a model: it is
+    ``camera`` when the spec builds as a steering system (:func:`~lidarfuzz.suts.registry.create_camera`)
+    whose fingerprint is the one recorded, or when only that builds; else ``lidar`` (the detectors of
+    :func:`~lidarfuzz.suts.registry.create`, and the systems consuming logs of
+    :func:`~lidarfuzz.suts.registry.create_sequence`). ``modality``: known already (just registered).
+    Kept per spec, options and fingerprint."""
+    from lidarfuzz.suts.registry import create, create_camera, create_sequence, system_type
 
     options = dict(row.options or {})
     key = (row.spec, json.dumps(options, sort_keys=True, default=str), row.fingerprint)
-    with _modalities_lock:
-        known = _modalities.get(key)
+    with _facts_lock:
+        known = _facts.get(key)
     if known is not None:
         return known
-    steering = _builds(create_camera, row.spec, options)
-    if steering is None:
-        modality = "lidar"
-    elif _fingerprint(steering) == row.fingerprint:
-        modality = "camera"
+    steering, _ = (None, None) if modality == "lidar" else _builds(create_camera, row.spec, options)
+    detector, why = (None, None) if modality == "camera" else _builds(create, row.spec, options)
+    if steering is not None and (detector is None or _fingerprint(steering) == row.fingerprint):
+        system: Any = steering
     else:
-        modality = "lidar" if _builds(create, row.spec, options) is not None else "camera"
-    with _modalities_lock:
-        _modalities[key] = modality
-    return modality
+        system = detector if detector is not None else _builds(create_sequence, row.spec, options)[0]
+    if system is None:
+        facts = SystemFacts(modality or "lidar", "unavailable", f"cannot be built here: {why}")
+    else:
+        code, label = system_type(system)
+        facts = SystemFacts("camera" if system is steering else "lidar", code, label)
+    with _facts_lock:
+        _facts[key] = facts
+    return facts
 
 
 def _fingerprint(system: Any) -> str | None:
@@ -95,9 +123,12 @@ def _fingerprint(system: Any) -> str | None:
 
 
 def model_row(row: Any, modality: str | None = None) -> dict[str, Any]:
+    """A model as the API shows it: ``kind`` (how it was registered: builtin, plugin, onnx, open3d,
+    ...), ``type`` and ``type_label`` (what kind of system it is) and ``modality``."""
+    facts = system_facts(row, modality)
     return {"name": row.name, "spec": row.spec, "kind": model_kind(row.spec), "options": row.options,
-            "fingerprint": row.fingerprint, "notes": row.notes,
-            "added_at": iso(row.added_at), "modality": modality or model_modality(row)}
+            "fingerprint": row.fingerprint, "notes": row.notes, "added_at": iso(row.added_at),
+            "modality": facts.modality, "type": facts.type, "type_label": facts.type_label}
 
 
 @router.get("/models")
@@ -117,7 +148,7 @@ class ModelRequest(BaseModel):
     spec: str = Field(description="classic, pillars?threads=2, an installed plugin's module:callable, ...; "
                                   "a steering system: dave2, epoch, chauffeur, ...")
     options: dict[str, Any] = Field(default_factory=dict, description="passed to the system")
-    notes: str = ""
+    notes: str = Field(default="", max_length=NOTES_LIMIT, description="what it is: version, training, ...")
     modality: Literal["lidar", "camera"] = Field(
         default="lidar", description="lidar: a system detecting objects in point clouds; camera: a steering "
                                      "system on images (camera tasks)")
@@ -214,6 +245,20 @@ def _check_file(kind: str, path: Path, options: dict[str, Any], shown: str, moda
                             f"{type(state).__name__}")
 
 
+def _checked_as_uploaded(kind: str, path: Path, options: dict[str, Any], shown: str, modality: str) -> None:
+    """:func:`_check_file`, its errors naming the user's file (``shown``), never where the server keeps it."""
+    from lidarfuzz.errors import LidarfuzzError
+
+    try:
+        _check_file(kind, path, options, shown, modality)
+    except LidarfuzzError as exc:
+        text = str(exc)
+        for where in (str(path.resolve()), str(path), str(path.parent.resolve()), str(path.parent)):
+            text = text.replace(where, shown)
+        text = text if text.startswith(shown) else f"{shown}: {text}"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, text) from None
+
+
 @router.post("/models/upload", status_code=status.HTTP_201_CREATED, openapi_extra=UPLOAD_FORM)
 async def models_upload(ctx: Web, request: Request) -> dict[str, Any]:
     """Upload an ONNX model or an Open3D-ML checkpoint (multipart: ``name``, ``file``, optional
@@ -221,6 +266,10 @@ async def models_upload(ctx: Web, request: Request) -> dict[str, Any]:
     form = await request.form(max_files=1, max_fields=10)
     try:
         name = check_name(str(form.get("name") or ""), "name")
+        given_notes = str(form.get("notes") or "").replace("\r\n", "\n").strip()  # a form's lines come as CRLF
+        if len(given_notes) > NOTES_LIMIT:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"notes: {len(given_notes)} characters; at most {NOTES_LIMIT}")
         upload = form.get("file")
         if not isinstance(upload, UploadFile):
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "file: no model file uploaded")
@@ -246,9 +295,9 @@ async def models_upload(ctx: Web, request: Request) -> dict[str, Any]:
             with target.open("xb") as out:
                 while chunk := await upload.read(1 << 20):
                     out.write(chunk)
-            await run_in_threadpool(_check_file, kind, target, options, shown, modality)
+            await run_in_threadpool(_checked_as_uploaded, kind, target, options, shown, modality)
             spec = f"{kind}:{target.resolve()}"
-            notes = str(form.get("notes") or "") or f"uploaded: {shown}"
+            notes = given_notes or f"uploaded: {printable(shown)}"  # a file's name may hold control characters
             row = await run_in_threadpool(lambda: add_model(ctx.store, name, spec, options, notes, modality=modality))
         except BaseException:
             remove_tree(folder, ctx.uploads)
@@ -256,6 +305,33 @@ async def models_upload(ctx: Web, request: Request) -> dict[str, Any]:
     finally:
         await form.close()
     return model_row(row, modality)
+
+
+def _model(ctx: WebContext, name: str) -> Any:
+    """The model ``name``, or a 404 that says so (without the CLI's advice)."""
+    try:
+        return get_model(ctx.store, name)
+    except NotFoundError:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"name: no model called {name!r} (deleted?)") from None
+
+
+@router.get("/models/{name}")
+async def models_get(ctx: Web, name: str) -> dict[str, Any]:
+    """One model with its facts (as in the list) and ``used_by``: the tasks that run against it
+    (``[{id, name}]``, oldest first; while there are any it cannot be removed)."""
+    row = _model(ctx, name)
+    out = await run_in_threadpool(model_row, row)
+    out["used_by"] = [{"id": task_id, "name": task_name} for task_id, task_name in tasks_using(ctx.store, Model, name)]
+    return out
+
+
+@router.patch("/models/{name}")
+async def models_patch(ctx: Web, name: str, body: NotesUpdate) -> dict[str, Any]:
+    """Change a model's notes (the only thing that can change: its spec and options made its
+    fingerprint; register another model for another configuration)."""
+    _model(ctx, name)
+    row = set_model_notes(ctx.store, name, body.notes)
+    return await run_in_threadpool(model_row, row)
 
 
 @router.delete("/models/{name}", status_code=status.HTTP_204_NO_CONTENT)

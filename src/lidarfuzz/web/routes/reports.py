@@ -17,19 +17,30 @@ from fastapi.responses import FileResponse, HTMLResponse
 from starlette.concurrency import run_in_threadpool
 
 from lidarfuzz.campaign.tasks import get_task
+from lidarfuzz.io.atomic import write_text
 from lidarfuzz.web.context import WebContext, web
+from lidarfuzz.web.security.ids import RowId
 
 router = APIRouter(tags=["reports"])
 Web = Annotated[WebContext, Depends(web)]
 STATE = ".web-report.json"
 REPORT_POLICY = "sandbox allow-scripts allow-popups allow-popups-to-escape-sandbox allow-downloads"
 EXPORTS = {"report.json": "application/json", "ap.csv": "text/csv", "delta_ap.csv": "text/csv",
-           "violations.csv": "text/csv", "findings.csv": "text/csv", "junit.xml": "application/xml"}
+           "violations.csv": "text/csv", "findings.csv": "text/csv", "ratings.csv": "text/csv",
+           "junit.xml": "application/xml"}
 
 
 def _key(ctx: WebContext, task_id: int) -> str:
+    """What the report depends on: the task's state and its raters' verdicts (count, latest time)."""
+    from sqlalchemy import func, select
+
+    from lidarfuzz.store.models import Rating
+
     task = get_task(ctx.store, task_id)
-    return "|".join(str(v) for v in (task.created_at, task.status, task.done, task.finished_at))
+    with ctx.store.session() as s:
+        verdicts = s.execute(select(func.count(Rating.id), func.max(Rating.rated_at)).where(
+            Rating.task_id == task_id)).one()
+    return "|".join(str(v) for v in (task.created_at, task.status, task.done, task.finished_at, *verdicts))
 
 
 def _fresh(folder: Path, part: str, key: str) -> bool:
@@ -49,7 +60,7 @@ def _remember(folder: Path, part: str, key: str) -> None:
     state[part] = key
     if part == "html":
         state["exports"] = key  # write_report writes the exports too
-    path.write_text(json.dumps(state), encoding="utf-8")
+    write_text(path, json.dumps(state), overwrite=True)
 
 
 def ensure(ctx: WebContext, task_id: int, part: str) -> Path:
@@ -73,19 +84,22 @@ def ensure(ctx: WebContext, task_id: int, part: str) -> Path:
 def _write_exports(ctx: WebContext, task_id: int, folder: Path) -> None:
     """``report.json``, the CSV files and ``junit.xml`` — :func:`lidarfuzz.report.write_report`
     without the HTML page and its pictures."""
+    from lidarfuzz.campaign.ratings import tally
     from lidarfuzz.campaign.results import summarise
     from lidarfuzz.report.exports import finding_rows, junit_from_results, write_csvs, write_json
     from lidarfuzz.report.gates import evaluate
+    from lidarfuzz.report.ratings import write_ratings_csv
 
     summary = summarise(ctx.store, task_id)
     write_json(summary, folder / "report.json")
     write_csvs(summary, folder, finding_rows(ctx.store, task_id))
-    (folder / "junit.xml").write_text(junit_from_results(summary, evaluate(summary, [])), encoding="utf-8")
+    write_ratings_csv(tally(ctx.store, task_id), folder / "ratings.csv")
+    write_text(folder / "junit.xml", junit_from_results(summary, evaluate(summary, [])), overwrite=True)
 
 
 @router.get("/tasks/{task_id}/report", response_class=FileResponse,
             responses={200: {"content": {"text/html": {}}, "description": "the self-contained HTML report"}})
-async def report_html(ctx: Web, task_id: int) -> FileResponse:
+async def report_html(ctx: Web, task_id: RowId) -> FileResponse:
     """The HTML report (``lidarfuzz report``), written on demand and cached until the task changes."""
     folder = await run_in_threadpool(ensure, ctx, task_id, "html")
     # opened in its own tab it runs in an opaque origin: its scripts never see the app's token
@@ -106,7 +120,7 @@ def _structural_page(ctx: WebContext, task_id: int) -> str:
 @router.get("/tasks/{task_id}/structural", response_class=HTMLResponse,
             responses={200: {"content": {"text/html": {}}, "description": "a structural task's tables and views"},
                        409: {"description": "not a structural task"}})
-async def structural_html(ctx: Web, task_id: int) -> HTMLResponse:
+async def structural_html(ctx: Web, task_id: RowId) -> HTMLResponse:
     """A structural task's coverage tables (Neves et al.'s form), coverage per module/class/function,
     annotated source, control-flow graphs and logs side by side: the report's section as a page
     (what the task page embeds), from what is stored now."""
@@ -115,7 +129,7 @@ async def structural_html(ctx: Web, task_id: int) -> HTMLResponse:
 
 
 def _export_route(name: str, media_type: str) -> None:
-    async def export(ctx: Web, task_id: int) -> FileResponse:
+    async def export(ctx: Web, task_id: RowId) -> FileResponse:
         folder = await run_in_threadpool(ensure, ctx, task_id, "exports")
         return FileResponse(folder / name, media_type=media_type, filename=f"task-{task_id}-{name}",
                             headers={"Cache-Control": "no-cache"})

@@ -1,12 +1,29 @@
-// Data sets: the list, uploads (KITTI zip; point-cloud + label files; a bag or MCAP) with every
-// validation problem shown with its file and line, delete, and "generate from the simulator".
-import { api, listOf, upload } from "../api.js";
+// Data sets: the list (with notes), uploads (pages/upload.js: KITTI zip, a frame folder, point-cloud +
+// label files, a bag or MCAP) with every validation problem shown with its file and line, delete (a
+// refusal stays under its row, naming the tasks), "generate from the simulator", and one data set's
+// page (#/datasets/NAME): its facts, how many frames have labels, the tasks using it, its notes.
+import { api, listOf } from "../api.js";
 import { clear, emptyRow, every, formatTime, h, notice, progressBar } from "../dom.js";
+import { deleteButton, factsList, forget, notesCell, notesEditor, refusalNotice, taskLinks } from "./inventory.js";
+import { labelsLine, labelsWarning, uploadWidget } from "./upload.js";
+
+const COLUMNS = ["Name", "Format", "Frames", "Notes", "Added", ""];
+const uploadMessageOf = (root) => root.querySelector("[data-testid=upload-message]") ?? h("div");
 
 export async function datasetsPage(root) {
   const body = h("tbody", { testid: "datasets-body" });
   const listMessage = h("div");
   const pending = new Set(); // names being generated: keep refreshing until they are recorded
+  let refusal = null; // {name, message, tasks}: a refused delete, shown under its row until the next action
+
+  // A new action: the last one's notices go.
+  function startAction() {
+    refusal = null;
+    for (const el of root.querySelectorAll("[data-testid=refusal-row]")) el.remove();
+    clear(uploadMessageOf(root));
+    clear(genMessage);
+    clear(listMessage);
+  }
 
   async function load() {
     let reply;
@@ -16,10 +33,9 @@ export async function datasetsPage(root) {
       clear(listMessage).append(notice("error", exc.message, exc.problems));
       return;
     }
-    clear(listMessage);
     const datasets = listOf(reply, "datasets");
     clear(body);
-    if (!datasets.length) body.append(emptyRow(6, "No data sets yet: upload one or generate one from the simulator."));
+    if (!datasets.length) body.append(emptyRow(COLUMNS.length, "No data sets yet: upload one or generate one from the simulator."));
     for (const ds of datasets) {
       const generating = ds.status === "generating";
       if (generating) pending.add(ds.name);
@@ -28,14 +44,15 @@ export async function datasetsPage(root) {
         ds.status && ds.status !== "ready"
           ? h("span", { class: "muted", testid: "dataset-status" }, ` ${ds.status}${ds.error ? `: ${ds.error}` : ""}`)
           : null;
+      const link = `#/datasets/${encodeURIComponent(ds.name)}`;
       body.append(
         h(
           "tr",
           { testid: "dataset-row", dataset: { name: ds.name } },
-          h("td", {}, h("a", { href: `#/browse/${encodeURIComponent(ds.name)}` }, ds.name), status),
+          h("td", { class: "name-cell" }, generating ? ds.name : h("a", { href: link, testid: "dataset-link" }, ds.name), status),
           h("td", {}, ds.format ?? "—", ds.modality === "camera" ? h("span", { class: "badge modality", testid: "dataset-modality" }, "camera") : null),
           h("td", { class: "num" }, generating && ds.total ? progressBar(ds.done ?? 0, ds.total) : (ds.frame_count ?? ds.frames ?? "—")),
-          h("td", { class: "path" }, ds.path ?? ""),
+          notesCell(ds.notes),
           h("td", {}, formatTime(ds.added_at ?? ds.created_at)),
           h(
             "td",
@@ -47,12 +64,11 @@ export async function datasetsPage(root) {
                 class: "small danger",
                 testid: "delete-dataset",
                 onclick: async () => {
-                  if (!window.confirm(`Forget data set ${ds.name}? Uploaded files are removed; other files stay.`)) return;
-                  try {
-                    await api(`/api/datasets/${encodeURIComponent(ds.name)}`, { method: "DELETE" });
-                  } catch (exc) {
-                    clear(listMessage).append(notice("error", exc.message, exc.problems));
-                  }
+                  startAction();
+                  const name = encodeURIComponent(ds.name);
+                  const refused = await forget(`/api/datasets/${name}`, `/api/datasets/${name}`, `Forget data set ${ds.name}? Uploaded files are removed; other files stay.`);
+                  if (refused?.cancelled) return;
+                  refusal = refused ? { name: ds.name, ...refused } : null;
                   load();
                 },
               },
@@ -61,68 +77,18 @@ export async function datasetsPage(root) {
           ),
         ),
       );
+      if (refusal?.name === ds.name) {
+        body.append(h("tr", { class: "refusal-row", testid: "refusal-row", dataset: { name: ds.name } }, h("td", { colspan: COLUMNS.length }, refusalNotice(refusal.message, refusal.tasks))));
+      }
     }
   }
 
   // -- upload --
-  const uploadName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "upload-name" });
-  const uploadFiles = h("input", { name: "files", type: "file", multiple: true, required: true, testid: "upload-files" });
-  const uploadModality = h(
-    "select",
-    { name: "modality", testid: "upload-modality" },
-    h("option", { value: "" }, "what the data holds"),
-    h("option", { value: "lidar" }, "LiDAR point clouds"),
-    h("option", { value: "camera" }, "camera images (steering labels)"),
-  );
-  const uploadMessage = h("div", { testid: "upload-message" });
-  const uploadProgress = h("div");
-  const uploadButton = h("button", { type: "submit", class: "primary", testid: "upload-submit" }, "Upload");
-  const uploadForm = h(
-    "form",
-    {
-      class: "card form",
-      testid: "upload-form",
-      onsubmit: async (event) => {
-        event.preventDefault();
-        clear(uploadMessage);
-        const form = new FormData();
-        form.append("name", uploadName.value.trim());
-        if (uploadModality.value) form.append("modality", uploadModality.value);
-        for (const file of uploadFiles.files) form.append("files", file, file.name);
-        uploadButton.disabled = true;
-        try {
-          const reply = await upload("/api/datasets/upload", form, (loaded, total) => {
-            clear(uploadProgress).append(progressBar(Math.round(loaded / 1024), Math.round(total / 1024)));
-          });
-          const frames = reply?.frame_count ?? reply?.frames;
-          uploadMessage.append(
-            notice("ok", `Added ${reply?.name ?? uploadName.value}${frames !== undefined ? ` (${frames} frames)` : ""}.`),
-          );
-          uploadForm.reset();
-          load();
-        } catch (exc) {
-          uploadMessage.append(notice("error", `The upload was refused: ${exc.message}`, exc.problems, "upload-error"));
-        } finally {
-          uploadButton.disabled = false;
-          clear(uploadProgress);
-        }
-      },
-    },
-    h("h2", {}, "Upload a data set"),
-    h(
-      "p",
-      { class: "hint" },
-      "One .zip in KITTI layout (velodyne/, label_2/, calib/ …); or point-cloud files (.bin, .pcd, .ply, .las, .npy …) ",
-      "with their KITTI label files; or one ROS bag / MCAP file; or camera images (.png, .jpg) with one CSV of steering angles ",
-      "(a zip for KITTI image_2/, Udacity or driving_log layouts). Every problem is listed with its file and line.",
-    ),
-    h("label", {}, "Name ", uploadName),
-    h("label", {}, "Files ", uploadFiles),
-    h("label", {}, "Read as ", uploadModality),
-    uploadButton,
-    uploadProgress,
-    uploadMessage,
-  );
+  const uploadForm = uploadWidget({ onUploaded: () => load() });
+  uploadForm.addEventListener("submit", () => {
+    refusal = null;
+    for (const el of root.querySelectorAll("[data-testid=refusal-row]")) el.remove();
+  });
 
   // -- generate --
   const genName = h("input", { name: "name", required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+", testid: "generate-name" });
@@ -157,7 +123,7 @@ export async function datasetsPage(root) {
       testid: "generate-form",
       onsubmit: async (event) => {
         event.preventDefault();
-        clear(genMessage);
+        startAction();
         const name = genName.value.trim();
         try {
           await api("/api/datasets/generate", {
@@ -190,7 +156,7 @@ export async function datasetsPage(root) {
     h(
       "table",
       { class: "table", testid: "datasets-table" },
-      h("thead", {}, h("tr", {}, ["Name", "Format", "Frames", "Path", "Added", ""].map((t) => h("th", {}, t)))),
+      h("thead", {}, h("tr", {}, COLUMNS.map((t) => h("th", {}, t)))),
       body,
     ),
     h("div", { class: "cards" }, uploadForm, genForm),
@@ -199,4 +165,58 @@ export async function datasetsPage(root) {
   return every(3000, () => {
     if (pending.size && !document.hidden) load();
   });
+}
+
+// One data set (#/datasets/NAME): its facts, how many frames have labels (with the warning when
+// not all do), the tasks using it, its notes (editable), and View / Delete.
+export async function datasetDetailPage(root, name) {
+  const url = `/api/datasets/${encodeURIComponent(name)}`;
+  const ds = await api(url);
+  const message = h("div", { testid: "detail-message" });
+  const options = ds.options ?? {};
+  const labels = ds.labels;
+  root.append(
+    h(
+      "div",
+      { class: "page-head" },
+      h("h1", { class: "wrap-name" }, h("a", { href: "#/datasets" }, "Data sets"), " / ", ds.name),
+      h("span", { class: "spacer" }),
+      h("a", { class: "button", href: `#/browse/${encodeURIComponent(ds.name)}`, testid: "browse-dataset" }, "View frames"),
+      deleteButton({
+        url,
+        question: `Forget data set ${ds.name}? Uploaded files are removed; other files stay.`,
+        listPath: "/datasets",
+        message,
+        testid: "delete-dataset",
+      }),
+    ),
+    message,
+    h(
+      "div",
+      {},
+      labelsWarning(labels),
+      ds.labels_error ? notice("error", `Its files cannot be read as they were recorded: ${ds.labels_error}`, [], "labels-error") : null,
+    ),
+    h(
+      "div",
+      { class: "cards" },
+      h(
+        "div",
+        { class: "card" },
+        h("h2", {}, "Facts"),
+        factsList([
+          ["Format", ds.format, "fact-format"],
+          ["Frames", ds.frame_count ?? ds.total, "fact-frames"],
+          ["Modality", ds.modality === "camera" ? "camera images" : "LiDAR point clouds", "fact-modality"],
+          ["Labels", labelsLine(labels), "fact-labels"],
+          ["Point layout", options.layout, "fact-layout"],
+          ["Frames without labels", labels?.label_files && labels.labelled < labels.checked ? (options.allow_unlabelled ? "run; AP from the labelled ones" : "refused (tasks need every frame labelled)") : null, "fact-unlabelled"],
+          ["Stored at", h("span", { class: "path" }, ds.path ?? ""), "fact-path"],
+          ["Added", formatTime(ds.added_at), "fact-added"],
+          ["Used by", ds.used_by?.length ? taskLinks(ds.used_by) : "no task yet", "fact-used-by"],
+        ]),
+      ),
+      notesEditor(ds.notes, (notes) => api(url, { method: "PATCH", body: { notes } })),
+    ),
+  );
 }

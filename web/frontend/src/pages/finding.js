@@ -1,7 +1,8 @@
 // One finding in the viewer: its original and mutant frames, boxes and what it violated; a camera
-// task's finding as its picture and steering figures; previous / next finding of the task.
+// task's finding as its picture and steering figures; previous / next finding of the task (the
+// buttons, or the ← / → keys).
 import { api, fetchBinary, fetchBlob } from "../api.js";
-import { clear, formatNumber, h, notice } from "../dom.js";
+import { clear, formatNumber, go, h, notice } from "../dom.js";
 
 // The viewer's code and the frame are fetched at once; `window.__viewer.timings` says where the
 // time to the first render went (ms from the start): code loaded, frame received, parsed, WebGL up.
@@ -102,6 +103,10 @@ export async function findingViewerPage(root, id, params) {
     );
   }
   if (taskId) head.append(h("a", { class: "button", href: `#/tasks/${taskId}/findings`, testid: "back-to-findings" }, "All findings"));
+  const stopKeys = finding ? arrowKeys((step) => {
+    const to = step < 0 ? finding.previous : finding.next;
+    if (to) go(`/findings/${to}${suffix}`);
+  }) : () => {};
   if (finding) {
     const replay = finding.replay ?? {};
     const rows = [
@@ -115,12 +120,42 @@ export async function findingViewerPage(root, id, params) {
     ];
     facts.append(...rows.filter(([, v]) => v !== undefined && v !== null && v !== "").flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]));
   }
-  if (finding?.modality === "camera") return cameraFinding(stage, finding);
+  if (finding?.modality === "camera") {
+    const release = cameraFinding(stage, finding);
+    return () => {
+      stopKeys();
+      release();
+    };
+  }
   let panel = null;
   try {
     ({ panel } = await loadViewer(stage, `/api/findings/${id}/frames`, { pair: true }));
   } catch (exc) {
     clear(stage).append(notice("error", `Could not show the frames: ${exc.message}`));
   }
-  return () => panel?.dispose();
+  return () => {
+    stopKeys();
+    panel?.dispose();
+  };
+}
+
+// Whether the arrow keys already mean something in `el` (a text field, a list, a slider); a
+// checkbox or a button leaves them to the page.
+export function usesArrows(el) {
+  if (!el || el.isContentEditable) return Boolean(el?.isContentEditable);
+  if (el.tagName === "SELECT" || el.tagName === "TEXTAREA") return true;
+  return el.tagName === "INPUT" && !["checkbox", "button", "submit", "reset"].includes(el.type);
+}
+
+// ← / → (without a modifier, and not while typing in a field) call `step(-1)` / `step(1)`; returns
+// the function that stops listening.
+export function arrowKeys(step) {
+  const onKey = (event) => {
+    if (event.altKey || event.ctrlKey || event.metaKey || event.shiftKey || usesArrows(event.target)) return;
+    if (event.key !== "ArrowLeft" && event.key !== "ArrowRight") return;
+    event.preventDefault();
+    step(event.key === "ArrowLeft" ? -1 : 1);
+  };
+  window.addEventListener("keydown", onKey);
+  return () => window.removeEventListener("keydown", onKey);
 }

@@ -1,9 +1,14 @@
 // Models (systems under test): register a built-in, a plugin spec, an ONNX file or an Open3D-ML
-// checkpoint; list; delete. subprocess: / worker: specs are refused by the server (CLI only).
+// checkpoint (with notes); list them with their type (what kind of system: the server's registry
+// says) and modality; delete (a refusal stays under its row, naming the tasks); one model's page
+// (#/models/NAME) with its facts, the tasks using it and its notes. subprocess: / worker: specs are
+// refused by the server (CLI only).
 import { api, listOf, upload } from "../api.js";
 import { clear, emptyRow, formatTime, h, notice, progressBar } from "../dom.js";
+import { deleteButton, factsList, forget, notesCell, notesEditor, refusalNotice, taskLinks } from "./inventory.js";
 
 const BUILT_INS = ["classic", "pillars"];
+const COLUMNS = ["Name", "Type", "Modality", "Spec and options", "Notes", "Fingerprint", "Added", ""];
 
 // "k=v" lines → {k: v}, values read as JSON where they parse (numbers, booleans, lists).
 export function parseOptions(text) {
@@ -24,9 +29,30 @@ export function parseOptions(text) {
   return options;
 }
 
+// A model's modality: "camera" as a badge (a steering system), "LiDAR" as text.
+function modalityCell(model) {
+  return model.modality === "camera"
+    ? h("td", {}, h("span", { class: "badge modality", testid: "model-modality-badge" }, "camera"))
+    : h("td", { testid: "model-modality" }, "LiDAR");
+}
+
+// What kind of system it is (the registry's word), with the spec's scheme on hover.
+function typeCell(model) {
+  const unavailable = model.type === "unavailable";
+  return h("td", { class: unavailable ? "type-cell unavailable" : "type-cell", title: model.kind ? `registered as: ${model.kind}` : "", testid: "model-type", dataset: { type: model.type ?? "" } }, model.type_label ?? model.type ?? "—");
+}
+
 export async function modelsPage(root) {
   const body = h("tbody", { testid: "models-body" });
   const listMessage = h("div");
+  let refusal = null; // {name, message, tasks}: a refused delete, shown under its row until the next action
+
+  // A new action: the last one's notices go.
+  function startAction() {
+    refusal = null;
+    for (const el of root.querySelectorAll("[data-testid=refusal-row]")) el.remove();
+    for (const el of [specMessage, fileMessage, listMessage]) clear(el);
+  }
 
   async function load() {
     let reply;
@@ -36,19 +62,21 @@ export async function modelsPage(root) {
       clear(listMessage).append(notice("error", exc.message, exc.problems));
       return;
     }
-    clear(listMessage);
     const models = listOf(reply, "models");
     clear(body);
-    if (!models.length) body.append(emptyRow(6, "No models yet: register one below (classic is the built-in pipeline)."));
+    if (!models.length) body.append(emptyRow(COLUMNS.length, "No models yet: register one below (classic is the built-in pipeline)."));
     for (const model of models) {
       const options = model.options && Object.keys(model.options).length ? JSON.stringify(model.options) : "";
+      const url = `/api/models/${encodeURIComponent(model.name)}`;
       body.append(
         h(
           "tr",
           { testid: "model-row", dataset: { name: model.name } },
-          h("td", {}, model.name),
-          h("td", {}, h("code", {}, model.spec ?? ""), model.modality === "camera" ? h("span", { class: "badge modality", testid: "model-modality-badge" }, "camera") : null),
-          h("td", {}, h("code", { class: "muted" }, options)),
+          h("td", { class: "name-cell" }, h("a", { href: `#/models/${encodeURIComponent(model.name)}`, testid: "model-link" }, model.name)),
+          typeCell(model),
+          modalityCell(model),
+          h("td", { class: "spec-cell" }, h("code", {}, model.spec ?? ""), options ? h("div", {}, h("code", { class: "muted" }, options)) : null),
+          notesCell(model.notes),
           h("td", {}, h("code", { title: model.fingerprint ?? "" }, (model.fingerprint ?? "").slice(0, 12))),
           h("td", {}, formatTime(model.added_at ?? model.created_at)),
           h(
@@ -60,12 +88,10 @@ export async function modelsPage(root) {
                 class: "small danger",
                 testid: "delete-model",
                 onclick: async () => {
-                  if (!window.confirm(`Remove model ${model.name}?`)) return;
-                  try {
-                    await api(`/api/models/${encodeURIComponent(model.name)}`, { method: "DELETE" });
-                  } catch (exc) {
-                    clear(listMessage).append(notice("error", exc.message, exc.problems));
-                  }
+                  startAction();
+                  const refused = await forget(url, url, `Remove model ${model.name}?`);
+                  if (refused?.cancelled) return;
+                  refusal = refused ? { name: model.name, ...refused } : null;
                   load();
                 },
               },
@@ -74,6 +100,9 @@ export async function modelsPage(root) {
           ),
         ),
       );
+      if (refusal?.name === model.name) {
+        body.append(h("tr", { class: "refusal-row", testid: "refusal-row", dataset: { name: model.name } }, h("td", { colspan: COLUMNS.length }, refusalNotice(refusal.message, refusal.tasks))));
+      }
     }
   }
 
@@ -93,6 +122,7 @@ export async function modelsPage(root) {
   );
   const spec = h("input", { required: true, placeholder: "classic", list: "builtin-suts", testid: "model-spec" });
   const options = h("textarea", { rows: 3, placeholder: "key=value per line (optional)", testid: "model-options" });
+  const notes = h("textarea", { rows: 2, maxlength: 10000, placeholder: "its version, training, what it is for (optional)", testid: "model-notes" });
   const specMessage = h("div", { testid: "model-message" });
   const datalist = h("datalist", { id: "builtin-suts" }, BUILT_INS.map((n) => h("option", { value: n })));
   const placeholder = () => {
@@ -108,7 +138,7 @@ export async function modelsPage(root) {
       testid: "model-form",
       onsubmit: async (event) => {
         event.preventDefault();
-        clear(specMessage);
+        startAction();
         let parsed;
         try {
           parsed = parseOptions(options.value);
@@ -119,7 +149,7 @@ export async function modelsPage(root) {
         try {
           await api("/api/models", {
             method: "POST",
-            body: { name: name.value.trim(), spec: spec.value.trim(), options: parsed, modality: modality.value },
+            body: { name: name.value.trim(), spec: spec.value.trim(), options: parsed, modality: modality.value, notes: notes.value.trim() },
           });
           specMessage.append(notice("ok", `Registered ${name.value.trim()}.`));
           specForm.reset();
@@ -138,6 +168,7 @@ export async function modelsPage(root) {
     h("label", {}, "Spec ", spec),
     datalist,
     h("label", {}, "Options ", options),
+    h("label", {}, "Notes ", notes),
     h("button", { type: "submit", class: "primary", testid: "model-submit" }, "Register"),
     specMessage,
   );
@@ -153,7 +184,8 @@ export async function modelsPage(root) {
   const fileName = h("input", { required: true, placeholder: "name", pattern: "[A-Za-z0-9._\\-]+" });
   const file = h("input", { type: "file", required: true, accept: ".onnx,.pth,.pt,.ckpt", testid: "model-file" });
   const fileOptions = h("textarea", { rows: 2, placeholder: "key=value per line (optional)" });
-  const fileMessage = h("div");
+  const fileNotes = h("textarea", { rows: 2, maxlength: 10000, placeholder: "where it comes from, how it was trained (optional)", testid: "model-file-notes" });
+  const fileMessage = h("div", { testid: "model-file-message" });
   const fileProgress = h("div");
   const fileForm = h(
     "form",
@@ -162,9 +194,10 @@ export async function modelsPage(root) {
       testid: "model-upload-form",
       onsubmit: async (event) => {
         event.preventDefault();
-        clear(fileMessage);
+        startAction();
         const form = new FormData();
         form.append("name", fileName.value.trim());
+        if (fileNotes.value.trim()) form.append("notes", fileNotes.value.trim());
         form.append("kind", fileKind.value === "onnx-steering" ? "onnx" : fileKind.value);
         if (fileKind.value === "onnx-steering") form.append("modality", "camera");
         try {
@@ -182,7 +215,7 @@ export async function modelsPage(root) {
           fileForm.reset();
           load();
         } catch (exc) {
-          fileMessage.append(notice("error", exc.message, exc.problems.length > 1 ? exc.problems : []));
+          fileMessage.append(notice("error", `The upload of ${file.files[0]?.name ?? "the model"} was refused: ${exc.message.replace(/^HTTP \d+: /, "")}`, exc.problems.length > 1 ? exc.problems : [], "model-file-error"));
         } finally {
           clear(fileProgress);
         }
@@ -194,6 +227,7 @@ export async function modelsPage(root) {
     h("label", {}, "Name ", fileName),
     h("label", {}, "File ", file),
     h("label", {}, "Options ", fileOptions),
+    h("label", {}, "Notes ", fileNotes),
     h("button", { type: "submit", class: "primary" }, "Upload"),
     fileProgress,
     fileMessage,
@@ -215,10 +249,48 @@ export async function modelsPage(root) {
     h(
       "table",
       { class: "table", testid: "models-table" },
-      h("thead", {}, h("tr", {}, ["Name", "Spec", "Options", "Fingerprint", "Added", ""].map((t) => h("th", {}, t)))),
+      h("thead", {}, h("tr", {}, COLUMNS.map((t) => h("th", {}, t)))),
       body,
     ),
     h("div", { class: "cards" }, specForm, fileForm),
   );
   await load();
+}
+
+// One model (#/models/NAME): what kind of system it is, its modality, spec, options and fingerprint,
+// the tasks using it, its notes (editable), and Delete.
+export async function modelDetailPage(root, name) {
+  const url = `/api/models/${encodeURIComponent(name)}`;
+  const model = await api(url);
+  const message = h("div", { testid: "detail-message" });
+  const options = model.options && Object.keys(model.options).length ? JSON.stringify(model.options, null, 1) : null;
+  root.append(
+    h(
+      "div",
+      { class: "page-head" },
+      h("h1", { class: "wrap-name" }, h("a", { href: "#/models" }, "Models"), " / ", model.name),
+      h("span", { class: "spacer" }),
+      deleteButton({ url, question: `Remove model ${model.name}?`, listPath: "/models", message, testid: "delete-model" }),
+    ),
+    message,
+    h(
+      "div",
+      { class: "cards" },
+      h(
+        "div",
+        { class: "card" },
+        h("h2", {}, "Facts"),
+        factsList([
+          ["Type", model.type_label ?? model.type, "fact-type"],
+          ["Modality", model.modality === "camera" ? "camera: a steering system on images" : "LiDAR: detects objects in point clouds", "fact-modality"],
+          ["Spec", h("code", { class: "wrap-code" }, model.spec ?? ""), "fact-spec"],
+          ["Options", options ? h("code", { class: "wrap-code" }, options) : null, "fact-options"],
+          ["Fingerprint", h("code", {}, model.fingerprint ?? ""), "fact-fingerprint"],
+          ["Added", formatTime(model.added_at), "fact-added"],
+          ["Used by", model.used_by?.length ? taskLinks(model.used_by) : "no task yet", "fact-used-by"],
+        ]),
+      ),
+      notesEditor(model.notes, (notes) => api(url, { method: "PATCH", body: { notes } })),
+    ),
+  );
 }

@@ -56,6 +56,22 @@ export function severityLevels(op) {
   return configs ? Object.keys(configs).map(Number).filter((s) => s > 0).sort() : [1, 2, 3, 4, 5];
 }
 
+// The severities that set the operator differently (severity_configs compared): one that is the same
+// setting at every severity (global_flip mirrors at all five) offers one severity only; the server
+// refuses the others as duplicates.
+export function distinctLevels(op) {
+  const levels = severityLevels(op);
+  const configs = op.severity_configs;
+  if (!configs || typeof configs !== "object") return levels;
+  const seen = new Set();
+  return levels.filter((level) => {
+    const key = JSON.stringify(configs[String(level)] ?? level);
+    if (seen.has(key)) return false;
+    seen.add(key);
+    return true;
+  });
+}
+
 function severityRows(op) {
   const table = op.severity_configs ?? (Array.isArray(op.severities) && op.severities.every(Number.isInteger) ? null : op.severities);
   if (!table) return [];
@@ -78,7 +94,7 @@ function firstParagraph(text) {
 
 function operatorRow(op, previews, withPreview = true) {
   const check = h("input", { type: "checkbox", class: "op-check", testid: `op-${op.name}`, value: op.name });
-  const levels = severityLevels(op);
+  const levels = distinctLevels(op);
   const severityChecks = levels.map((s) =>
     h("label", { class: "sev" }, h("input", { type: "checkbox", value: s, checked: s % 2 === 1, testid: `op-${op.name}-sev-${s}` }), String(s)),
   );
@@ -86,7 +102,12 @@ function operatorRow(op, previews, withPreview = true) {
   const modeConfig = h("input", { type: "radio", name: `mode-${op.name}`, value: "config" });
   const fields = schemaFields(op.params_schema ?? op.config_schema ?? op.schema ?? op.params ?? {});
   const configBox = h("div", { class: "config-fields", hidden: true }, fields.length ? fields.map((f) => f.element) : h("span", { class: "muted" }, "no parameters"));
-  const severityBox = h("span", { class: "severities" }, severityChecks);
+  const severityBox = h(
+    "span",
+    { class: "severities" },
+    severityChecks,
+    levels.length === 1 && severityLevels(op).length > 1 ? h("span", { class: "muted", testid: `op-${op.name}-one-setting` }, " (the same setting at every severity)") : null,
+  );
   const sync = () => {
     configBox.hidden = !modeConfig.checked;
     severityBox.hidden = modeConfig.checked;
@@ -272,8 +293,8 @@ export async function newTaskPage(root) {
 
   // what a detection campaign (mutation, guided, fuzz) shows and a structural one does not
   const detectionOnly = [
-    h("label", {}, "Data set ", dataset),
-    h("label", {}, "Model ", sut),
+    h("label", {}, "Data set ", dataset, h("a", { class: "picker-link", href: "#/datasets", testid: "upload-dataset-link" }, "upload or generate a data set")),
+    h("label", {}, "Model ", sut, h("a", { class: "picker-link", href: "#/models", testid: "upload-model-link" }, "upload or register a model")),
     h("label", {}, "Trials ", trials),
     h("label", {}, "Frames ", frames),
   ];

@@ -1,5 +1,7 @@
 // Report: the task's self-contained HTML report (the thesis's AP table, charts, violations,
-// findings) embedded, with export buttons for HTML, JSON, CSV and JUnit XML.
+// findings) embedded, with export buttons for HTML, JSON, CSV and JUnit XML. The frame fills the rest
+// of the window exactly, so the report scrolls inside it and the page itself does not scroll (one
+// scroll bar, not a scroll inside a scroll).
 import { download, fetchBlob, withToken } from "../api.js";
 import { clear, h, notice } from "../dom.js";
 
@@ -9,6 +11,7 @@ const EXPORTS = [
   ["AP CSV", "ap.csv", "ap.csv"],
   ["Violations CSV", "violations.csv", "violations.csv"],
   ["Findings CSV", "findings.csv", "findings.csv"],
+  ["Ratings CSV", "ratings.csv", "ratings.csv"],
   ["JUnit XML", "junit.xml", "junit.xml"],
 ];
 
@@ -53,6 +56,16 @@ export async function reportPage(root, id) {
     h("p", { class: "muted", testid: "report-loading" }, "Writing the report…"),
     frame,
   );
+  // the frame's height: what is left of the window below its top, less any overflow of the page
+  function fit() {
+    if (!frame.isConnected) return;
+    frame.style.minHeight = "0";
+    frame.style.height = `${Math.max(240, window.innerHeight - frame.getBoundingClientRect().top - window.scrollY - 8)}px`;
+    const overflow = document.documentElement.scrollHeight - window.innerHeight;
+    if (overflow > 0) frame.style.height = `${Math.max(240, frame.getBoundingClientRect().height - overflow)}px`;
+  }
+  window.addEventListener("resize", fit);
+  requestAnimationFrame(fit);
   try {
     const blob = await fetchBlob(`/api/tasks/${id}/report`);
     frame.srcdoc = await blob.text();
@@ -61,4 +74,6 @@ export async function reportPage(root, id) {
     root.querySelector("[data-testid=report-loading]")?.remove();
     message.append(notice("error", exc.message, exc.problems));
   }
+  fit();
+  return () => window.removeEventListener("resize", fit);
 }

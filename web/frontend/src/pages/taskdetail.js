@@ -2,6 +2,10 @@
 // running now, the AP-per-operator chart (a structural task: its coverage tables and views, the page
 // the server renders; a camera task: MSE_orig, Eq. 2 / Eq. 3 per transformation, the guided search's
 // coverage and Table 7), the subtask table, stop / delete, report and findings.
+// The system's failures (crashes, timeouts, invalid outputs) are shown apart from lidarfuzz's own
+// errors (an operator or relation that raised), in the summary line and per subtask; AP shown as "—"
+// says why; small samples carry a warning. Stop asks first (in the page); Resume takes a stopped,
+// failed or interrupted task up again; a refused action says why until the next one.
 // The reply's fields and statuses are the ones its JSON Schema declares (../contract.js).
 import { api, fetchBlob, subscribe } from "../api.js";
 import { apChart, apValue, classesOf } from "../chart.js";
@@ -24,6 +28,11 @@ export async function taskDetailPage(root, id) {
   const overall = h("div", { class: "overall" });
   const running = h("div", { class: "running", testid: "running-now" });
   const message = h("div");
+  // what the last action (stop, resume, delete) said: kept until the next action
+  const actionMessage = h("div", { testid: "action-message" });
+  const confirmBox = h("div", { testid: "confirm-box" });
+  const summaryLine = h("p", { class: "failures-summary", testid: "failures-summary" });
+  const warnings = h("div", { testid: "sample-warnings" });
   const chartBox = h("div", { testid: "ap-chart-box" });
   const tableBody = h("tbody", { testid: "subtasks-body" });
   const live = h("span", { class: "live muted", testid: "live" });
@@ -35,11 +44,18 @@ export async function taskDetailPage(root, id) {
   // a structural task's tables and views (GET /api/tasks/{id}/structural), sandboxed as the report is
   const coverageFrame = h("iframe", { class: "report-frame", title: `coverage of task ${id}`, testid: "structural-frame", sandbox: "allow-popups" });
 
+  // set only when the tables changed: every refresh setting it again would reload the frame under
+  // the user's scroll (and under a test's locator)
+  let shownStructural = null;
   async function renderStructural() {
     if (!structural) return;
     try {
       const blob = await fetchBlob(`/api/tasks/${id}/structural`);
-      coverageFrame.srcdoc = await blob.text();
+      const text = await blob.text();
+      if (text !== shownStructural) {
+        shownStructural = text;
+        coverageFrame.srcdoc = text;
+      }
     } catch (exc) {
       clear(message).append(notice("error", exc.message));
     }
@@ -55,16 +71,22 @@ export async function taskDetailPage(root, id) {
     });
   }
 
+  // stopped, failed, or interrupted, and not queued or run now: the server says (task.resumable)
+  const resumable = () => Boolean(task.resumable);
+
   function renderHead() {
     clear(head).append(
-      h("h1", {}, `Task #${task.id}`, task.name ? h("span", { class: "muted" }, ` ${task.name}`) : null),
+      h("h1", { class: "task-title" }, `Task #${task.id}`, task.name ? h("span", { class: "muted" }, ` ${task.name}`) : null),
       statusBadge(task.status),
       h("span", { class: "spacer" }),
       live,
       h("a", { class: "button", href: `#/tasks/${id}/findings`, testid: "findings-link" }, "Findings"),
       h("a", { class: "button", href: `#/tasks/${id}/report`, testid: "report-link" }, "Report"),
-      h("button", { testid: "stop-task", disabled: isFinished(task.status), onclick: stop }, "Stop"),
-      h("button", { class: "danger", testid: "delete-task", onclick: remove }, "Delete"),
+      // the thesis's first experiment: people judge original / mutant pairs (point clouds only)
+      ...(camera || structural ? [] : [h("a", { class: "button", href: `#/tasks/${id}/rate`, testid: "rate-pairs" }, "Rate pairs")]),
+      ...(resumable() ? [h("button", { class: "primary", testid: "resume-task", onclick: resume }, "Resume")] : []),
+      h("button", { testid: "stop-task", disabled: isFinished(task.status), onclick: askStop }, "Stop"),
+      h("button", { class: "danger", testid: "delete-task", onclick: askRemove }, "Delete"),
     );
     clear(facts).append(
       ...[
@@ -74,15 +96,19 @@ export async function taskDetailPage(root, id) {
         ...(structural ? [] : [["Operators", task.operator_count]]),
         ...(camera ? [["MSE_orig", mseOrigText(task.camera)]] : []),
         ["Seed", task.seed],
+        ...(task.tags?.length ? [["Tags", h("span", { class: "chips", testid: "task-tags" }, task.tags.map((t) => h("span", { class: "chip" }, t)))]] : []),
+        ...(task.notes ? [["Notes", h("span", { class: "wrap-code", testid: "task-notes" }, task.notes)]] : []),
         ["Created", formatTime(task.created_at)],
         ["Started", formatTime(task.started_at)],
         ["Finished", formatTime(task.finished_at)],
-      ].flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, String(v))]),
+      ].flatMap(([k, v]) => [h("dt", {}, k), h("dd", {}, v instanceof Node ? v : String(v))]),
     );
     clear(overall).append(h("span", { class: "label" }, "Overall"), progressBar(task.done, task.total, "overall-progress"));
     const now = task.running;
     clear(running);
-    if (now && !isFinished(task.status)) {
+    if (loadingSystem()) {
+      running.append(h("span", { class: "label" }, "Running now"), h("strong", { testid: "loading-system" }, `loading the system under test (${task.model})…`));
+    } else if (now && !isFinished(task.status)) {
       running.append(
         h("span", { class: "label" }, "Running now"),
         h("strong", { testid: "running-operator" }, now.label),
@@ -90,7 +116,42 @@ export async function taskDetailPage(root, id) {
       );
     }
     clear(message);
-    if (task.error) message.append(notice("error", task.error));
+    // a final status with an error failed; an error on a task still to run is why it was interrupted
+    if (task.error) message.append(notice(isFinished(task.status) ? "error" : "warning", task.error, [], "task-error"));
+    renderSummary();
+  }
+
+  // running, and no unit of this run done yet: the task's reply and its events say so (lidarfuzz.web.events)
+  function loadingSystem() {
+    return Boolean(task.loading);
+  }
+
+  // The summary line: the system's failures and lidarfuzz's own errors, summed over the subtasks
+  // the table lists (so the two agree); the small-sample warnings of the subtasks and the summary.
+  function renderSummary() {
+    const subs = task.subtasks ?? [];
+    const failures = subs.reduce((n, s) => n + (s.failures ?? 0), 0);
+    const operatorErrors = subs.reduce((n, s) => n + (s.tool_errors?.operator_error ?? 0), 0);
+    const oracleErrors = subs.reduce((n, s) => n + (s.tool_errors?.oracle_error ?? 0), 0);
+    const dataFaults = subs.reduce((n, s) => n + (s.tool_errors?.data_error ?? 0), 0);
+    clear(summaryLine).append(
+      h("span", { testid: "system-failures", dataset: { count: failures } }, `The system failed on ${failures} ${failures === 1 ? "unit" : "units"} (crashes, timeouts, invalid outputs).`),
+      " ",
+      h(
+        "span",
+        { class: operatorErrors + oracleErrors ? "tool-errors" : "muted", testid: "tool-errors", dataset: { count: operatorErrors + oracleErrors } },
+        operatorErrors + oracleErrors
+          ? `lidarfuzz's own errors, not the system's: ${operatorErrors} operator ${operatorErrors === 1 ? "error" : "errors"}, ${oracleErrors} oracle ${oracleErrors === 1 ? "error" : "errors"}.`
+          : "No errors of lidarfuzz's own.",
+      ),
+      ...(dataFaults
+        ? [" ", h("span", { class: "tool-errors", testid: "data-faults", dataset: { count: dataFaults } }, `${dataFaults} ${dataFaults === 1 ? "unit" : "units"} whose frame could not be read: data faults, not the system's, left out of AP (restore the files and resume).`)]
+        : []),
+    );
+    const lines = [...(task.summary?.ap_warnings ?? [])];
+    if (!lines.length) for (const s of subs) for (const w of s.sample_warnings ?? []) lines.push(`${s.label}: ${w}`);
+    clear(warnings);
+    if (lines.length) warnings.append(notice("warning", "Small samples: these AP figures may not mean what they seem.", lines.map((message) => ({ message })), "ap-warnings"));
   }
 
   function renderCamera() {
@@ -156,6 +217,53 @@ export async function taskDetailPage(root, id) {
     ];
   }
 
+  // why a subtask's AP is "—": not complete yet, the note the server gives, or what is missing
+  function apReason(s) {
+    if (!isFinished(s.status)) return "AP when the subtask completes";
+    if (s.ap_note) return s.ap_note;
+    if (s.frames > 0 && (s.failures ?? 0) + Object.values(s.tool_errors ?? {}).reduce((a, b) => a + b, 0) >= s.frames) return "no AP: no frame gave an output to score";
+    return "no AP: the data set has no labels";
+  }
+
+  const toolErrorCount = (s) => Object.values(s.tool_errors ?? {}).reduce((a, b) => a + b, 0);
+  const toolErrorText = (s) => {
+    const e = s.tool_errors ?? {};
+    const parts = [["operator", e.operator_error ?? 0], ["oracle", e.oracle_error ?? 0], ["data fault", e.data_error ?? 0]].filter(([, n]) => n).map(([k, n]) => `${n} ${k}`);
+    return parts.length ? parts.join(", ") : "0";
+  };
+
+  // the columns every kind shares: the system's failures, lidarfuzz's errors, the times, the view link
+  function sharedCells(s) {
+    return [
+      h("td", { class: "num", testid: "subtask-failures", title: "the system's crashes, timeouts and invalid outputs" }, String(s.failures ?? 0)),
+      h("td", { class: toolErrorCount(s) ? "num tool-errors" : "num", testid: "subtask-tool-errors", title: "not the system's: lidarfuzz's own errors (an operator or a relation raised) and data faults (a frame could not be read)" }, toolErrorText(s)),
+      h("td", { class: "time", testid: "subtask-started" }, formatTime(s.started_at)),
+      h("td", { class: "time", testid: "subtask-finished" }, formatTime(s.finished_at)),
+      h("td", {}, h("a", { href: `#/tasks/${id}/findings?subtask=${s.id}`, testid: "subtask-view" }, "view")),
+    ];
+  }
+
+  function apCells(s) {
+    const values = ["bbox", "bev", "3d"].map((m) => apValue(s, m, view.cls, view.difficulty, view.points));
+    const cells = values.map((v) => h("td", { class: "num" }, formatNumber(v)));
+    const notes = [];
+    if (values.every((v) => v === null)) notes.push(h("span", { class: "ap-note", testid: "ap-note" }, apReason(s)));
+    // the subjects in a line (which classes, or "a single frame"), each warning in full when unfolded
+    const warned = s.sample_warnings ?? [];
+    if (warned.length) {
+      const subjects = warned.map((w) => (w.startsWith("AP from a single frame") ? "one frame" : w.split(":", 1)[0]));
+      notes.push(
+        h(
+          "details",
+          { class: "sample-warning", testid: "sample-warning" },
+          h("summary", {}, `⚠ small sample: ${subjects.join(", ")}`),
+          warned.map((w) => h("div", {}, w)),
+        ),
+      );
+    }
+    return [...cells, h("td", { class: "notes" }, notes)];
+  }
+
   function renderResults() {
     renderCamera();
     const subtasks = task.subtasks;
@@ -177,7 +285,8 @@ export async function taskDetailPage(root, id) {
           h("td", {}, statusBadge(s.status)),
           h("td", { class: "progress-cell" }, progressBar(s.done, s.total, "subtask-progress")),
           // a structural task's subtasks are logs: no AP (their coverage is in the tables above); a camera task's: DeepTest's figures
-          ...(camera ? cameraCells(s) : structural ? [] : ["bbox", "bev", "3d"].map((m) => h("td", { class: "num" }, formatNumber(apValue(s, m, view.cls, view.difficulty, view.points))))),
+          ...(camera ? cameraCells(s) : structural ? [] : apCells(s)),
+          ...sharedCells(s),
         ),
       );
     }
@@ -195,22 +304,58 @@ export async function taskDetailPage(root, id) {
     renderStructural();
   }
 
+  // An in-page question with two buttons (a window.confirm cannot be styled, and blocks the page).
+  function ask(text, yes, action) {
+    clear(actionMessage);
+    clear(confirmBox).append(
+      h(
+        "div",
+        { class: "notice notice-warning confirm", role: "alertdialog" },
+        h("span", {}, text),
+        h("button", { class: "danger", testid: "confirm-yes", onclick: () => (clear(confirmBox), action()) }, yes),
+        h("button", { testid: "confirm-no", onclick: () => clear(confirmBox) }, "Cancel"),
+      ),
+    );
+    confirmBox.querySelector("[data-testid=confirm-yes]").focus();
+  }
+
+  // the answer to an action, kept until the next one
+  const said = (kind, text) => clear(actionMessage).append(notice(kind, text, [], kind === "error" ? "action-error" : "action-notice"));
+
+  const askStop = () => ask(`Stop task #${id}? What is done is kept; Resume goes on from there.`, "Stop the task", stop);
+  const askRemove = () => ask(`Delete task #${id} and all its results?`, "Delete", remove);
+
   async function stop() {
     try {
-      await api(`/api/tasks/${id}/stop`, { method: "POST" });
+      const reply = await api(`/api/tasks/${id}/stop`, { method: "POST" });
+      said(reply.refused ? "error" : "ok", reply.message);
     } catch (exc) {
-      clear(message).append(notice("error", exc.message));
+      said("error", `Stop refused: ${exc.message}`);
+    }
+    refresh();
+  }
+
+  async function resume() {
+    clear(confirmBox);
+    try {
+      const reply = await api(`/api/tasks/${id}/resume`, { method: "POST" });
+      said(reply.refused ? "error" : "ok", reply.message);
+      if (!reply.refused) {
+        task.status = reply.status; // not final any more: its events are followed again
+        subscribeEvents();
+      }
+    } catch (exc) {
+      said("error", `Resume refused: ${exc.message}`);
     }
     refresh();
   }
 
   async function remove() {
-    if (!window.confirm(`Delete task #${id} and all its results?`)) return;
     try {
       await api(`/api/tasks/${id}`, { method: "DELETE" });
       go("/tasks");
     } catch (exc) {
-      clear(message).append(notice("error", exc.message));
+      said("error", `Delete refused: ${exc.message}`);
     }
   }
 
@@ -231,7 +376,7 @@ export async function taskDetailPage(root, id) {
         newSubtask ||= finishedNow;
       } else newSubtask = true;
     }
-    live.textContent = `live · ${new Date().toLocaleTimeString()}`;
+    connected(true);
     renderHead();
     const ended = isFinished(task.status) && !isFinished(previous);
     if (newSubtask || ended) {
@@ -241,40 +386,78 @@ export async function taskDetailPage(root, id) {
     if (isFinished(task.status)) closeStream();
   }
 
+  // "live" while the server answers; "disconnected — retrying" while it does not (the events'
+  // connection broke, or a poll failed), until it answers again
+  function connected(ok) {
+    live.dataset.state = ok ? "live" : "disconnected";
+    live.classList.toggle("disconnected", !ok);
+    live.textContent = ok ? `live · ${formatTime(new Date().toISOString()).slice(11)}` : "disconnected — retrying";
+  }
+
   let source = null;
   let poll = null;
   function closeStream() {
     source?.close();
     source = null;
-    live.textContent = isFinished(task.status) ? "" : live.textContent;
+    if (isFinished(task.status)) {
+      live.textContent = "";
+      delete live.dataset.state;
+    }
   }
-  if (!isFinished(task.status)) {
+  function startPolling() {
+    if (poll) return;
+    poll = setInterval(async () => {
+      try {
+        task = await api(`/api/tasks/${id}`);
+        connected(true);
+      } catch {
+        connected(false);
+        return;
+      }
+      renderHead();
+      renderResults();
+      if (!isFinished(task.status)) {
+        // the server is back: live events again
+        clearInterval(poll);
+        poll = null;
+        subscribeEvents();
+      } else {
+        clearInterval(poll);
+        poll = null;
+        closeStream();
+      }
+    }, 2000);
+  }
+  function subscribeEvents() {
+    if (source || isFinished(task.status)) return;
     source = subscribe(`/api/tasks/${id}/events`, {
       progress: onProgress,
       message: onProgress,
+      open: () => connected(true),
       end: () => {
         closeStream();
         refresh();
       },
       error: () => {
-        // the stream ended (the task finished) or the connection broke: poll until it finishes
-        closeStream();
-        if (!poll) {
-          poll = setInterval(async () => {
-            await refresh();
-            if (isFinished(task.status)) {
-              clearInterval(poll);
-              poll = null;
-            }
-          }, 2000);
+        // the connection broke (the server stopped, the network): say so; the browser retries an
+        // open stream by itself, a closed one is polled until the server answers
+        connected(false);
+        if (source && source.readyState === EventSource.CLOSED) {
+          source = null;
+          startPolling();
         }
       },
     });
   }
+  subscribeEvents();
 
   root.append(
     head,
+    confirmBox,
+    actionMessage,
     message,
+    summaryLine,
+    warnings,
     facts,
     overall,
     running,
@@ -291,7 +474,25 @@ export async function taskDetailPage(root, id) {
     h(
       "table",
       { class: "table", testid: "subtasks-table" },
-      h("thead", {}, h("tr", {}, ["Subtask", "Status", "Progress", ...(camera ? ["MSE_t", "MSE_t − MSE_orig", "Violate Eq. 2", "Eq. 3"] : structural ? [] : ["AP bbox", "AP BEV", "AP 3D"])].map((t) => h("th", {}, t)))),
+      h(
+        "thead",
+        {},
+        h(
+          "tr",
+          {},
+          [
+            "Subtask",
+            "Status",
+            "Progress",
+            ...(camera ? ["MSE_t", "MSE_t − MSE_orig", "Violate Eq. 2", "Eq. 3"] : structural ? [] : ["AP bbox", "AP BEV", "AP 3D", "Notes"]),
+            "System failures",
+            "lidarfuzz errors",
+            "Started",
+            "Finished",
+            "",
+          ].map((t) => h("th", {}, t)),
+        ),
+      ),
       tableBody,
     ),
   );

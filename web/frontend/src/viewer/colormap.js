@@ -1,4 +1,5 @@
-// Turbo (Mikhailov, Google 2019), from its polynomial approximation, as a 256-entry RGB table.
+// Turbo (Mikhailov, Google 2019), from its polynomial approximation, as a 256-entry RGB table, trimmed
+// to the part that stays readable on the viewer's dark background.
 
 const R = [0.13572138, 4.6153926, -42.66032258, 132.13108234, -152.94239396, 59.28637943];
 const G = [0.09140261, 2.19418839, 4.84296658, -14.18503333, 4.27729857, 2.82956604];
@@ -10,14 +11,34 @@ function poly(c, x) {
 
 const clamp01 = (v) => Math.min(1, Math.max(0, v));
 
+const turboAt = (x) => [poly(R, x), poly(G, x), poly(B, x)].map((c) => Math.round(clamp01(c) * 255));
+
+// WCAG contrast of two sRGB colours (0-255): (L1 + 0.05) / (L2 + 0.05), L the relative luminance.
+const linear = (c) => ((c /= 255) <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4);
+const luminance = ([r, g, b]) => 0.2126 * linear(r) + 0.7152 * linear(g) + 0.0722 * linear(b);
+export function contrast(a, b) {
+  const [hi, lo] = [luminance(a), luminance(b)].sort((p, q) => q - p);
+  return (hi + 0.05) / (lo + 0.05);
+}
+
+// The viewer's clear colour (0x101217) and the contrast every colour of the map keeps against it
+// (3:1, WCAG's figure for graphics): turbo's two ends, dark blue and dark red, vanish into the
+// background, so the map is turbo between its first and last colours that keep it (about 0.09-0.89).
+export const BACKGROUND_RGB = [16, 18, 23];
+export const MIN_CONTRAST = 3;
+export const TURBO_SPAN = (() => {
+  const visible = (x) => contrast(turboAt(x), BACKGROUND_RGB) >= MIN_CONTRAST;
+  let lo = 0;
+  let hi = 1;
+  while (lo < 0.5 && !visible(lo)) lo += 1 / 1024;
+  while (hi > 0.5 && !visible(hi)) hi -= 1 / 1024;
+  return [lo, hi];
+})();
+
 export const TURBO = (() => {
   const table = new Uint8Array(256 * 3);
-  for (let i = 0; i < 256; i++) {
-    const x = i / 255;
-    table[i * 3] = Math.round(clamp01(poly(R, x)) * 255);
-    table[i * 3 + 1] = Math.round(clamp01(poly(G, x)) * 255);
-    table[i * 3 + 2] = Math.round(clamp01(poly(B, x)) * 255);
-  }
+  const [lo, hi] = TURBO_SPAN;
+  for (let i = 0; i < 256; i++) table.set(turboAt(lo + (hi - lo) * (i / 255)), i * 3);
   return table;
 })();
 

@@ -8,14 +8,13 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Operator, Relation, draw_seed, uniform
+from lidarfuzz.operators.base import NonNegativeRange, Operator, Relation, ShareRange, draw_seed, uniform
 from lidarfuzz.operators.lidar.objects.support import (
     F64,
     POINTS,
     POINTS_BOXES,
     ObjectChoiceConfig,
     ObjectsParams,
-    Range,
     _check_objects,
     _choose_objects,
     _draw_count,
@@ -90,7 +89,7 @@ class ObjectRemoval(Operator[Scene, ObjectRemovalConfig, ObjectRemovalParams]):
 
 # =========================================================================== in-box corruptions
 class ObjectCutoutConfig(ObjectChoiceConfig):
-    fraction_range: Range = Field((0.3, 0.3), description="sub-box edge as a share of the box's edges")
+    fraction_range: ShareRange = Field((0.3, 0.3), description="sub-box edge as a share of the box's edges")
 
 
 class ObjectCutoutParams(ObjectsParams):
@@ -159,7 +158,7 @@ def _to_box_frame(xyz: NDArray[np.floating], box: F64) -> F64:
 
 
 class ObjectDensityConfig(ObjectChoiceConfig):
-    ratio_range: Range = Field((0.3, 0.3), description="share of each chosen object's points dropped")
+    ratio_range: ShareRange = Field((0.3, 0.3), description="share of each chosen object's points dropped")
 
 
 class ObjectDensityParams(ObjectsParams):
@@ -210,7 +209,7 @@ class ObjectDensityLoss(Operator[Scene, ObjectDensityConfig, ObjectDensityParams
 
 
 class ObjectJitterConfig(ObjectChoiceConfig):
-    sigma_range: Range = Field((0.05, 0.05), description="std of the Gaussian offset per axis, metres")
+    sigma_range: NonNegativeRange = Field((0.05, 0.05), description="std of the Gaussian offset per axis, metres")
 
 
 class ObjectJitterParams(ObjectsParams):

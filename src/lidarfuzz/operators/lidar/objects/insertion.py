@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from lidarfuzz.operators.base import Config, Operator, Params, Relation, uniform
+from lidarfuzz.operators.base import Config, NonNegativeRange, Operator, Params, PositiveRange, Relation, uniform
 from lidarfuzz.operators.lidar.common import relabel_in_image
 from lidarfuzz.operators.lidar.objects.corruptions import _to_box_frame
 from lidarfuzz.operators.lidar.objects.support import (
@@ -192,9 +192,9 @@ class Insertion(BaseModel):
 
 class ObjectInsertionConfig(Config):
     library: str | None = Field(None, description="path of an ObjectLibrary .npz; None: the cached simulator one")
-    count_range: Range = Field((1, 1), description="objects inserted")
+    count_range: NonNegativeRange = Field((1, 1), description="objects inserted")
     classes: tuple[str, ...] | None = Field(None, description="only library entries of these classes")
-    distance_ratio_range: Range = Field((0.8, 1.25), description="new range / the entry's source range")
+    distance_ratio_range: PositiveRange = Field((0.8, 1.25), description="new range / the entry's source range")
     azimuth_range: Range = Field((-180.0, 180.0), description="azimuths of the new positions, degrees")
     attempts: int = Field(40, ge=1, description="positions tried per object before giving up")
     min_points: int = Field(5, ge=1, description="returns the sensor must get from an inserted object, or the "

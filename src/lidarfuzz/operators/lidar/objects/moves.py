@@ -9,13 +9,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Operator, Params, Relation, draw_seed, uniform
+from lidarfuzz.operators.base import NonNegativeRange, Operator, Params, PositiveRange, Relation, draw_seed, uniform
 from lidarfuzz.operators.lidar.common import relabel_in_image
 from lidarfuzz.operators.lidar.objects.support import (
     F64,
     POINTS_BOXES,
     ObjectChoiceConfig,
-    Range,
     _check_objects,
     _choose_objects,
     _clutter,
@@ -135,7 +134,7 @@ class _ObjectMove:
 
 # -- translation
 class ObjectTranslateConfig(ObjectChoiceConfig):
-    distance_range: Range = Field((1.0, 1.0), description="distance moved in the ground plane, metres")
+    distance_range: NonNegativeRange = Field((1.0, 1.0), description="distance moved in the ground plane, metres")
     fill_ground: bool = Field(True, description="re-cast the vacated rays onto the local ground")
     attempts: int = Field(40, ge=1, description="destinations tried before giving up (identity)")
 
@@ -212,7 +211,7 @@ class ObjectTranslate(_ObjectMove, Operator[Scene, ObjectTranslateConfig, Object
 
 # -- rotation
 class ObjectRotateConfig(ObjectChoiceConfig):
-    angle_range: Range = Field((10.0, 10.0), description="rotation magnitude about the box's axis, degrees")
+    angle_range: NonNegativeRange = Field((10.0, 10.0), description="rotation magnitude about the box's axis, degrees")
     both_directions: bool = Field(True, description="draw the sign too")
     fill_ground: bool = Field(True, description="re-cast the vacated rays onto the local ground")
     attempts: int = Field(20, ge=1, description="draws tried before giving up (identity)")
@@ -271,7 +270,7 @@ class ObjectRotate(_ObjectMove, Operator[Scene, ObjectRotateConfig, ObjectRotate
 
 # -- scaling
 class ObjectScaleConfig(ObjectChoiceConfig):
-    factor_range: Range = Field((0.9, 1.1), description="scale factor about the box's bottom centre")
+    factor_range: PositiveRange = Field((0.9, 1.1), description="scale factor about the box's bottom centre")
     fill_ground: bool = Field(True, description="re-cast the vacated rays onto the local ground")
     attempts: int = Field(20, ge=1, description="draws tried before giving up (identity)")
 

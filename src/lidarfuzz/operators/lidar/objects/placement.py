@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config
+from lidarfuzz.operators.base import Config, NonNegativeRange
 from lidarfuzz.operators.base import uniform as draw_uniform
 from lidarfuzz.operators.lidar.objects.insertion import ObjectInsertion, ObjectInsertionParams
 from lidarfuzz.operators.lidar.objects.support import Range
@@ -20,9 +20,10 @@ NEAREST_RATIO = 1.25
 
 class ObjectPlacementConfig(Config):
     library: str | None = Field(None, description="path of an ObjectLibrary .npz; None: the cached simulator one")
-    count_range: Range = Field((1, 1), description="objects placed")
+    count_range: NonNegativeRange = Field((1, 1), description="objects placed")
     classes: tuple[str, ...] | None = Field(None, description="only library entries of these classes")
-    distance_range: Range = Field((10.0, 30.0), description="range of the object's centre from the sensor, metres")
+    distance_range: NonNegativeRange = Field(
+        (10.0, 30.0), description="range of the object's centre from the sensor, metres")
     bearing_range: Range = Field((-30.0, 30.0), description="bearing of the object's centre, degrees counter-"
                                                             "clockwise from straight ahead (+x; 90 is left)")
     attempts: int = Field(40, ge=1, description="places tried per object before giving up")

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from lidarfuzz.operators.base import Config, Params, Target
+from lidarfuzz.operators.base import Config, NonNegativeRange, Params, Target
 from lidarfuzz.operators.lidar.common import intensity_scale
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
 from lidarfuzz.scene.geometry import bev_corners, bev_intersection_area
@@ -560,7 +560,7 @@ def _ground_infill(cloud: PointCloud, removed: NDArray[np.intp], box: F64, groun
 
 # =========================================================================== choosing objects
 class ObjectChoiceConfig(Config):
-    count_range: Range = Field((1, 1), description="number of objects chosen (drawn as an integer)")
+    count_range: NonNegativeRange = Field((1, 1), description="number of objects chosen (drawn as an integer)")
     classes: tuple[str, ...] | None = Field(None, description="only objects of these classes; None: any")
     min_points: int = Field(5, ge=0, description="prefer objects with at least this many points")
 
