@@ -26,6 +26,7 @@ Reproduce a saved case::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import os
@@ -212,9 +213,12 @@ def _load_targets(modules: Iterable[str]) -> dict[str, Target]:
     return targets
 
 
-def _limit_memory(limit: int) -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+def _limit_memory(limit: int, pid: int = 0) -> None:
+    """Cap process ``pid``'s address space (0: this process) and switch off its core dumps. A
+    child is capped once started, never by a ``preexec_fn`` (Python code between fork and exec
+    can deadlock on a lock another thread held at the fork)."""
+    resource.prlimit(pid, resource.RLIMIT_AS, (limit, limit))
+    resource.prlimit(pid, resource.RLIMIT_CORE, (0, 0))
 
 
 def _worker(modules: list[str], memory: int) -> None:
@@ -367,16 +371,21 @@ def run_cli(target: Target, path: Path, time_limit: float, memory: int = DEFAULT
     assert target.cli is not None
     argv = _lidarfuzz_command() + [part.replace("{path}", str(path)) for part in target.cli]
     started = time.monotonic()
-    try:
-        done = subprocess.run(argv, capture_output=True, text=True, errors="replace", timeout=time_limit,
-                              cwd=path.parent, env=_child_env(), preexec_fn=lambda: _limit_memory(memory))
-    except subprocess.TimeoutExpired:
-        return {"outcome": "hang", "message": f"over {time_limit:g} s", "argv": argv}
-    why = cli_failure(done.returncode, done.stderr, done.stdout)
-    result: dict[str, Any] = {"outcome": "escape" if why else "ok", "returncode": done.returncode, "argv": argv,
+    with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace",
+                          cwd=path.parent, env=_child_env()) as process:
+        with contextlib.suppress(ProcessLookupError):
+            _limit_memory(memory, process.pid)
+        try:
+            stdout, stderr = process.communicate(timeout=time_limit)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.communicate()
+            return {"outcome": "hang", "message": f"over {time_limit:g} s", "argv": argv}
+    why = cli_failure(process.returncode, stderr, stdout)
+    result: dict[str, Any] = {"outcome": "escape" if why else "ok", "returncode": process.returncode, "argv": argv,
                               "seconds": time.monotonic() - started}
     if why:
-        result["message"] = f"{why}: {done.stderr.strip()[-800:]}"
+        result["message"] = f"{why}: {stderr.strip()[-800:]}"
     return result
 
 

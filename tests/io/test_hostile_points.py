@@ -11,7 +11,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import resource
 import struct
 import subprocess
 import sys
@@ -117,9 +116,9 @@ def test_lidarfuzz_info_on_a_corrupt_laz_reports_the_problem(tmp_path):
     # `lidarfuzz info x.laz` exited 134 (SIGABRT); now it reports the unreadable frame as a problem
     # (exit 1, info's code for error-level problems): 2^31 - 1 chunks x 20 bytes = 42,949,672,940
     path = laz_with_chunk_count(tmp_path / "x.laz", 0x7FFFFFFF)
-    done = subprocess.run([sys.executable, "-c", "from lidarfuzz.cli.app import main; main()", "info", str(path)],
-                          capture_output=True, text=True, timeout=120, cwd=REPO,
-                          preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (CHILD_MEMORY, CHILD_MEMORY)))
+    capped = f"import resource; resource.setrlimit(resource.RLIMIT_AS, ({CHILD_MEMORY}, {CHILD_MEMORY}))"
+    done = subprocess.run([sys.executable, "-c", f"{capped}; from lidarfuzz.cli.app import main; main()", "info",
+                           str(path)], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert done.returncode == 1, done.stderr
     assert done.stderr == ""
     problems = [line for line in done.stdout.splitlines() if line.strip().startswith("error:")]

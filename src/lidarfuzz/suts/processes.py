@@ -8,7 +8,9 @@ program :mod:`lidarfuzz.suts.external` starts (and the worker process of
   and every child it forks: :func:`kill_group` kills them all with one ``killpg`` on a timeout,
   a restart and at the end. A program that starts a session of its own (a daemon) escapes
   this; nothing short of a cgroup can follow it;
-* under **resource limits** set in the child before ``exec`` (:class:`Limits`): address space
+* under **resource limits** (:class:`Limits`), set with ``prlimit`` the moment the program has
+  started (not by Python code between ``fork`` and ``exec``: in a process with threads, such code
+  can wait forever on a lock another thread held at the fork, and ``Popen`` with it): address space
   (``memory_limit``, default 8 GiB: a leak ends as the program's ``MemoryError`` or failed
   ``malloc``, a ``crash`` named *out of memory*, never as lidarfuzz swapping), optionally CPU
   seconds (``cpu_limit``), and on lidarfuzz's side the size of an answer it reads
@@ -133,15 +135,19 @@ def _lowered(which: int, wanted: int) -> tuple[int, int]:
     return value, value
 
 
-def apply_limits(limits: Limits) -> None:
-    """Set this process's resource limits (in a child before ``exec``, or a worker process at its start)."""
+def apply_limits(limits: Limits, pid: int = 0) -> None:
+    """Set the resource limits of process ``pid`` (0: this one, e.g. a worker process at its start).
+
+    Raises:
+        ProcessLookupError: ``pid`` has already exited.
+    """
     if limits.memory is not None:
-        resource.setrlimit(resource.RLIMIT_AS, _lowered(resource.RLIMIT_AS, limits.memory))
+        resource.prlimit(pid, resource.RLIMIT_AS, _lowered(resource.RLIMIT_AS, limits.memory))
     if limits.cpu is not None:
         seconds = max(1, math.ceil(limits.cpu))
         soft, _ = _lowered(resource.RLIMIT_CPU, seconds)
         _, hard = _lowered(resource.RLIMIT_CPU, seconds + 1)  # SIGXCPU first, SIGKILL a second later
-        resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+        resource.prlimit(pid, resource.RLIMIT_CPU, (soft, hard))
 
 
 # -- the groups this process started --------------------------------------------------------
@@ -153,13 +159,22 @@ def start(argv: list[str], limits: Limits, *, cwd: str | None, stdin: Any, stdou
           stderr: Any) -> subprocess.Popen[bytes]:
     """Start ``argv`` in a new session under ``limits`` (binary, unbuffered streams).
 
+    The limits are set on the running program as soon as ``Popen`` returns (it returns once the
+    program's ``exec`` succeeded), which is before the program's start-up code could fork a child
+    of its own. No Python code runs between ``fork`` and ``exec`` (no ``preexec_fn``): with
+    threads in this process (a system's stderr readers, a web server's), such code can block
+    forever on a lock another thread held at the moment of the fork — tracemalloc's, an
+    allocator's — and ``Popen`` waits for it.
+
     Raises:
         OSError: The program cannot be started.
     """
     process = subprocess.Popen(argv, stdin=stdin, stdout=stdout, stderr=stderr, cwd=cwd, bufsize=0,
-                               start_new_session=True, close_fds=True, preexec_fn=lambda: apply_limits(limits))
+                               start_new_session=True, close_fds=True)
     with _GROUPS_LOCK:
         _GROUPS.add(process.pid)
+    with contextlib.suppress(ProcessLookupError):  # gone already: its exit is read as usual
+        apply_limits(limits, process.pid)
     return process
 
 
