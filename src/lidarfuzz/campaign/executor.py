@@ -15,7 +15,7 @@ stored (and numbered) in the same order whatever finishes first.
 
 The runner commits every result as it arrives, so an executor keeps nothing worth keeping:
 closing one (on cancel, Ctrl-C or kill) loses only units in flight, which a resume re-runs.
-A cluster backend (Ray) implements the same three methods.
+The Ray cluster's executor (:mod:`lidarfuzz.campaign.cluster`) implements the same three methods.
 """
 
 from __future__ import annotations
@@ -203,6 +203,24 @@ def in_unit_order(executor: Executor, units: Iterable[WorkUnit]) -> Iterator[Uni
         raise RuntimeError(f"results of units never issued: {sorted(waiting)[:3]}")
 
 
-def make_executor(workers: int | None = None, inline: bool = False) -> Executor:
-    """The process pool (default), or every unit in this process."""
-    return InlineExecutor() if inline else ProcessExecutor(workers)
+#: What ``--executor`` accepts.
+EXECUTORS = ("pool", "inline", "ray")
+
+
+def make_executor(kind: str = "pool", *, workers: int | None = None, address: str | None = None) -> Executor:
+    """The executor ``--executor`` names: ``pool`` (a local pool of ``workers`` processes),
+    ``inline`` (this process) or ``ray`` (a Ray cluster at ``address`` with ``workers`` system
+    actors, :class:`~lidarfuzz.campaign.cluster.RayExecutor`).
+
+    Raises:
+        ValueError: ``kind`` is none of :data:`EXECUTORS`.
+    """
+    if kind == "inline":
+        return InlineExecutor()
+    if kind == "pool":
+        return ProcessExecutor(workers)
+    if kind == "ray":
+        from lidarfuzz.campaign.cluster import RayExecutor
+
+        return RayExecutor(address, actors=workers)
+    raise ValueError(f"--executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")

@@ -137,15 +137,29 @@ def _basis(operator: Any) -> str:
     return ""
 
 
+def open_worker_dataset(context: WorkContext) -> Any:
+    """The task's data set, opened with its stored options.
+
+    Raises:
+        LidarfuzzError: It cannot be opened (a data fault of every unit that needs it).
+    """
+    from lidarfuzz.io.open import open_dataset
+    from lidarfuzz.io.options import DatasetOptions
+
+    return open_dataset(context.dataset, options=DatasetOptions.from_stored(context.dataset_options))
+
+
 class Worker:
     """Runs units of one task (see the module docstring)."""
 
-    def __init__(self, context: WorkContext) -> None:
-        from lidarfuzz.io.open import open_dataset
-        from lidarfuzz.io.options import DatasetOptions
-
+    def __init__(self, context: WorkContext, *, open_data: bool = True) -> None:
+        """``open_data=False``: every unit comes with its frame (:meth:`run`'s ``scene``), as on a
+        cluster whose driver sends frames through Ray's object store; the data set is opened
+        only should a unit come without one."""
         self.context = context
-        self.dataset = open_dataset(context.dataset, options=DatasetOptions.from_stored(context.dataset_options))
+        self._dataset: Any = None
+        if open_data:
+            self._dataset = open_worker_dataset(context)
         self._digests: OrderedDict[str, str] = OrderedDict()
         self._scenes: OrderedDict[str, Scene] = OrderedDict()  # the runner sends units frame block by block
         self._operators: dict[str, Any] = {}
@@ -161,6 +175,12 @@ class Worker:
             self._cache = Store(context.store_url, migrate=False)
 
     # -- lazily built parts -------------------------------------------------------------
+    @property
+    def dataset(self) -> Any:
+        if self._dataset is None:
+            self._dataset = open_worker_dataset(self.context)
+        return self._dataset
+
     @property
     def sut(self) -> Any:
         if self._sut is None:
@@ -241,16 +261,17 @@ class Worker:
         return None if row is None else StoredBoxes(row[0], row[1])  # a Core row: the composite's two columns
 
     # -- one unit ---------------------------------------------------------------------
-    def run(self, unit: WorkUnit) -> UnitResult:
-        """Load the source frame, mutate it, detect (or find the output cached), check the
-        relations and save the mutant — each step timed in ``result.timings``."""
+    def run(self, unit: WorkUnit, scene: Scene | None = None) -> UnitResult:
+        """Load the source frame (or take ``scene``, the frame as the caller read it), mutate it,
+        detect (or find the output cached), check the relations and save the mutant — each step
+        timed in ``result.timings``."""
         if unit.source_fault:
             return data_fault(unit, f"its original had a data fault — {unit.source_fault}")
         result = UnitResult(unit)
         timings = result.timings
         t0 = time.perf_counter()
         try:
-            source = self.load(unit.frame_id)
+            source = scene if scene is not None else self.load(unit.frame_id)
         except Exception as exc:  # the data, not the system: a data fault, run again on resume
             return data_fault(unit, exc)
         timings["load"] = time.perf_counter() - t0

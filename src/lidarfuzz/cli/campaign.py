@@ -5,7 +5,9 @@ They drive the engine in :mod:`lidarfuzz.campaign` (the web app drives the same 
 :mod:`lidarfuzz.cli.replay`.
 """
 
+from dataclasses import dataclass
 from datetime import UTC, datetime
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -34,8 +36,57 @@ from lidarfuzz.errors import LidarfuzzError
 KIND_HELP = "; ".join(f"{kind.name}: {kind.help}" for kind in TASK_KINDS) + (
     ". With a search, --op names the operator pool (default pool if none).")
 
-WorkersOption = Annotated[int | None, typer.Option(min=1, help="Worker processes (default: the CPU count).")]
-InlineOption = Annotated[bool, typer.Option(help="Run every unit in this process (no pool; for debugging).")]
+WorkersOption = Annotated[int | None, typer.Option(min=1, help="Worker processes, or system actors with --executor "
+                                                              "ray (default: the CPU count, the cluster's CPUs).")]
+InlineOption = Annotated[bool, typer.Option(help="Run every unit in this process (no pool; for debugging); the "
+                                                 "same as --executor inline.")]
+
+
+class ExecutorKind(StrEnum):
+    """Where a campaign's units run (``--executor``)."""
+
+    pool = "pool"
+    inline = "inline"
+    ray = "ray"
+
+
+ExecutorOption = Annotated[ExecutorKind, typer.Option(
+    "--executor", help="Where units run: pool (local worker processes), inline (this process) or ray (a Ray "
+                       "cluster: the ray extra, and a PostgreSQL --workspace every node reaches).")]
+AddressOption = Annotated[str | None, typer.Option(
+    help="With --executor ray: the cluster, auto (the one ray start runs here) or ray://HOST:PORT (default: "
+         "RAY_ADDRESS, else a local Ray started for this run).")]
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a run's units go: ``--executor``, ``--workers``, ``--address`` (``--inline``)."""
+
+    executor: str = "pool"
+    workers: int | None = None
+    address: str | None = None
+
+    @classmethod
+    def of(cls, executor: ExecutorKind, workers: int | None, address: str | None, inline: bool) -> "Placement":
+        if inline and executor not in (ExecutorKind.pool, ExecutorKind.inline):
+            raise typer.BadParameter(f"--inline and --executor {executor.value} disagree; give one",
+                                     param_hint="'--inline'")
+        kind = ExecutorKind.inline if inline else executor
+        if address is not None and kind != ExecutorKind.ray:
+            raise typer.BadParameter("the address of a Ray cluster goes with --executor ray",
+                                     param_hint="'--address'")
+        return cls(kind.value, workers, address)
+
+    def check(self, store: Any) -> None:
+        """Refuse, before anything runs, a Ray run on a store the cluster cannot share.
+
+        Raises:
+            ClusterError: An SQLite store with ``--executor ray``.
+        """
+        if self.executor == ExecutorKind.ray.value:
+            from lidarfuzz.campaign.cluster import require_shared_store
+
+            require_shared_store(store.url)
 
 
 def _shown(text: str) -> str:
@@ -65,7 +116,7 @@ def _age(moment: datetime | None) -> float | None:
     return (datetime.now(UTC) - moment).total_seconds()
 
 
-def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, show_progress: bool = True,
+def execute(workspace: str, task_id: int, *, placement: Placement, show_progress: bool = True,
             report: bool = True, gates: list[str] | None = None, wait: bool = False, take_over: bool = False) -> int:
     """Run a task with progress bars, print its tables and write its report; returns an exit code.
 
@@ -88,6 +139,7 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
     from lidarfuzz.store.models import Status
 
     store = open_store(workspace, writes=f"running task {task_id}")
+    placement.check(store)
     task = get_task(store, task_id)
     plan = describe_plan(task)
     console.print(f"task [bold]{task_id}[/]: {_shown(task.model.name)} on {_shown(task.dataset.name)}, "
@@ -113,7 +165,9 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
         try:
             with disk_failures(f"what is stored is kept: lidarfuzz resume {task_id} finishes the task",
                                store.file or store.where):
-                outcome = run_task(store, task_id, executor=make_executor(workers, inline), progress=on_progress,
+                executor = make_executor(placement.executor, workers=placement.workers,
+                                         address=placement.address)
+                outcome = run_task(store, task_id, executor=executor, progress=on_progress,
                                    wait=wait, take_over=take_over, on_wait=on_wait)
         except KeyboardInterrupt:
             console.print(f"\ninterrupted; what is done is stored. Finish with: lidarfuzz resume {task_id}")
@@ -136,7 +190,7 @@ def execute(workspace: str, task_id: int, *, workers: int | None, inline: bool, 
 
 
 def _pilot(store: Any, workspace: str, spec: Any, sut_options: dict[str, Any], dataset_options: Any, *,
-           workers: int | None, inline: bool) -> tuple[Any, Any]:
+           placement: Placement) -> tuple[Any, Any]:
     """Run ``spec``'s pilot as a task of its own; the trimmed spec and what changed."""
     from lidarfuzz.campaign.pilot import floors, pilot_campaign, trim
     from lidarfuzz.campaign.tasks import campaign_frames, create_task
@@ -146,7 +200,7 @@ def _pilot(store: Any, workspace: str, spec: Any, sut_options: dict[str, Any], d
     pilot_spec = pilot_campaign(spec)
     pilot_id = create_task(store, pilot_spec, sut_options=sut_options, dataset_options=dataset_options)
     console.print(f"pilot: task {pilot_id}, {pilot_spec.sut} on {spec.pilot} frames, every severity")
-    code = execute(workspace, pilot_id, workers=workers, inline=inline, report=False, show_progress=False)
+    code = execute(workspace, pilot_id, placement=placement, report=False, show_progress=False)
     if code:
         console.print(f"the pilot (task {pilot_id}) did not finish: the campaign was not created")
         raise typer.Exit(code)
@@ -184,6 +238,8 @@ def run(
                                                         "(repeatable; exit code 1 when one fails).")] = None,
     workers: WorkersOption = None,
     inline: InlineOption = False,
+    executor: ExecutorOption = ExecutorKind.pool,
+    address: AddressOption = None,
     detach: Annotated[bool, typer.Option(help="Only create the task; run it with lidarfuzz resume.")] = False,
     kind: Annotated[str, typer.Option(help=KIND_HELP)] = DEFAULT_KIND,
     budget: Annotated[int | None, typer.Option(min=1, help="guided/fuzz: tests to generate (default 200).")] = None,
@@ -290,12 +346,14 @@ def run(
     if pilot is not None:
         spec = spec.model_copy(update={"pilot": pilot})
     store = open_store(workspace, writes="lidarfuzz run")
+    placement = Placement.of(executor, workers, address, inline)
+    placement.check(store)  # before a task is created
     sut_options = parse_assignments(option or [])
     dataset_options = options_from_flags(layout, allow_unlabelled)
     note = None
     if spec.pilot is not None:
         spec, note = _pilot(store, workspace, spec, sut_options if not spec.reference else {}, dataset_options,
-                            workers=workers, inline=inline)
+                            placement=placement)
     task_id = create_task(store, spec, sut_options=sut_options, isolate=isolate,
                           timeout=timeout, save_mutants=str(save_mutants.resolve()) if save_mutants else None,
                           dataset_options=dataset_options, pilot=note)
@@ -305,17 +363,19 @@ def run(
                       + "".join(f"; its reference: lidarfuzz resume {ref}" for ref in references))
         return
     for ref in references:  # first, so that the task's report compares with them
-        code = execute(workspace, ref, workers=workers, inline=inline, report=False)
+        code = execute(workspace, ref, placement=placement, report=False)
         if code:
             console.print(f"the reference task {ref} did not finish: task {task_id} was not run "
                           f"(lidarfuzz resume {ref}, then lidarfuzz resume {task_id})")
             raise typer.Exit(code)
-    raise typer.Exit(execute(workspace, task_id, workers=workers, inline=inline, gates=gate))
+    raise typer.Exit(execute(workspace, task_id, placement=placement, gates=gate))
 
 def resume(
     task: Annotated[int, typer.Argument(help="Task id (lidarfuzz list).")],
     workers: WorkersOption = None,
     inline: InlineOption = False,
+    executor: ExecutorOption = ExecutorKind.pool,
+    address: AddressOption = None,
     force: Annotated[bool, typer.Option(help="Resume even if another process seems to be running it (its "
                                              "claim on the task is taken over).")] = False,
     wait: Annotated[bool, typer.Option(help="When another process runs the task, wait for it to end (or die), "
@@ -336,7 +396,8 @@ def resume(
     if row.status == Status.DONE:
         console.print(f"task {task} is done already (lidarfuzz report {task})")
         return
-    raise typer.Exit(execute(workspace, task, workers=workers, inline=inline, wait=wait, take_over=force))
+    raise typer.Exit(execute(workspace, task, placement=Placement.of(executor, workers, address, inline), wait=wait,
+                             take_over=force))
 
 def cancel(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     """Stop a task cleanly (a running one stops within a second; what is done stays)."""

@@ -69,7 +69,7 @@ def demo(
     from lidarfuzz.campaign.defaults import DEFAULT_OPERATORS, DEFAULT_SEVERITIES
     from lidarfuzz.campaign.spec import parse_campaign
     from lidarfuzz.campaign.tasks import create_task
-    from lidarfuzz.cli.campaign import execute
+    from lidarfuzz.cli.campaign import Placement, execute
     from lidarfuzz.store import Dataset, Model, Store
     from lidarfuzz.store.inventory import add_dataset, add_model
 
@@ -91,7 +91,7 @@ def demo(
     task_id = create_task(store, spec)
     console.rule(f"[bold]campaign: classic pipeline × the default set ({len(DEFAULT_OPERATORS)} operators) × "
                  f"severities {', '.join(map(str, DEFAULT_SEVERITIES))}")
-    code = execute(str(workspace), task_id, workers=workers, inline=False)
+    code = execute(str(workspace), task_id, placement=Placement("pool", workers))
     console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
     console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
                   f"[cyan]lidarfuzz replay FINDING --workspace {workspace}[/]   "
@@ -107,7 +107,7 @@ def camera_demo(workspace: Path, frames: int, seed: int, workers: int | None) ->
     from lidarfuzz.campaign.camera import DEFAULT_TRANSFORMATIONS
     from lidarfuzz.campaign.spec import parse_campaign
     from lidarfuzz.campaign.tasks import create_task
-    from lidarfuzz.cli.campaign import execute
+    from lidarfuzz.cli.campaign import Placement, execute
     from lidarfuzz.io.options import DatasetOptions
     from lidarfuzz.store import Dataset, Model, Store
     from lidarfuzz.store.inventory import add_dataset, add_model
@@ -134,7 +134,7 @@ def camera_demo(workspace: Path, frames: int, seed: int, workers: int | None) ->
     task_id = create_task(store, spec)
     console.rule(f"[bold]DeepTest: {model} × {len(DEFAULT_TRANSFORMATIONS)} transformations × severities 1, 3, 5, "
                  f"then a guided search of {CAMERA_BUDGET} tests")
-    code = execute(str(workspace), task_id, workers=workers, inline=True)
+    code = execute(str(workspace), task_id, placement=Placement("inline", workers))
     console.print(f"store: [bold]{(workspace / 'lidarfuzz.db').resolve()}[/]   world: [bold]{dataset_dir}[/]")
     console.print(f"next: [cyan]lidarfuzz status {task_id} --workspace {workspace}[/]   "
                   f"[cyan]lidarfuzz serve --workspace {workspace}[/]")
