@@ -44,6 +44,8 @@ class TaskKind:
         modality: The sensor its data sets hold: ``lidar`` (point clouds) or ``camera`` (images,
             opened by :mod:`lidarfuzz.io.images`, tested on a steering system built by
             :func:`lidarfuzz.suts.registry.create_camera`).
+        uses_executor: Its units run on the run's executor (a process pool, a Ray cluster); the
+            others run in the driver's process, whatever ``--executor`` says.
     """
 
     name: str
@@ -52,6 +54,7 @@ class TaskKind:
     requires_operators: bool = False
     consumes_logs: bool = False
     modality: str = "lidar"
+    uses_executor: bool = False
 
     def implementation(self) -> Any:
         """The implementing module (a :class:`~lidarfuzz.campaign.lifecycle.KindImplementation`)."""
@@ -60,7 +63,7 @@ class TaskKind:
 
 TASK_KINDS: tuple[TaskKind, ...] = (
     TaskKind("mutation", "operators × severities on every frame, detections compared by AP and relations",
-             "lidarfuzz.campaign.mutation", requires_operators=True),
+             "lidarfuzz.campaign.mutation", requires_operators=True, uses_executor=True),
     TaskKind("guided", "DeepTest's greedy coverage-guided search on a learned SUT (neuron coverage) or any "
              "Python system (code coverage: --guide code --target CODE)", "lidarfuzz.campaign.coverage_search"),
     TaskKind("fuzz", "DeepHunter-style coverage-guided fuzzing loop on a learned SUT (neuron coverage) or any "

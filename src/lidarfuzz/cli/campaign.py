@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 from rich.markup import escape
 
-from lidarfuzz.campaign.kinds import DEFAULT_KIND, TASK_KINDS
+from lidarfuzz.campaign.kinds import DEFAULT_KIND, TASK_KINDS, kind_of
 from lidarfuzz.cli.common import (
     WORKSPACE,
     Column,
@@ -141,6 +141,9 @@ def execute(workspace: str, task_id: int, *, placement: Placement, show_progress
     store = open_store(workspace, writes=f"running task {task_id}")
     placement.check(store)
     task = get_task(store, task_id)
+    if placement.executor == "ray" and not kind_of(task).uses_executor:
+        console.print(f"note: a {kind_of(task).name} task runs in this process; --executor ray runs operator campaigns "
+                      "(kind mutation) on the cluster")
     plan = describe_plan(task)
     console.print(f"task [bold]{task_id}[/]: {_shown(task.model.name)} on {_shown(task.dataset.name)}, "
                   f"{plan}, {task.total} units ({task.done} done before)")

@@ -1,5 +1,6 @@
 """``lidarfuzz serve``: the web application (tasks, data sets, models, reports, the 3D viewer)."""
 
+from enum import StrEnum
 from importlib.util import find_spec
 from typing import Annotated
 
@@ -57,6 +58,13 @@ def banner(host: str, port: int, workspace: str, token: str | None, print_token:
     return f"lidarfuzz web app on [bold]{address}[/] (workspace {workspace}; API docs /docs{sign_in}); Ctrl-C stops it"
 
 
+class ServedExecutor(StrEnum):
+    """Where the server's tasks run (``--executor``)."""
+
+    pool = "pool"
+    ray = "ray"
+
+
 def serve(
     host: Annotated[str, typer.Option(help="Address to bind; anything but localhost or a loopback address "
                                            "(127.0.0.0/8, ::1) needs --token.")] = "127.0.0.1",
@@ -70,6 +78,12 @@ def serve(
     processes: Annotated[int | None, typer.Option(min=1, help="Worker processes per running task "
                                                               "(default: the CPU count).")] = None,
     max_upload: Annotated[str, typer.Option(help="Largest upload, e.g. 2G or 500M.")] = "2G",
+    executor: Annotated[ServedExecutor, typer.Option(
+        help="Where tasks' units run: pool (local worker processes) or ray (a Ray cluster; the store must be "
+             "PostgreSQL, --workspace postgresql+psycopg://...).")] = ServedExecutor.pool,
+    address: Annotated[str | None, typer.Option(
+        help="With --executor ray: the cluster, auto or ray://HOST:PORT (default: RAY_ADDRESS, else a local "
+             "Ray).")] = None,
     workspace: WorkspaceOption = WORKSPACE,
 ) -> None:
     """Serve the web application on the workspace's store: tasks with live progress, data sets,
@@ -88,11 +102,20 @@ def serve(
         raise LidarfuzzError("--print-token: this server has no token to print (give --token T or $LIDARFUZZ_TOKEN)")
     limits = Limits(max_upload=parse_size(max_upload))
     check_store_driver(workspace)
+    if address is not None and executor != ServedExecutor.ray:
+        raise typer.BadParameter("the address of a Ray cluster goes with --executor ray", param_hint="'--address'")
+    if executor == ServedExecutor.ray:  # refused before serving, not when the first task starts
+        from lidarfuzz.campaign.cluster import import_ray, require_shared_store
+        from lidarfuzz.store.store import store_url
+
+        import_ray()
+        require_shared_store(store_url(str(workspace)))
 
     import uvicorn
 
     from lidarfuzz.web import create_app
 
-    web_app = create_app(workspace, token=token or None, workers=workers, processes=processes, limits=limits)
+    web_app = create_app(workspace, token=token or None, workers=workers, processes=processes, limits=limits,
+                         executor=executor.value, address=address)
     console.print(banner(host, port, str(workspace), token or None, print_token), soft_wrap=True)
     uvicorn.run(web_app, host=host, port=port, log_level=log_level)

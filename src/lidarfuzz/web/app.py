@@ -37,7 +37,8 @@ log = logging.getLogger("lidarfuzz.web")
 
 def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | None = None, workers: int = 1,
                processes: int | None = None, inline: bool = False, limits: Limits | None = None,
-               files: str | Path | None = None, loopback_only: bool | None = None) -> FastAPI:
+               files: str | Path | None = None, loopback_only: bool | None = None, executor: str = "pool",
+               address: str | None = None) -> FastAPI:
     """The lidarfuzz web application on the store of ``workspace``.
 
     Args:
@@ -48,6 +49,9 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
         processes: Worker processes of each running task (None: the CPU count), as ``lidarfuzz
             run --workers``.
         inline: Run tasks' units in the worker thread instead of a process pool (tests).
+        executor, address: Where tasks' units run, as ``lidarfuzz run --executor --address``: ``pool``
+            (local processes) or ``ray`` (the Ray cluster at ``address``; the store must be
+            PostgreSQL).
         limits: Upload and request size limits.
         files: Where uploads, reports and caches go (default: the workspace folder, or
             ``./lidarfuzz-web`` for a database URL).
@@ -58,7 +62,8 @@ def create_app(workspace: str | Path = "lidarfuzz-workspace", *, token: str | No
     store = Store(workspace)
     root = Path(files) if files is not None else files_root(workspace)
     context = WebContext(workspace=workspace, store=store, files=root, limits=limits or Limits(), token=token,
-                         workers=TaskWorkers(store, threads=workers, processes=processes, inline=inline),
+                         workers=TaskWorkers(store, threads=workers, processes=processes,
+                                             executor="inline" if inline else executor, address=address),
                          processes=processes)
 
     @contextlib.asynccontextmanager

@@ -56,12 +56,16 @@ class TaskWorkers:
         threads: Tasks run at once (0: none run; tasks only queue, e.g. for tests).
         processes: Worker processes of each task's pool (None: the CPU count), as ``lidarfuzz run
             --workers``.
-        inline: Run every unit in the worker thread itself (no process pool; tests, debugging).
+        executor: Where units run, as ``lidarfuzz run --executor``: ``pool`` (a process pool per
+            task), ``inline`` (the worker thread itself; tests, debugging) or ``ray`` (the Ray
+            cluster at ``address``, connected to once when the threads start, so that tasks running
+            at once share the connection).
     """
 
-    def __init__(self, store: Store, *, threads: int = 1, processes: int | None = None, inline: bool = False,
-                 sweep_every: float = SWEEP_EVERY) -> None:
-        self.store, self.threads, self.processes, self.inline = store, max(0, threads), processes, inline
+    def __init__(self, store: Store, *, threads: int = 1, processes: int | None = None, executor: str = "pool",
+                 address: str | None = None, sweep_every: float = SWEEP_EVERY) -> None:
+        self.store, self.threads, self.processes = store, max(0, threads), processes
+        self.executor, self.address = executor, address
         self.sweep_every = sweep_every
         self._queue: queue.Queue[int | None] = queue.Queue()
         self._queued: set[int] = set()
@@ -73,6 +77,8 @@ class TaskWorkers:
     # -- life cycle ----------------------------------------------------------------------
     def start(self) -> list[int]:
         """Start the threads and queue every unfinished task; returns the ids queued."""
+        if self.threads and not self._threads and self.executor == "ray":
+            self._connect_ray()
         if self.threads and not self._threads:
             for number in range(self.threads):
                 thread = threading.Thread(target=self._loop, name=f"lidarfuzz-task-worker-{number}", daemon=True)
@@ -236,16 +242,34 @@ class TaskWorkers:
                 with self._lock:
                     self._running.pop(task_id, None)
 
+    def _connect_ray(self) -> None:
+        """Join the Ray cluster once for every task this server runs (each task's executor then
+        finds Ray started and leaves it running).
+
+        Raises:
+            ClusterError: The store is SQLite, or the cluster cannot be reached.
+            MissingDependencyError: Ray is not installed.
+        """
+        from lidarfuzz.campaign.cluster import ClusterError, import_ray, require_shared_store
+
+        require_shared_store(self.store.url)
+        ray = import_ray()
+        if not ray.is_initialized():
+            try:
+                ray.init(address=self.address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise ClusterError(f"cannot reach the Ray cluster at {self.address or 'a new local Ray'}: "
+                                   f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+
     def _run(self, task_id: int, running: _Running) -> None:
-        from lidarfuzz.campaign.executor import InlineExecutor
+        from lidarfuzz.campaign.executor import make_executor
         from lidarfuzz.campaign.runner import run_task
 
         def progress(_event: ProgressEvent) -> None:
             running.units += 1
 
-        executor = InlineExecutor() if self.inline else None
-        outcome = run_task(self.store, task_id, executor=executor, workers=self.processes, stop=running.stop,
-                           progress=progress)
+        executor = make_executor(self.executor, workers=self.processes, address=self.address)
+        outcome = run_task(self.store, task_id, executor=executor, stop=running.stop, progress=progress)
         log.info("task %s: %s", task_id, outcome.status.value)
 
 
