@@ -395,12 +395,12 @@ def resume(
     from lidarfuzz.campaign.tasks import get_task
     from lidarfuzz.store.models import Status
 
+    placement = Placement.of(executor, workers, address, inline)
     row = get_task(open_store(workspace, writes=f"lidarfuzz resume {task}"), task)
     if row.status == Status.DONE:
         console.print(f"task {task} is done already (lidarfuzz report {task})")
         return
-    raise typer.Exit(execute(workspace, task, placement=Placement.of(executor, workers, address, inline), wait=wait,
-                             take_over=force))
+    raise typer.Exit(execute(workspace, task, placement=placement, wait=wait, take_over=force))
 
 def cancel(task: int, workspace: WorkspaceOption = WORKSPACE) -> None:
     """Stop a task cleanly (a running one stops within a second; what is done stays)."""
