@@ -6,9 +6,10 @@ each, started and stopped by the tests themselves, with a way to kill one worker
 Every Ray process started here is stopped at the end by :meth:`LocalRayCluster.shutdown`, never
 by ``ray stop``, which would stop every Ray of this machine (other people's too).
 
-Use the fixtures by importing them into a test module::
+Use the fixtures ``ray_cluster`` (one per module) and ``ray_nodes`` (it, with both worker nodes up)
+by importing them into a test module::
 
-    from tests.campaign.ray_cluster import ray_cluster  # noqa: F401
+    from tests.campaign.ray_cluster import ray_cluster_fixture, ray_nodes_fixture  # noqa: F401
 """
 
 from __future__ import annotations
@@ -85,9 +86,16 @@ class LocalRayCluster:
 
     def kill_worker(self) -> None:
         """Kill one worker node at once (SIGKILL to its raylet and its workers: its actors die)."""
-        if not self._cluster.worker_nodes:
+        import ray
+
+        connected = ray._private.worker.global_worker.node if ray.is_initialized() else None
+        mine = connected._raylet_socket_name if connected is not None else None
+        # never the node this process's driver talks to (Ray refuses that: it would break the driver)
+        victims = sorted((node for node in self._cluster.worker_nodes if node._raylet_socket_name != mine),
+                         key=lambda node: node._raylet_socket_name)
+        if not victims:
             raise RuntimeError("no worker node left to kill")
-        self._cluster.remove_node(self._cluster.worker_nodes[-1], allow_graceful=False)
+        self._cluster.remove_node(victims[0], allow_graceful=False)
 
     def add_worker(self) -> None:
         """Start one more worker node and wait until the cluster counts its CPUs."""
@@ -144,8 +152,8 @@ def _environment(**values: str) -> Iterator[None]:
                 os.environ[name] = value
 
 
-@pytest.fixture(scope="module")
-def ray_cluster() -> Iterator[LocalRayCluster]:
+@pytest.fixture(scope="module", name="ray_cluster")
+def ray_cluster_fixture() -> Iterator[LocalRayCluster]:
     """A local Ray cluster shared by a module's tests; each test gets it with two live worker nodes
     (use :func:`ray_nodes`, which adds back a node a test killed)."""
     cluster = LocalRayCluster()
@@ -156,8 +164,8 @@ def ray_cluster() -> Iterator[LocalRayCluster]:
         cluster.shutdown()
 
 
-@pytest.fixture
-def ray_nodes(ray_cluster: LocalRayCluster) -> Iterator[LocalRayCluster]:
+@pytest.fixture(name="ray_nodes")
+def ray_nodes_fixture(ray_cluster: LocalRayCluster) -> Iterator[LocalRayCluster]:
     """The module's cluster with its two worker nodes; a node the test killed is added back after it,
     and no driver connection of the test outlives it."""
     ray_cluster.restore()

@@ -156,12 +156,15 @@ class RayExecutor(Executor):
         require_shared_store(context.store_url)
         ray = self._ray = import_ray()
         if not ray.is_initialized():
-            address = self.address or os.environ.get("RAY_ADDRESS") or None
+            # no address: RAY_ADDRESS, else a Ray of our own ("local"; never a cluster that happens to
+            # run on this machine, which ray.init() would join)
+            address = self.address or os.environ.get("RAY_ADDRESS") or "local"
             try:
                 ray.init(address=address, include_dashboard=False, log_to_driver=False,
                          configure_logging=False, **self.init)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise ClusterError(f"cannot reach the Ray cluster at {address or 'a new local Ray'}: "
+                where = "a new local Ray" if address == "local" else address
+                raise ClusterError(f"cannot reach the Ray cluster at {where}: "
                                    f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
             self._started_ray = True
         self._context = context
@@ -175,8 +178,12 @@ class RayExecutor(Executor):
             total = float(ray.cluster_resources().get("GPU", 0.0))
             gpus = min(1.0, total / count) if total > 0 else 0.0
         self._remote = ray.remote(_SystemActor)
+        # a system given as module:Class is imported by the actors as by the driver: from the driver's
+        # folder and PYTHONPATH (on other nodes, where that folder is not, install its package there)
+        paths = [os.getcwd(), *os.environ.get("PYTHONPATH", "").split(os.pathsep)]
         self._options = {"num_cpus": self.cpus_per_actor, "num_gpus": gpus, "max_restarts": 0,
-                         "max_task_retries": 0}
+                         "max_task_retries": 0,
+                         "runtime_env": {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in paths if p)}}}
         self._pool = [self._start_actor() for _ in range(count)]
 
     def _cpus(self) -> float:

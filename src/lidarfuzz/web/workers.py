@@ -22,6 +22,7 @@ and queue them: a task running when the server stopped is always picked up.
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 from dataclasses import dataclass, field
@@ -255,10 +256,12 @@ class TaskWorkers:
         require_shared_store(self.store.url)
         ray = import_ray()
         if not ray.is_initialized():
+            address = self.address or os.environ.get("RAY_ADDRESS") or "local"  # as RayExecutor: never a stray one
             try:
-                ray.init(address=self.address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+                ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise ClusterError(f"cannot reach the Ray cluster at {self.address or 'a new local Ray'}: "
+                where = "a new local Ray" if address == "local" else address
+                raise ClusterError(f"cannot reach the Ray cluster at {where}: "
                                    f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
 
     def _run(self, task_id: int, running: _Running) -> None:
