@@ -15,13 +15,14 @@ never another session's cluster).
    drives — on the local pool of each ``--workers`` size (the baseline) and on Ray with each
    ``--actors`` count (``N`` is the CPU count), each run in a fresh PostgreSQL database, the
    configurations interleaved within each of ``--repeats`` rounds. Units/s counts every unit
-   (originals included); frames × operators/s counts the mutants only. ``rotate_z`` is the cheap one and
-   the one whose relations (equivariance, gt_recall) are checked: its violations are the findings. Wall time includes starting
-   the workers (pool processes or actors, each importing lidarfuzz and loading the system) and the
-   AP evaluation at the end of each subtask, but not starting Ray itself (timed apart: a cluster is
-   started once for many campaigns). The Ray stays up during the pool's runs too, so every
-   configuration sees the same background. CPU per unit is the driver process's CPU time (all its
-   threads) over the run, divided by the units.
+   (originals included); frames × operators/s counts the mutants only. ``rotate_z`` is the cheap one
+   and the one whose relations (equivariance, gt_recall) are checked: its violations are the findings.
+   Wall time includes starting the workers (pool processes or actors, each importing lidarfuzz and
+   loading the system) and the AP evaluation at the end of each subtask, but not starting Ray itself
+   (timed apart: a cluster is started once for many campaigns). The Ray stays up during the pool's
+   runs too, so every configuration sees the same background. The driver's CPU per unit is its
+   process's CPU time (all its threads) over the whole run, and in steady state (between its first
+   and its last committed result, from the runner's progress events) divided by the units.
 2. **Per-unit overheads**, each measured directly: (a) the round trip of a no-op actor method call;
    (b) one frame through the object store (``ray.put`` in the driver, then an actor method that takes
    the reference and reads the points), with its size; (c) the store's commit rate, single writer,
@@ -52,6 +53,7 @@ import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
+import itertools  # noqa: E402
 import pickle  # noqa: E402
 import platform  # noqa: E402
 import re  # noqa: E402
@@ -279,8 +281,8 @@ def ray_overheads(ray: Any, data: Path) -> Overheads:
         ray.get(done)
         for pending in (2, 16, 160, 1600):
             refs = [blocker.block.remote(60.0) for _ in range(pending)]
-            ray.wait(refs + [done], num_returns=1, timeout=5.0)
-            samples = timed(lambda refs=refs: ray.wait(refs + [done], num_returns=1, timeout=5.0), 30)
+            ray.wait([*refs, done], num_returns=1, timeout=5.0)
+            samples = timed(lambda refs=refs: ray.wait([*refs, done], num_returns=1, timeout=5.0), 30)
             waits[pending] = 1e6 * statistics.median(samples)
             ray.kill(blocker, no_restart=True)
             blocker = ray.remote(num_cpus=0)(_Probe).remote()
@@ -329,6 +331,7 @@ class CommitFigures:
     wall_ms: list[float]  # per unit, one value per batch
     cpu_ms: list[float]
     findings: float  # findings per unit committed
+    evaluate_ms_per_row: float  # the AP evaluation of a subtask (the runner's finish), per stored result
 
 
 def commit_rate(url: str, data: Path, frames: int, samples: list[Any], count: int, batches: int) -> CommitFigures:
@@ -367,11 +370,17 @@ def commit_rate(url: str, data: Path, frames: int, samples: list[Any], count: in
                         raise RuntimeError("a unique unit was refused by the store")
                 walls.append(1e3 * (time.perf_counter() - start) / count)
                 cpus.append(1e3 * (time.process_time() - cpu) / count)
+            # the AP evaluation the runner does as each subtask completes, over many rows (a real campaign's
+            # subtask has one per frame): its cost per row, which the few-frame runs above cannot show
+            start = time.perf_counter()
+            for sub in task.subtasks:
+                run.finish(sub)
+            evaluate = 1e3 * (time.perf_counter() - start) / serial
         finally:
             run.close()
         with store.session() as s:
             findings = s.scalar(select(func.count()).select_from(Finding)) or 0
-        return CommitFigures(walls, cpus, findings / serial)
+        return CommitFigures(walls, cpus, findings / serial, evaluate)
     finally:
         store.close()
 
@@ -382,7 +391,8 @@ class Measured:
     """What the model takes from this run (milliseconds unless named otherwise)."""
 
     cpu_ms_per_unit: float  # a worker's CPU per unit outside the detector: load, mutate, cache, relations
-    driver_unit_ms: float  # the driver's CPU per unit in steady state, its per-frame work taken out
+    driver_unit_ms: float  # the driver's CPU per unit in steady state, its per-frame work and AP taken out
+    evaluate_ms: float  # the AP evaluation per unit, on subtasks of many rows
     driver_frame_ms: float  # the driver's CPU per frame: read it and ray.put it
     commit_wall_ms: float  # the store's commit, wall, PostgreSQL default
     commit_cpu_ms: float  # the driver's CPU inside it
@@ -395,7 +405,7 @@ def wait_cost_us(waits: dict[int, float], in_flight: int) -> float:
     """µs of one ray.wait over ``in_flight`` refs: linear between the measured points, and beyond the
     largest one by the slope of the last two."""
     points = sorted(waits.items())
-    for (k0, v0), (k1, v1) in zip(points, points[1:], strict=False):
+    for (k0, v0), (k1, v1) in itertools.pairwise(points):
         if in_flight <= k1:
             return v0 + (v1 - v0) * max(0, in_flight - k0) / (k1 - k0)
     (k0, v0), (k1, v1) = points[-2], points[-1]
@@ -435,7 +445,7 @@ def ceilings(m: Measured, nodes: int, drivers: int = 1) -> Ceilings:
     a = ASSUMPTIONS
     units_per_frame = 1 + a["kitti_operators"] * a["kitti_severities"]
     in_flight = 2 * nodes * a["node_cpus"] // drivers  # per_actor = 2, the actors shared by the drivers
-    driver_ms = (m.driver_unit_ms + m.driver_frame_ms / units_per_frame
+    driver_ms = (m.driver_unit_ms + m.driver_frame_ms / units_per_frame + m.evaluate_ms
                  + (wait_cost_us(m.wait_us, in_flight) - wait_cost_us(m.wait_us, 2)) / 1e3
                  + (m.commit_wall_ms - m.commit_cpu_ms))  # the commit's wait for the server: the loop waits too
     frame_bytes = m.bytes_per_point * a["kitti_points"]
@@ -567,7 +577,6 @@ def report(args: argparse.Namespace, figures: Figures, cpus: int, pools: list[in
            ray_start: float, load_before: str, load_after: str, command: str) -> None:
     runs, o, commits = figures.runs, figures.overheads, figures.commits
     units = runs[next(iter(runs))][0].units
-    mutants = runs[next(iter(runs))][0].mutants
     out: list[str] = []
     out.append(f"*Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.machine()} "
                f"({cpus} CPUs, so N = {cpus}; load average {load_before} before, {load_after} after) by "
@@ -611,7 +620,7 @@ def report(args: argparse.Namespace, figures: Figures, cpus: int, pools: list[in
     pg = commits["PostgreSQL"]
     commit_cpu = statistics.median(pg.cpu_ms)
     evaluate = statistics.median([1e3 * r.stages.get("evaluate", 0.0) / r.units for r in ray_runs])
-    rest = steady - frame_ms / units_per_frame - commit_cpu - evaluate
+    rest = steady - frame_ms / units_per_frame - commit_cpu - evaluate * len(OPERATORS) / (1 + len(OPERATORS))
     out.append("\n**Per-unit overheads**, measured directly:\n")
     overhead_rows = [
         ["(a) scheduling: a no-op actor method, round trip (median of 500)", f"{o.noop_us:,.0f} µs"],
@@ -634,23 +643,29 @@ def report(args: argparse.Namespace, figures: Figures, cpus: int, pools: list[in
     out.append(table(["store", "units/s", "wall ms/unit", "driver CPU ms/unit", "findings per unit"], commit_rows))
     out.append(f"\n(d) The driver's CPU per unit in the Ray runs, steady state: **{steady:.2f} ms** (median over "
                f"all Ray runs) ≈ reading and putting the frame {frame_ms:.2f} ms / {units_per_frame} units per frame "
-               f"({frame_ms / units_per_frame:.2f}) + the commit's CPU {commit_cpu:.2f} (c) + the AP evaluation "
-               f"{evaluate:.2f} (per unit, over the whole run) + the rest (submitting, waiting, taking the results, "
-               f"ordering, progress) {rest:.2f}.")
+               f"({frame_ms / units_per_frame:.2f}) + the commit's CPU {commit_cpu:.2f} (c) + the AP evaluation of "
+               f"the {len(OPERATORS)} subtasks that finish before the last result "
+               f"({evaluate * len(OPERATORS) / (1 + len(OPERATORS)):.2f}: {args.frames} rows each; on subtasks of "
+               f"{args.commits} rows, as in (c), it costs {pg.evaluate_ms_per_row:.2f} ms per row) + the rest "
+               f"(submitting, waiting, taking the results, ordering, progress) {rest:.2f}.")
     figures_md = "\n".join(out)
     print("\n" + figures_md)
 
     cpu_stages = statistics.median([1e3 * sum(r.stages.get(k, 0.0) for k in ("load", "mutate", "cache", "relations"))
                                     / r.units for r in ray_runs])
-    measured = Measured(cpu_ms_per_unit=cpu_stages, driver_unit_ms=steady - frame_ms / units_per_frame,
+    subtasks = 1 + len(OPERATORS)  # the last subtask's AP comes after the last committed result
+    measured = Measured(cpu_ms_per_unit=cpu_stages,
+                        driver_unit_ms=steady - frame_ms / units_per_frame - evaluate * (subtasks - 1) / subtasks,
+                        evaluate_ms=pg.evaluate_ms_per_row,
                         driver_frame_ms=frame_ms, commit_wall_ms=statistics.median(pg.wall_ms),
                         commit_cpu_ms=commit_cpu,
                         commit_async_wall_ms=statistics.median(commits["PostgreSQL, synchronous_commit = off"].wall_ms),
                         bytes_per_point=o.frame_bytes / o.frame_points, wait_us=o.wait_us)
     inputs = (f"Measured inputs (above): a worker's CPU per unit outside the detector (load, mutate, cache look-up, "
               f"relations; {o.frame_points:,}-point frames, the 4 operators' mean) **{cpu_stages:.1f} ms**; the "
-              f"driver's CPU per unit in steady state {measured.driver_unit_ms:.2f} ms plus {frame_ms:.2f} ms per "
-              f"frame; the commit {measured.commit_wall_ms:.2f} ms wall, {commit_cpu:.2f} ms of it the driver's CPU; "
+              f"driver's CPU per unit in steady state {measured.driver_unit_ms:.2f} ms (AP evaluation apart) plus "
+              f"{frame_ms:.2f} ms per frame and {measured.evaluate_ms:.2f} ms per unit of AP evaluation; "
+              f"the commit {measured.commit_wall_ms:.2f} ms wall, {commit_cpu:.2f} ms of it the driver's CPU; "
               f"`ray.wait` as in (e), 2 units in flight per actor; {measured.bytes_per_point:.0f} bytes per point in "
               "the object store. Assumptions (not measured here): "
               + ", ".join(f"{k} = {v}" for k, v in ASSUMPTIONS.items()) + ".")

@@ -168,7 +168,14 @@ def test_a_worker_node_killed_mid_campaign_loses_and_repeats_nothing(ray_nodes: 
             killed_at.append(event.task_done)
             print(f"DBG killed {time.monotonic()-t0:.2f}", flush=True)
 
-    executor = RayExecutor(ray_nodes.address)
+    class Dbg(RayExecutor):
+        def run(self, units):
+            yield from super().run(units)
+            print(f"DBG run over {time.monotonic()-t0:.2f} failed starts {self._failed_starts} pool {[(a.ready is None, len(a.units)) for a in self._pool]}", flush=True)
+        def close(self):
+            super().close()
+            print(f"DBG closed {time.monotonic()-t0:.2f}", flush=True)
+    executor = Dbg(ray_nodes.address)
     try:
         outcome = run_task(store, task_id, executor=executor, progress=kill_a_node)
         print(f"DBG end {time.monotonic()-t0:.2f} restarts {executor.restarts}", flush=True)

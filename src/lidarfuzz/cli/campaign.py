@@ -5,6 +5,7 @@ They drive the engine in :mod:`lidarfuzz.campaign` (the web app drives the same 
 :mod:`lidarfuzz.cli.replay`.
 """
 
+import os
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -144,6 +145,10 @@ def execute(workspace: str, task_id: int, *, placement: Placement, show_progress
     if placement.executor == "ray" and not kind_of(task).uses_executor:
         console.print(f"note: a {kind_of(task).name} task runs in this process; --executor ray runs operator campaigns "
                       "(kind mutation) on the cluster")
+    elif placement.executor == "ray":
+        where = placement.address or os.environ.get("RAY_ADDRESS") or "a local Ray started for this run"
+        actors = f"{placement.workers} system actors" if placement.workers else "a system actor per CPU"
+        console.print(f"units run on the Ray cluster at {escape(where)}: {actors}")
     plan = describe_plan(task)
     console.print(f"task [bold]{task_id}[/]: {_shown(task.model.name)} on {_shown(task.dataset.name)}, "
                   f"{plan}, {task.total} units ({task.done} done before)")
