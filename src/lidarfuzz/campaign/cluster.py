@@ -10,8 +10,8 @@ runner commits each as it arrives, in the units' order (:func:`~lidarfuzz.campai
 
 **Backpressure.** At most ``per_actor`` units are in flight per actor (one running, one queued to
 hide the round trip), units are pulled from the plan only as results come back, and only the
-frames of units in flight (plus a block's worth) stay referenced in the object store: a data set
-of any size runs in bounded memory.
+frames of units in flight (plus :data:`FRAMES_KEPT`) stay referenced in the object store: a data
+set of any size runs in bounded memory.
 
 **Faults.** An actor whose process dies (its node was lost, its worker killed, or the system under
 test segfaulted) loses the units it held; they are run again one at a time on a fresh actor, and
@@ -47,6 +47,9 @@ from lidarfuzz.store.contracts import FailureRecord
 ACTOR_START_SECONDS = 300.0
 #: Actors in a row that die before answering ready() before the run stops (a node without lidarfuzz).
 MAX_FAILED_STARTS = 3
+#: Frames kept in the object store beyond those of units in flight: two of the runner's blocks of 16
+#: (units come block by block, each block's frames once per subtask).
+FRAMES_KEPT = 32
 
 
 class ClusterError(LidarfuzzError):
@@ -190,11 +193,18 @@ class RayExecutor(Executor):
         return float(self._ray.cluster_resources().get("CPU", 0.0))
 
     def _wanted(self) -> int:
-        """How many actors the cluster has room for now (``actors`` at most)."""
+        """How many actors the cluster has room for now (``actors`` at most), counting CPUs and,
+        for actors that reserve a GPU share, GPUs."""
         room = int(self._cpus() // self.cpus_per_actor) if self.cpus_per_actor > 0 else self.actors or 1
         if room < 1:
             raise ClusterError(f"the Ray cluster has {self._cpus():g} CPUs: no room for a system actor "
                                f"of {self.cpus_per_actor:g} CPU")
+        if self.gpus_per_actor:
+            gpus = float(self._ray.cluster_resources().get("GPU", 0.0))
+            room = min(room, int(gpus // self.gpus_per_actor + 1e-9))
+            if room < 1:
+                raise ClusterError(f"--actor-gpus {self.gpus_per_actor:g}: the Ray cluster has {gpus:g} GPUs, no "
+                                   "room for a system actor")
         return min(room, self.actors) if self.actors else room
 
     def _start_actor(self) -> _Actor:
@@ -236,7 +246,7 @@ class RayExecutor(Executor):
         source = iter(units)
         suspects: deque[WorkUnit] = deque()  # units whose actor died under them: run again, alone
         exhausted = False
-        window = 16 + self.per_actor * max(1, len(self._pool))
+        window = FRAMES_KEPT
         while True:
             # hand out units: suspects first, each alone on a ready actor; then the plan's
             for actor in sorted(self._pool, key=lambda a: len(a.units)):
@@ -267,7 +277,10 @@ class RayExecutor(Executor):
                 if exhausted and not suspects:
                     return
                 raise ClusterError("no system actor is left on the Ray cluster to run the remaining units")
-            done, _ = ray.wait([*waiting, *starting], num_returns=1, timeout=5.0)
+            pending = [*waiting, *starting]
+            done, rest = ray.wait(pending, num_returns=1, timeout=5.0)
+            if done and rest:  # every other result already back, in one call (not one wait per result)
+                done += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
             for ref in done:
                 if ref in starting:
                     actor = starting[ref]
@@ -285,13 +298,18 @@ class RayExecutor(Executor):
                         actor.ready, self._failed_starts = None, 0
                     continue
                 actor = waiting[ref]
+                if ref not in actor.units:  # its actor died earlier in this batch, and this unit was dealt with
+                    continue
                 unit = actor.units.pop(ref)
                 try:
                     result: UnitResult = ray.get(ref)
                 except RayTaskError as exc:  # lidarfuzz's own error inside the actor: never hidden
                     raise exc.as_instanceof_cause() from None
                 except lost_errors:
-                    if actor.suspect and not actor.units:
+                    alone = actor.suspect and not actor.units
+                    # what the actor finished before it died is kept: those units never run twice
+                    yield from self._salvage(actor, lost_errors, RayTaskError)
+                    if alone:
                         yield _crash(unit)  # alone on its actor and killed it again: the culprit
                     else:
                         suspects.append(unit)
@@ -300,6 +318,22 @@ class RayExecutor(Executor):
                 actor.suspect = False
                 yield result
             self._give_up_slow_starts()
+
+    def _salvage(self, actor: _Actor, lost: tuple[type[Exception], ...],
+                 own: type[Exception]) -> Iterator[UnitResult]:
+        """Results ``actor`` finished before its process died (its other units stay in ``units``,
+        to be run again)."""
+        for ref in list(actor.units):
+            if not self._ray.wait([ref], timeout=0)[0]:
+                continue
+            try:
+                result = self._ray.get(ref)
+            except own as exc:
+                raise exc.as_instanceof_cause() from None  # type: ignore[attr-defined]
+            except lost:
+                continue
+            del actor.units[ref]
+            yield result
 
     def _replace(self, actor: _Actor, suspects: deque[WorkUnit]) -> None:
         """``actor``'s process is gone: its units become suspects; a new actor takes its place when

@@ -207,10 +207,12 @@ def in_unit_order(executor: Executor, units: Iterable[WorkUnit]) -> Iterator[Uni
 EXECUTORS = ("pool", "inline", "ray")
 
 
-def make_executor(kind: str = "pool", *, workers: int | None = None, address: str | None = None) -> Executor:
+def make_executor(kind: str = "pool", *, workers: int | None = None, address: str | None = None,
+                  actor_cpus: float = 1.0, actor_gpus: float | None = None) -> Executor:
     """The executor ``--executor`` names: ``pool`` (a local pool of ``workers`` processes),
     ``inline`` (this process) or ``ray`` (a Ray cluster at ``address`` with ``workers`` system
-    actors, :class:`~lidarfuzz.campaign.cluster.RayExecutor`).
+    actors of ``actor_cpus`` CPUs and ``actor_gpus`` GPUs each,
+    :class:`~lidarfuzz.campaign.cluster.RayExecutor`).
 
     Raises:
         ValueError: ``kind`` is none of :data:`EXECUTORS`.
@@ -222,5 +224,5 @@ def make_executor(kind: str = "pool", *, workers: int | None = None, address: st
     if kind == "ray":
         from lidarfuzz.campaign.cluster import RayExecutor
 
-        return RayExecutor(address, actors=workers)
+        return RayExecutor(address, actors=workers, cpus_per_actor=actor_cpus, gpus_per_actor=actor_gpus)
     raise ValueError(f"--executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")

@@ -54,6 +54,10 @@ class ExecutorKind(StrEnum):
 ExecutorOption = Annotated[ExecutorKind, typer.Option(
     "--executor", help="Where units run: pool (local worker processes), inline (this process) or ray (a Ray "
                        "cluster: the ray extra, and a PostgreSQL --workspace every node reaches).")]
+ActorCpusOption = Annotated[float, typer.Option(min=0.0, help="With --executor ray: CPUs each system actor reserves.")]
+ActorGpusOption = Annotated[float | None, typer.Option(
+    min=0.0, help="With --executor ray: GPUs each system actor reserves, e.g. 0.25 for four per GPU (default: "
+                  "the cluster's GPUs shared equally among the actors, at most 1; 0 without GPUs).")]
 AddressOption = Annotated[str | None, typer.Option(
     help="With --executor ray: the cluster, auto (the one ray start runs here) or ray://HOST:PORT (default: "
          "RAY_ADDRESS, else a local Ray started for this run).")]
@@ -66,17 +70,22 @@ class Placement:
     executor: str = "pool"
     workers: int | None = None
     address: str | None = None
+    actor_cpus: float = 1.0
+    actor_gpus: float | None = None
 
     @classmethod
-    def of(cls, executor: ExecutorKind, workers: int | None, address: str | None, inline: bool) -> "Placement":
+    def of(cls, executor: ExecutorKind, workers: int | None, address: str | None, inline: bool,
+           actor_cpus: float = 1.0, actor_gpus: float | None = None) -> "Placement":
         if inline and executor not in (ExecutorKind.pool, ExecutorKind.inline):
             raise typer.BadParameter(f"--inline and --executor {executor.value} disagree; give one",
                                      param_hint="'--inline'")
         kind = ExecutorKind.inline if inline else executor
-        if address is not None and kind != ExecutorKind.ray:
-            raise typer.BadParameter("the address of a Ray cluster goes with --executor ray",
-                                     param_hint="'--address'")
-        return cls(kind.value, workers, address)
+        for given, name in ((address is not None, "--address"), (actor_cpus != 1.0, "--actor-cpus"),
+                            (actor_gpus is not None, "--actor-gpus")):
+            if given and kind != ExecutorKind.ray:
+                what = "the address of a Ray cluster" if name == "--address" else "a system actor's share"
+                raise typer.BadParameter(f"{what} goes with --executor ray", param_hint=f"'{name}'")
+        return cls(kind.value, workers, address, actor_cpus, actor_gpus)
 
     def check(self, store: Any) -> None:
         """Refuse, before anything runs, a Ray run on a store the cluster cannot share.
@@ -173,8 +182,8 @@ def execute(workspace: str, task_id: int, *, placement: Placement, show_progress
         try:
             with disk_failures(f"what is stored is kept: lidarfuzz resume {task_id} finishes the task",
                                store.file or store.where):
-                executor = make_executor(placement.executor, workers=placement.workers,
-                                         address=placement.address)
+                executor = make_executor(placement.executor, workers=placement.workers, address=placement.address,
+                                         actor_cpus=placement.actor_cpus, actor_gpus=placement.actor_gpus)
                 outcome = run_task(store, task_id, executor=executor, progress=on_progress,
                                    wait=wait, take_over=take_over, on_wait=on_wait)
         except KeyboardInterrupt:
@@ -248,6 +257,8 @@ def run(
     inline: InlineOption = False,
     executor: ExecutorOption = ExecutorKind.pool,
     address: AddressOption = None,
+    actor_cpus: ActorCpusOption = 1.0,
+    actor_gpus: ActorGpusOption = None,
     detach: Annotated[bool, typer.Option(help="Only create the task; run it with lidarfuzz resume.")] = False,
     kind: Annotated[str, typer.Option(help=KIND_HELP)] = DEFAULT_KIND,
     budget: Annotated[int | None, typer.Option(min=1, help="guided/fuzz: tests to generate (default 200).")] = None,
@@ -354,7 +365,7 @@ def run(
     if pilot is not None:
         spec = spec.model_copy(update={"pilot": pilot})
     store = open_store(workspace, writes="lidarfuzz run")
-    placement = Placement.of(executor, workers, address, inline)
+    placement = Placement.of(executor, workers, address, inline, actor_cpus, actor_gpus)
     placement.check(store)  # before a task is created
     sut_options = parse_assignments(option or [])
     dataset_options = options_from_flags(layout, allow_unlabelled)
@@ -384,6 +395,8 @@ def resume(
     inline: InlineOption = False,
     executor: ExecutorOption = ExecutorKind.pool,
     address: AddressOption = None,
+    actor_cpus: ActorCpusOption = 1.0,
+    actor_gpus: ActorGpusOption = None,
     force: Annotated[bool, typer.Option(help="Resume even if another process seems to be running it (its "
                                              "claim on the task is taken over).")] = False,
     wait: Annotated[bool, typer.Option(help="When another process runs the task, wait for it to end (or die), "
@@ -400,7 +413,7 @@ def resume(
     from lidarfuzz.campaign.tasks import get_task
     from lidarfuzz.store.models import Status
 
-    placement = Placement.of(executor, workers, address, inline)
+    placement = Placement.of(executor, workers, address, inline, actor_cpus, actor_gpus)
     row = get_task(open_store(workspace, writes=f"lidarfuzz resume {task}"), task)
     if row.status == Status.DONE:
         console.print(f"task {task} is done already (lidarfuzz report {task})")
