@@ -52,6 +52,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
+import functools  # noqa: E402
 import hashlib  # noqa: E402
 import itertools  # noqa: E402
 import pickle  # noqa: E402
@@ -194,6 +195,7 @@ class RunFigures:
     mutants: int
     stages: dict[str, float] = field(default_factory=dict)  # summed seconds: the workers' stages, store, evaluate
     steady_cpu: float = 0.0  # the driver's CPU per unit between its first and its last committed result
+    steady_rate: float = 0.0  # units/s between the first and the last committed result (no start-up)
 
 
 def run_campaign(url: str, data: Path, frames: int, executor: Any) -> RunFigures:
@@ -205,9 +207,10 @@ def run_campaign(url: str, data: Path, frames: int, executor: Any) -> RunFigures
     store = Store(url)
     try:
         task_id = create_task(store, campaign_spec(data, frames))
-        marks: list[float] = []  # the driver's CPU time after each committed result
+        marks: list[tuple[float, float]] = []  # the driver's CPU time and the clock after each committed result
         cpu, start = time.process_time(), time.perf_counter()
-        outcome = run_task(store, task_id, executor=executor, progress=lambda _: marks.append(time.process_time()))
+        outcome = run_task(store, task_id, executor=executor,
+                           progress=lambda _: marks.append((time.process_time(), time.perf_counter())))
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         stats = outcome.stats
         if stats.failures or stats.cached or outcome.status.value != "done":
@@ -215,8 +218,11 @@ def run_campaign(url: str, data: Path, frames: int, executor: Any) -> RunFigures
                                f"{stats.failures} failures, {stats.cached} cached")
         mutants = stats.units - frames
         stages = {**stats.stages, "store": stats.store, "evaluate": stats.evaluate}
-        steady = (marks[-1] - marks[0]) / (len(marks) - 1) if len(marks) > 1 else cpu / max(1, stats.units)
-        return RunFigures(wall, cpu, stats.units, mutants, stages, steady)
+        if len(marks) < 2:
+            raise RuntimeError("the benchmark campaign needs 2 or more units (--frames)")
+        (cpu0, wall0), (cpu1, wall1) = marks[0], marks[-1]
+        return RunFigures(wall, cpu, stats.units, mutants, stages, (cpu1 - cpu0) / (len(marks) - 1),
+                          (len(marks) - 1) / (wall1 - wall0))
     finally:
         store.close()
 
@@ -282,7 +288,7 @@ def ray_overheads(ray: Any, data: Path) -> Overheads:
         for pending in (2, 16, 160, 1600):
             refs = [blocker.block.remote(60.0) for _ in range(pending)]
             ray.wait([*refs, done], num_returns=1, timeout=5.0)
-            samples = timed(lambda refs=refs: ray.wait([*refs, done], num_returns=1, timeout=5.0), 30)
+            samples = timed(functools.partial(ray.wait, [*refs, done], num_returns=1, timeout=5.0), 30)
             waits[pending] = 1e6 * statistics.median(samples)
             ray.kill(blocker, no_restart=True)
             blocker = ray.remote(num_cpus=0)(_Probe).remote()
@@ -316,7 +322,7 @@ def sample_results(url: str, data: Path, frames: int) -> list[Any]:
         try:
             subs = sorted(task.subtasks, key=lambda s: (s.name != ORIGINAL, s.id))
             originals = [worker.run(unit) for unit in run._units(subs[:1], set(), {}, run.frame_ids)]
-            sources = {r.unit.frame_id: (r.detections, r.failure is not None, "") for r in originals}
+            sources: dict[str, Any] = {r.unit.frame_id: (r.detections, r.failure is not None, "") for r in originals}
             mutants = [worker.run(unit) for unit in run._units(subs[1:], set(), sources, run.frame_ids)]
         finally:
             worker.close()
@@ -414,22 +420,23 @@ def wait_cost_us(waits: dict[int, float], in_flight: int) -> float:
 
 @dataclass
 class Ceilings:
-    """Units per second each part allows on a cluster of ``nodes`` GPU nodes."""
+    """Units per second each part allows on a cluster of ``nodes`` GPU nodes run by ``drivers`` drivers."""
 
     nodes: int
-    cluster: float
+    drivers: int
+    busy: float  # the nodes, all busy
+    blocks: float  # the nodes, with the runner's two waits per block of frames (see model())
     driver: float
     store: float
-    network: float
+    network: float  # worst case: every node pulls every frame from the driver
 
     @property
     def rate(self) -> float:
-        return min(self.cluster, self.driver, self.store, self.network)
+        return min(self.blocks, self.driver, self.store)
 
     @property
     def limit(self) -> str:
-        return min((self.cluster, "the GPU nodes"), (self.driver, "the driver"), (self.store, "the store"),
-                   (self.network, "the driver's network"))[1]
+        return min((self.blocks, "the GPU nodes"), (self.driver, "the driver"), (self.store, "the store"))[1]
 
 
 def node_rate(m: Measured) -> tuple[float, float, float]:
@@ -442,44 +449,71 @@ def node_rate(m: Measured) -> tuple[float, float, float]:
 
 
 def ceilings(m: Measured, nodes: int, drivers: int = 1) -> Ceilings:
+    """See :func:`model`."""
+    from lidarfuzz.campaign.mutation import BLOCK
+
     a = ASSUMPTIONS
     units_per_frame = 1 + a["kitti_operators"] * a["kitti_severities"]
     in_flight = 2 * nodes * a["node_cpus"] // drivers  # per_actor = 2, the actors shared by the drivers
     driver_ms = (m.driver_unit_ms + m.driver_frame_ms / units_per_frame + m.evaluate_ms
                  + (wait_cost_us(m.wait_us, in_flight) - wait_cost_us(m.wait_us, 2)) / 1e3
                  + (m.commit_wall_ms - m.commit_cpu_ms))  # the commit's wait for the server: the loop waits too
+    busy = nodes * node_rate(m)[0]
+    # The runner runs a block of frames' originals, waits for them all (their outputs are the mutants'
+    # sources), then the block's mutants, and waits for them all: twice per block the cluster drains.
+    # Per driver's share of the cluster: the originals take one unit's time, the mutants their share of
+    # the work plus one unit's time for the last wave.
+    unit_s = (m.cpu_ms_per_unit + a["detector_cpu_ms"] + a["gpu_ms"]) / 1e3
+    last_wave_s = a["node_cpus"] / node_rate(m)[0]  # a unit's time on an actor of a busy node
+    mutants = BLOCK * (units_per_frame - 1) / drivers
+    block_s = unit_s + mutants / (busy / drivers) + last_wave_s
+    blocks = drivers * (BLOCK / drivers + mutants) / block_s
     frame_bytes = m.bytes_per_point * a["kitti_points"]
-    # worst case: every node pulls every frame from the driver's object store (see docs/scaling.md)
     network = a["driver_gbit"] * 1e9 / 8 * units_per_frame / (nodes * frame_bytes)
-    return Ceilings(nodes, nodes * node_rate(m)[0], drivers * 1e3 / driver_ms, drivers * 1e3 / m.commit_wall_ms,
-                    network)
+    return Ceilings(nodes, drivers, busy, min(busy, blocks), drivers * 1e3 / driver_ms,
+                    drivers * 1e3 / m.commit_wall_ms, network)
 
 
 def model(m: Measured) -> str:
-    """The model's table and its conclusions for 10 and 100 GPU nodes (see docs/scaling.md)."""
+    """The model's table and its conclusions for 10 and 100 GPU nodes (docs/scaling.md states its terms)."""
     a = ASSUMPTIONS
     units = a["kitti_frames"] * (1 + a["kitti_operators"] * a["kitti_severities"])
+
+    def enough_drivers(nodes: int) -> int:
+        return next(k for k in range(1, a["kitti_operators"] + 1)
+                    if ceilings(m, nodes, k).limit == "the GPU nodes" or k == a["kitti_operators"])
+
+    cases = [(1, 1), (5, 1), (10, 1), (10, enough_drivers(10)), (100, 1), (100, enough_drivers(100))]
     rows = []
-    for nodes, drivers in ((1, 1), (2, 1), (5, 1), (10, 1), (20, 1), (100, 1), (10, 4), (100, 4), (100, 37)):
+    for nodes, drivers in dict.fromkeys(cases):
         c = ceilings(m, nodes, drivers)
-        hours = units / c.rate / 3600
+        # K tasks started together each detect the originals (none is in the output cache yet)
+        hours = (units + (drivers - 1) * a["kitti_frames"]) / c.rate / 3600
         cost = hours * (nodes * a["node_price"] + a["head_price"])
-        rows.append([f"{nodes}", f"{drivers}", f"{c.cluster:,.0f}", f"{c.driver:,.0f}", f"{c.store:,.0f}",
-                     f"{c.network:,.0f}", f"**{c.rate:,.0f}** ({c.limit})", f"{hours:.2f}", f"${cost:,.0f}"])
-    text = table(["GPU nodes", "drivers", "nodes' rate", "driver ceiling", "store ceiling", "network ceiling",
-                  "throughput (units/s)", f"hours for {units:,} units", "cost"], rows)
+        network = f"{c.network:,.0f}" + (" ⚠" if c.network < c.rate else "")
+        rows.append([f"{nodes}", f"{drivers}", f"{c.busy:,.0f}", f"{c.blocks:,.0f}", f"{c.driver:,.0f}",
+                     f"{c.store:,.0f}", f"**{c.rate:,.0f}** ({c.limit})",
+                     f"{60 * hours:.0f} min" if hours < 2 else f"{hours:.1f} h", f"${cost:,.2f}",
+                     network])
+    text = table(["GPU nodes", "drivers", "nodes, all busy", "nodes, with block waits", "driver ceiling",
+                  "store ceiling", "throughput (units/s)", f"time for {units:,} units", "cost",
+                  "network, worst case"], rows)
     rate, gpu, actors = node_rate(m)
     one = ceilings(m, 1)
-    driver_nodes = next((n for n in range(1, 10_000) if ceilings(m, n).limit == "the driver"), None)
-    store_nodes = next((n for n in range(1, 10_000) if ceilings(m, n).cluster > ceilings(m, n).store), None)
+    driver_nodes = next(n for n in range(1, 100_000) if ceilings(m, n).limit != "the GPU nodes")
+    store_nodes = next(n for n in range(1, 100_000) if ceilings(m, n).busy > ceilings(m, n).store)
+    node_hours = units / rate / 3600
     notes = [
         f"One GPU node runs {rate:.0f} units/s (its GPU allows {gpu:.0f}/s, its {a['node_cpus']} actors in turn "
         f"{actors:.0f}/s: {'the GPU' if gpu <= actors else 'the actors’ CPU work (mutation, relations)'} is the "
-        "limit).",
-        f"One driver dispatches and commits at most {one.driver:,.0f} units/s; the store alone, single writer, "
-        f"{one.store:,.0f} units/s ({1e3 / m.commit_async_wall_ms:,.0f} with synchronous_commit = off).",
-        f"The driver becomes the bottleneck from {driver_nodes} GPU nodes on; the store (a single writer) would "
-        f"from {store_nodes} nodes."]
+        f"limit), so the campaign is {node_hours:.1f} GPU-node-hours (${node_hours * a['node_price']:.2f}) "
+        "whatever the cluster's size, as long as its nodes are kept busy.",
+        f"One driver dispatches and commits at most {one.driver:,.0f} units/s ({one.driver / rate:.1f} nodes' "
+        f"worth); the store alone, single writer, {one.store:,.0f} units/s "
+        f"({1e3 / m.commit_async_wall_ms:,.0f} with synchronous_commit = off).",
+        f"With one driver the GPU nodes stop being the bottleneck at {driver_nodes} nodes (then: "
+        f"{ceilings(m, driver_nodes).limit}); the store's single-writer rate would be reached at {store_nodes} "
+        "nodes."]
     return text + "\n\n" + " ".join(notes)
 
 
@@ -499,7 +533,7 @@ def write_section(name: str, markdown: str, doc: Path = DOC) -> None:
 # -- main --------------------------------------------------------------------------------------
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--frames", type=int, default=16, help="16: one block of the runner")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--workers", default="1,2", help="local pool sizes (the baseline)")
     parser.add_argument("--actors", default="1,2,N", help="Ray actor counts; N: the CPU count")
@@ -551,9 +585,9 @@ def measure(args: argparse.Namespace, ray: Any, server: str, data: Path, pools: 
             ray_executor: Any, process_executor: Any) -> Figures:
     configs: list[tuple[str, Callable[[], Any]]] = []
     for workers in pools:
-        configs.append((f"pool {workers}", lambda w=workers: process_executor(w)))
+        configs.append((f"pool {workers}", functools.partial(process_executor, workers)))
     for actors in actor_counts:
-        configs.append((f"ray {actors}", lambda a=actors: ray_executor(None, actors=a)))
+        configs.append((f"ray {actors}", functools.partial(ray_executor, None, actors=actors)))
     runs: dict[str, list[RunFigures]] = {name: [] for name, _ in configs}
     for repeat in range(args.repeats):
         for name, make in configs:
@@ -583,26 +617,29 @@ def report(args: argparse.Namespace, figures: Figures, cpus: int, pools: list[in
                f"`{command}`: {args.frames} simulator frames (HDL-64E, {o.frame_points:,} points in the first) × "
                f"(original + {len(OPERATORS)} operators at severity {SEVERITY}: {', '.join(OPERATORS)}) = "
                f"{units} units per run, the classic system, one local PostgreSQL server (fsync on), median of "
-               f"{args.repeats} runs (min–max). Starting the local Ray took {ray_start:.1f} s, not counted.*")
+               f"{args.repeats} runs (min–max). Starting the local Ray took {ray_start:.1f} s, not counted.*\n")
 
     rows = []
     for name, values in runs.items():
         kind, size = name.split()
         baseline = runs.get(f"pool {size}")
         rate = [r.units / r.wall for r in values]
-        ratio = (f"{statistics.median(rate) / statistics.median([r.units / r.wall for r in baseline]):.2f}×"
+        steady_rate = [r.steady_rate for r in values]
+        ratio = (f"{statistics.median(rate) / statistics.median([r.units / r.wall for r in baseline]):.2f}× / "
+                 f"{statistics.median(steady_rate) / statistics.median([r.steady_rate for r in baseline]):.2f}×"
                  if baseline else "— (no pool of that size)")
         what = f"local pool, {size} process{'es' if size != '1' else ''}" if kind == "pool" else \
             f"Ray, {size} actor{'s' if size != '1' else ''}"
         rows.append([what, fmt_spread([r.wall for r in values], 2), fmt_spread(rate),
-                     fmt_spread([r.mutants / r.wall for r in values]),
+                     fmt_spread([r.mutants / r.wall for r in values]), fmt_spread(steady_rate),
                      fmt_spread([1e3 * r.driver_cpu / r.units for r in values], 2),
                      fmt_spread([1e3 * r.steady_cpu for r in values], 2), ratio])
-    out.append("**Throughput** (wall includes starting the workers and the AP evaluation; the driver's CPU per "
-               "unit over the whole run, start-up included, and in steady state: between its first and last "
-               "committed result):\n")
-    out.append(table(["executor", "wall (s)", "units/s", "frames × operators/s", "driver CPU/unit, run (ms)",
-                      "driver CPU/unit, steady (ms)", "units/s vs the pool of the same size"], rows))
+    out.append("**Throughput.** Wall time and the whole run's rates include starting the workers and the AP "
+               "evaluation; *steady* is between the first and the last committed result (no start-up), for the "
+               "units/s and the driver's CPU per unit alike:\n")
+    out.append(table(["executor", "wall (s)", "units/s", "frames × operators/s", "units/s, steady",
+                      "driver CPU/unit (ms)", "driver CPU/unit, steady (ms)",
+                      "units/s vs the pool of the same size (run / steady)"], rows))
 
     stage_rows = []
     for name, values in runs.items():
