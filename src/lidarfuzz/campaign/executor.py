@@ -20,8 +20,10 @@ The Ray cluster's executor (:mod:`lidarfuzz.campaign.cluster`) implements the sa
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import threading
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -80,10 +82,44 @@ _WORKER: Worker | None = None
 _WORKER_ERROR: BaseException | None = None  # why this process has no worker (the data set did not open)
 
 
+#: Thread counts that OpenMP runtimes, OpenBLAS and MKL read once, when the library loads.
+THREAD_LIMIT_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_ENVIRONMENT_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _one_thread_environment() -> Iterator[None]:
+    """This process's environment with one BLAS/OpenMP thread (unless the user chose a count),
+    restored on exit.
+
+    Worker processes must start with the limits already in their environment: a spawned
+    worker imports numpy (the module holding :func:`_start` needs it) before its initializer
+    runs, and OpenBLAS sizes its thread pool when it loads — setting the variables in
+    :func:`_start` comes too late for it. Children inherit the environment at the moment they
+    are spawned, so the pool's processes are started inside this block. The parent's own
+    environment is put back as it was (a variable it did not have is removed again).
+    """
+    with _ENVIRONMENT_LOCK:  # pools started from several threads (the web app's task workers)
+        saved = {variable: os.environ.get(variable) for variable in THREAD_LIMIT_VARIABLES}
+        for variable in THREAD_LIMIT_VARIABLES:
+            os.environ.setdefault(variable, "1")  # one core per worker: the pool is the parallelism
+        try:
+            yield
+        finally:
+            for variable, value in saved.items():
+                if value is None:
+                    os.environ.pop(variable, None)
+                else:
+                    os.environ[variable] = value
+
+
 def _start(context: WorkContext) -> None:
     global _WORKER, _WORKER_ERROR
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")  # one core per worker: the pool is the parallelism
+    # Inherited from the parent (_one_thread_environment), so numpy's BLAS already runs one
+    # thread; set here too for a pool started some other way and for the libraries a system under
+    # test loads later (torch's OpenMP reads OMP_NUM_THREADS when it loads).
+    for var in THREAD_LIMIT_VARIABLES:
+        os.environ.setdefault(var, "1")
     try:
         _WORKER = Worker(context)
     except Exception as exc:  # an initializer that raises breaks the pool: that would read as a crash
@@ -112,9 +148,20 @@ class ProcessExecutor(Executor):
         self._context: WorkContext | None = None
 
     def _new_pool(self) -> ProcessPoolExecutor:
+        """A pool whose processes are all started now, with one BLAS/OpenMP thread each.
+
+        A spawn pool starts its processes on demand, one per ``submit`` while none is idle; one
+        no-op per worker, submitted inside :func:`_one_thread_environment`, starts all of them
+        while the thread limits are in the environment they inherit (a process started later,
+        outside the block, would load numpy's BLAS with a thread per core).
+        """
         assert self._context is not None
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_start, initargs=(self._context,))
+        with _one_thread_environment():
+            pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_start, initargs=(self._context,))
+            for _ in range(self.workers):
+                pool.submit(os.getpid)
+        return pool
 
     def open(self, context: WorkContext) -> None:
         self.close()

@@ -59,24 +59,6 @@ def relabel_in_image(boxes: Boxes3D, calib: KittiCalibration | None) -> Boxes3D:
     return boxes.replace(alpha=alpha, bbox2d=bbox2d, truncation=truncation)
 
 
-def rigid_transform(scene: Scene, matrix: NDArray[np.float64]) -> Scene:
-    """Points, boxes (heading included) and the ROI moved by a 4×4 rigid transform about z."""
-    m = np.asarray(matrix, np.float64)
-    points = scene.points
-    if len(points):
-        xyz = points.xyz.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-        points = points.with_xyz(xyz.astype(np.float32))
-    boxes = scene.boxes
-    if len(boxes):
-        geometric = boxes.has_geometry
-        centers = boxes.centers.copy()
-        centers[geometric] = centers[geometric] @ m[:3, :3].T + m[:3, 3]
-        yaw = boxes.yaw + np.arctan2(m[1, 0], m[0, 0])
-        boxes = relabel_in_image(boxes.with_geometry(centers=centers, yaw=yaw), scene.calib)
-    roi = scene.roi.transformed(m) if scene.roi is not None else None
-    return scene.replace(points=points, boxes=boxes, roi=roi)
-
-
 def intensity_scale(values: NDArray[np.floating]) -> float:
     """The data's intensity full scale, inferred: 1 for [0, 1] data (KITTI, the simulator), 255 for
     8-bit, 65535 for 16-bit, else the maximum itself. Operators that model physics convert with

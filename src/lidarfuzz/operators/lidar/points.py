@@ -11,6 +11,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from pydantic import Field, model_validator
 
 from lidarfuzz.operators.base import (
@@ -24,13 +25,49 @@ from lidarfuzz.operators.base import (
     draw_seed,
     uniform,
 )
-from lidarfuzz.operators.lidar.common import cloud_extent, in_axis_box, scene_intensity_scale, with_added_points
+from lidarfuzz.operators.lidar.common import cloud_extent, scene_intensity_scale, with_added_points
 from lidarfuzz.scene.drivable import ESTIMATED, FRAME_MAP, estimate_drivable, road_user_footprints
 from lidarfuzz.scene.geometry import points_in_boxes
+from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
 Range = tuple[float, float]
 POINTS = frozenset({Target.POINTS})
+
+
+def _z_extent(cloud: PointCloud) -> tuple[float, float]:
+    """The lowest and highest z of a non-empty cloud — :func:`cloud_extent`'s z, without its four
+    other (strided, unvectorised) reductions."""
+    z = cloud.xyz[:, 2]
+    return float(z.min()), float(z.max())
+
+
+def _extent(cloud: PointCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`cloud_extent`, each column copied once into a contiguous buffer so that its minimum
+    and maximum are vectorised reductions (on the strided N×C view they are element by element)."""
+    if len(cloud) == 0:
+        return cloud_extent(cloud)
+    xyz = cloud.xyz
+    column = np.empty(len(xyz), np.float32)
+    low, high = np.empty(3), np.empty(3)
+    for i in range(3):
+        np.copyto(column, xyz[:, i])
+        low[i], high[i] = float(column.min()), float(column.max())
+    return low, high
+
+
+def _in_column(xyz: NDArray[np.float32], center: tuple[float, float, float],
+               size: tuple[float, float, float]) -> NDArray[np.bool_]:
+    """:func:`in_axis_box`, the same comparisons in float32, made on the points that pass x only:
+    a region is a small share of the cloud, so y and z are tested on a few hundred points
+    instead of all of them."""
+    inside = np.abs(xyz[:, 0] - np.float32(center[0])) <= np.float32(size[0] / 2)
+    candidates = np.flatnonzero(inside)
+    rows = xyz[candidates]
+    passed = np.abs(rows[:, 1] - np.float32(center[1])) <= np.float32(size[1] / 2)
+    passed &= np.abs(rows[:, 2] - np.float32(center[2])) <= np.float32(size[2] / 2)
+    inside[candidates[~passed]] = False
+    return inside
 
 
 # --------------------------------------------------------------------------- UNA
@@ -210,7 +247,7 @@ class GaussianNoiseAddition(Operator[Scene, NearNoiseConfig, NearNoiseParams]):
         direction = rng.normal(size=(count, 3))
         direction /= np.linalg.norm(direction, axis=1, keepdims=True)
         xyz = direction * distance[:, None]
-        xyz[:, 2] = np.maximum(xyz[:, 2], cloud_extent(cloud)[0][2])  # nothing below the ground
+        xyz[:, 2] = np.maximum(xyz[:, 2], _z_extent(cloud)[0] if len(cloud) else -1.0)  # nothing below the ground
         intensity = rng.uniform(params.intensity_low, params.intensity_high, count)
         return sample.with_points(with_added_points(cloud, xyz, intensity))
 
@@ -221,7 +258,7 @@ class RegionConfig(Config):
 
 
 def _draw_region(rng: np.random.Generator, sample: Scene, size: float) -> tuple[list[float], list[float]]:
-    lo, hi = cloud_extent(sample.points)
+    lo, hi = _extent(sample.points)
     centre = [float(rng.uniform(lo[i], hi[i])) for i in range(3)]
     return centre, [size, size, float(hi[2] - lo[2]) + 1.0]  # full height: a column of the scene
 
@@ -238,13 +275,15 @@ def _draw_region_on_points(rng: np.random.Generator, sample: Scene,
     not of the bounding box) and never empty. The column spans the cloud's whole height (its
     centre at the extent's middle), so every point under the patch is in it.
     """
-    lo, hi = cloud_extent(sample.points)
     if len(sample.points) == 0:  # nothing to centre on; apply leaves an empty cloud as it is
+        lo, hi = cloud_extent(sample.points)
         x, y = float(rng.uniform(lo[0], hi[0])), float(rng.uniform(lo[1], hi[1]))
+        z_low, z_high = float(lo[2]), float(hi[2])
     else:
         point = sample.points.xyz[int(rng.integers(0, len(sample.points)))]
         x, y = float(point[0]), float(point[1])
-    return [x, y, float(lo[2] + hi[2]) / 2], [size, size, float(hi[2] - lo[2]) + 1.0]
+        z_low, z_high = _z_extent(sample.points)
+    return [x, y, (z_low + z_high) / 2], [size, size, (z_high - z_low) + 1.0]
 
 
 class RegionNoiseConfig(RegionConfig):
@@ -296,7 +335,7 @@ class RandomRegionNoiseAddition(Operator[Scene, RegionNoiseConfig, RegionNoisePa
             return sample
         rng = np.random.default_rng(params.seed)
         center, size = np.asarray(params.center), np.asarray(params.size)
-        lo, hi = cloud_extent(sample.points)
+        lo, hi = _extent(sample.points)
         low = np.maximum(center - size / 2, lo)  # the region, clipped to the cloud's extent
         high = np.minimum(center + size / 2, hi)
         xyz = rng.uniform(low, high, (params.count, 3))
@@ -365,7 +404,7 @@ class RandomRegionPointDeletion(Operator[Scene, RegionDeletionConfig, RegionDele
     def apply(self, sample: Scene, params: RegionDeletionParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
-        inside = in_axis_box(sample.points.xyz, params.center, params.size)
+        inside = _in_column(sample.points.xyz, params.center, params.size)
         if params.share < 1.0:
             chosen = np.flatnonzero(inside)
             deleted = np.random.default_rng(params.seed).random(len(chosen)) < params.share
@@ -431,11 +470,13 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
             return sample
         rng = np.random.default_rng(params.seed)
         chosen = rng.choice(len(cloud), size=count, replace=False)
-        intensity = cloud.intensity.astype(np.float64)
         limit = _intensity_limit(sample)
-        intensity[chosen] = np.clip(intensity[chosen] * rng.uniform(params.factor_low, params.factor_high, count),
-                                    0.0, limit)
-        return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
+        # float64 for the chosen points only: the others would round-trip float32 → float64 exactly
+        data = cloud.data.copy()
+        scaled = data[chosen, 3].astype(np.float64)
+        scaled *= rng.uniform(params.factor_low, params.factor_high, count)
+        data[chosen, 3] = np.clip(scaled, 0.0, limit, out=scaled)
+        return sample.with_points(PointCloud(data, cloud.channels))
 
 
 Direction = Literal["both", "lower", "raise"]
@@ -505,13 +546,17 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
         cloud = sample.points
         if params.is_identity() or len(cloud) == 0:
             return sample
-        inside = in_axis_box(cloud.xyz, params.center, params.size)
+        inside = _in_column(cloud.xyz, params.center, params.size)
         if not inside.any():
             return sample
-        intensity = cloud.intensity.astype(np.float64)
         limit = _intensity_limit(sample)
-        intensity[inside] = np.clip(intensity[inside] * params.factor, 0.0, limit)
-        return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
+        # float64 for the region's points only: the others would round-trip float32 → float64 exactly
+        data = cloud.data.copy()
+        rows = np.flatnonzero(inside)
+        scaled = data[rows, 3].astype(np.float64)
+        scaled *= params.factor
+        data[rows, 3] = np.clip(scaled, 0.0, limit, out=scaled)
+        return sample.with_points(PointCloud(data, cloud.channels))
 
 
 # --------------------------------------------------------------------------- Zhou & Sun
@@ -599,7 +644,7 @@ class OutsideRoiScatter(Operator[Scene, OutsideRoiScatterConfig, OutsideRoiScatt
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> OutsideRoiScatterParams:
         cloud = sample.points
-        lo, hi = cloud_extent(cloud)
+        lo, hi = _extent(cloud)
         if len(cloud):
             radius = self.config.range_m or float(np.hypot(cloud.xyz[:, 0], cloud.xyz[:, 1]).max())
             i_lo, i_hi = float(cloud.intensity.min()), float(cloud.intensity.max())

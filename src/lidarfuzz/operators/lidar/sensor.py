@@ -44,6 +44,7 @@ from lidarfuzz.operators.base import (
     uniform,
 )
 from lidarfuzz.operators.lidar.common import scene_intensity_scale
+from lidarfuzz.operators.lidar.geometric import transformed_points
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -153,10 +154,50 @@ def time_of_azimuth(azimuth: NDArray[np.floating], rotation_hz: float = 10.0) ->
 
 
 def _squared_ranges(cloud: PointCloud) -> NDArray[np.float32]:
-    """x² + y² + z² column by column (reductions over the strided N×3 view are several times slower)."""
+    """x² + y² + z² column by column (reductions over the strided N×3 view are several times slower),
+    summed in place in that order."""
     xyz = cloud.xyz
     x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    return x * x + y * y + z * z
+    total = x * x
+    term = y * y
+    total += term
+    total += np.multiply(z, z, out=term)
+    return total
+
+
+def farthest_range(cloud: PointCloud) -> float:
+    """The largest float64 range ``‖(x, y, z)‖`` of a non-empty cloud, as
+    ``np.linalg.norm(xyz.astype(float64), axis=1).max()`` gives it, without a float64 copy of
+    every point.
+
+    The float32 squared ranges pick the candidates: each is within 3 float32 roundings (relative
+    3 · 2⁻²⁴ < 2e-7) of the exact value, so the point of the largest exact range has a float32
+    square of at least (1 − 4e-7) times the largest one; every point above (1 − 1e-5) times it is
+    a candidate, and the float64 norms of those (a handful) give the same maximum, bit for bit.
+    """
+    squared = _squared_ranges(cloud)
+    top = float(squared.max())
+    if not np.isfinite(top):  # NaN or inf coordinates: the full computation, as before
+        return float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max())
+    candidates = cloud.xyz[squared >= np.float32(top * (1.0 - 1e-5))]
+    return float(np.linalg.norm(candidates.astype(np.float64), axis=1).max())
+
+
+def _present_rings(ring: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The distinct known rings (≥ 0), sorted, as ``np.unique`` gives them: counted with
+    ``bincount`` (one pass, no sort or hash table) when ring numbers are small, as they are."""
+    known = ring[ring >= 0]
+    if len(known) == 0 or int(known.max()) >= 1 << 16:
+        return np.unique(known)
+    return np.flatnonzero(np.bincount(known)).astype(np.int64)
+
+
+def _with_intensity(cloud: PointCloud, values: NDArray[np.floating]) -> PointCloud:
+    """``cloud.with_channel("intensity", values.astype(np.float32))`` with one copy of the data:
+    the float64 values are rounded to float32 as they are written into it."""
+    data = cloud.data.copy()
+    data[:, 3] = values
+    return PointCloud(data, cloud.channels)
 
 
 def _draw_int(rng: np.random.Generator, interval: Range) -> int:
@@ -170,17 +211,35 @@ def _signed(rng: np.random.Generator, interval: Range) -> float:
     return -value if rng.random() < 0.5 else value
 
 
-def _with_xyz(sample: Scene, xyz: NDArray[np.floating]) -> Scene:
-    return sample.with_points(sample.points.with_xyz(xyz.astype(np.float32)))
-
-
-def _jittered(sample: Scene, offsets: Callable[[int], NDArray[np.float32]]) -> Scene:
-    """The cloud with ``offsets(n)`` added to x, then y, then z — column by column into one copy
-    of the data, so no N×3 temporaries (positions only: every other channel is copied as is)."""
+def _jittered(sample: Scene, fill: Callable[[NDArray[np.float32]], object]) -> Scene:
+    """The cloud with offsets added to x, then y, then z: ``fill(buffer)`` writes one axis's
+    offsets into a preallocated float32 buffer, added column by column into one copy of the
+    data — no N×3 temporaries, and no new array per axis (positions only: every other channel is
+    copied as is)."""
     data = sample.points.data.copy()
+    buffer = np.empty(len(data), np.float32)
     for axis in range(3):
-        data[:, axis] += offsets(len(data))
+        fill(buffer)
+        data[:, axis] += buffer
     return sample.with_points(PointCloud(data, sample.points.channels))
+
+
+def _uniform_offsets(rng: np.random.Generator, amplitude: np.float32) -> Callable[[NDArray[np.float32]], object]:
+    """Fills a buffer with (2u − 1) · amplitude, u uniform in [0, 1), in place."""
+    def fill(buffer: NDArray[np.float32]) -> None:
+        rng.random(out=buffer, dtype=np.float32)
+        buffer *= np.float32(2)
+        buffer -= np.float32(1)
+        buffer *= amplitude
+    return fill
+
+
+def _normal_offsets(rng: np.random.Generator, sigma: np.float32) -> Callable[[NDArray[np.float32]], object]:
+    """Fills a buffer with N(0, 1) · sigma, in place."""
+    def fill(buffer: NDArray[np.float32]) -> None:
+        rng.standard_normal(out=buffer, dtype=np.float32)
+        buffer *= sigma
+    return fill
 
 
 # --------------------------------------------------------------------------- beam missing
@@ -222,7 +281,7 @@ class BeamMissing(Operator[Scene, BeamMissingConfig, BeamMissingParams]):
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> BeamMissingParams:
         ring, source = rings_of(sample.points)
-        present = np.unique(ring[ring >= 0])
+        present = _present_rings(ring)
         count = min(round(uniform(rng, self.config.ratio_range) * len(present)), len(present))
         chosen = rng.choice(present, size=count, replace=False) if count else np.zeros(0, np.int64)
         return BeamMissingParams(rings=tuple(sorted(int(r) for r in chosen)), ring_source=source)
@@ -303,9 +362,14 @@ class CrossSensor(Operator[Scene, CrossSensorConfig, CrossSensorParams]):
             keep &= _ring_mask(ring, kept_rings, unknown=True)
         if params.azimuth_factor > 1:
             columns = int(np.bincount(ring[ring >= 0]).max()) if (ring >= 0).any() else len(cloud)
-            turns = np.mod(np.pi - azimuth_rad(cloud.xyz), 2.0 * np.pi) / (2.0 * np.pi)
-            column = np.floor(turns * columns).astype(np.int64)
-            keep &= np.mod(column, params.azimuth_factor) == int(params.azimuth_phase * params.azimuth_factor)
+            # floor(((π − azimuth) mod 2π) / 2π · columns), the same float32 steps in one buffer
+            turns = np.subtract(np.pi, azimuth_rad(cloud.xyz))
+            np.mod(turns, 2.0 * np.pi, out=turns)
+            turns /= 2.0 * np.pi
+            turns *= columns
+            column = np.floor(turns, out=turns).astype(np.int64)
+            np.mod(column, params.azimuth_factor, out=column)
+            keep &= column == int(params.azimuth_phase * params.azimuth_factor)
         return sample.with_points(cloud.select(keep))
 
 
@@ -359,7 +423,7 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> CrosstalkParams:
         cloud = sample.points
-        farthest = float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max()) if len(cloud) else 100.0
+        farthest = farthest_range(cloud) if len(cloud) else 100.0
         high = max(self.config.max_range_m or farthest, 1.0)
         scale = scene_intensity_scale(sample)
         lo, hi = self.config.intensity_range
@@ -432,8 +496,13 @@ class FovLoss(Operator[Scene, FovLossConfig, FovLossParams]):
     def apply(self, sample: Scene, params: FovLossParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
-        offset = np.mod(np.degrees(azimuth_rad(sample.points.xyz)) - params.center + 180.0, 360.0) - 180.0
-        lost = np.abs(offset) <= params.width / 2
+        # |((degrees(azimuth) − centre + 180) mod 360) − 180|, the same float32 steps in one buffer
+        offset = np.degrees(azimuth_rad(sample.points.xyz))
+        offset -= params.center
+        offset += 180.0
+        np.mod(offset, 360.0, out=offset)
+        offset -= 180.0
+        lost = np.abs(offset, out=offset) <= params.width / 2
         return sample.with_points(sample.points.select(~lost)) if lost.any() else sample
 
 
@@ -495,14 +564,25 @@ class MotionDistortion(Operator[Scene, MotionDistortionConfig, MotionDistortionP
             t = cloud.channel("time")
         else:
             t = time_of_azimuth(azimuth_rad(cloud.xyz), params.rotation_hz).astype(np.float32)
-        xyz = cloud.xyz
-        x = xyz[:, 0] - np.float32(params.speed) * t
-        y = xyz[:, 1]
+        # one copy of the data, x and y rewritten in place (the same float32 operations, in order)
+        data = cloud.data.copy()
+        x, y = data[:, 0], data[:, 1]
+        shift = np.multiply(t, np.float32(params.speed))
+        x -= shift
         if params.yaw_rate == 0:
-            return _with_xyz(sample, np.column_stack([x, y, xyz[:, 2]]))
-        angle = np.float32(-np.deg2rad(params.yaw_rate)) * t
-        cos, sin = np.cos(angle), np.sin(angle)
-        return _with_xyz(sample, np.column_stack([cos * x - sin * y, sin * x + cos * y, xyz[:, 2]]))
+            return sample.with_points(PointCloud(data, cloud.channels))
+        angle = np.multiply(t, np.float32(-np.deg2rad(params.yaw_rate)), out=shift)
+        cos, sin = np.cos(angle), np.sin(angle, out=angle)
+        x_moved = np.ascontiguousarray(x)
+        term = sin * y
+        rotated_x = np.multiply(cos, x_moved)
+        rotated_x -= term  # cos·x − sin·y
+        np.multiply(sin, x_moved, out=term)
+        np.multiply(cos, y, out=cos)
+        term += cos  # sin·x + cos·y
+        x[:] = rotated_x
+        y[:] = term
+        return sample.with_points(PointCloud(data, cloud.channels))
 
 
 # --------------------------------------------------------------------------- spatial misalignment
@@ -568,8 +648,8 @@ class SpatialMisalignment(Operator[Scene, MisalignmentConfig, MisalignmentParams
     def apply(self, sample: Scene, params: MisalignmentParams) -> Scene:
         if params.is_identity() or len(sample.points) == 0:
             return sample
-        m = self.matrix(params)
-        return _with_xyz(sample, sample.points.xyz.astype(np.float64) @ m[:3, :3].T + m[:3, 3])
+        # float64 maths, column by column in cache-sized blocks (see transformed_points)
+        return sample.with_points(transformed_points(sample.points, self.matrix(params)))
 
 
 # --------------------------------------------------------------------------- range degradation
@@ -633,9 +713,13 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
             return sample.with_points(cloud.select(keep)) if keep is not None and not keep.all() else sample
         reference = params.max_range if params.max_range is not None else max(float(distance.max()), 1e-3)
         noise = np.random.default_rng(params.seed).standard_normal(n, np.float32)  # drawn for every point
-        noisy = np.maximum(distance + noise * np.float32(params.noise_at_max / reference**2) * distance**2,
-                           np.float32(0.05))
-        factor = noisy / np.maximum(distance, np.float32(1e-9))
+        # max(d + (noise · c) · d², 0.05) / max(d, 1e-9), the same float32 operations in place
+        noise *= np.float32(params.noise_at_max / reference**2)
+        squared = np.multiply(distance, distance)
+        noise *= squared
+        noise += distance
+        noisy = np.maximum(noise, np.float32(0.05), out=noise)
+        factor = np.divide(noisy, np.maximum(distance, np.float32(1e-9), out=squared), out=noisy)
         if keep is not None and not keep.all():  # one copy: the kept rows only
             data, factor = np.compress(keep, cloud.data, axis=0), factor[keep]
         else:
@@ -694,9 +778,15 @@ class IntensityQuantisation(Operator[Scene, QuantisationConfig, QuantisationPara
         if params.levels == 1:
             return sample.with_points(cloud.with_channel("intensity", np.zeros(len(cloud), np.float32)))
         step = params.scale / (params.levels - 1)
-        level = np.clip(np.floor(cloud.intensity.astype(np.float64) / step + 1.0 - params.threshold),
-                        0, params.levels - 1)
-        return sample.with_points(cloud.with_channel("intensity", (level * step).astype(np.float32)))
+        # clip(floor(i / step + 1 − threshold), 0, levels − 1) · step: the same float64 steps in one buffer
+        level = cloud.intensity.astype(np.float64)
+        level /= step
+        level += 1.0
+        level -= params.threshold
+        np.floor(level, out=level)
+        np.clip(level, 0, params.levels - 1, out=level)
+        level *= step
+        return sample.with_points(_with_intensity(cloud, level))
 
 
 class SaturationConfig(Config):
@@ -744,8 +834,10 @@ class IntensitySaturation(Operator[Scene, SaturationConfig, SaturationParams]):
         cloud = sample.points
         if params.is_identity() or len(cloud) == 0:
             return sample
-        intensity = np.minimum(cloud.intensity.astype(np.float64) * params.gain, params.level * params.scale)
-        return sample.with_points(cloud.with_channel("intensity", intensity.astype(np.float32)))
+        intensity = cloud.intensity.astype(np.float64)
+        intensity *= params.gain
+        np.minimum(intensity, params.level * params.scale, out=intensity)
+        return sample.with_points(_with_intensity(cloud, intensity))
 
 
 # --------------------------------------------------------------------------- jitter
@@ -788,7 +880,7 @@ class GaussianJitter(Operator[Scene, GaussianJitterConfig, GaussianJitterParams]
         if params.is_identity() or len(sample.points) == 0:
             return sample
         rng, sigma = np.random.default_rng(params.seed), np.float32(params.sigma)
-        return _jittered(sample, lambda n: rng.standard_normal(n, np.float32) * sigma)
+        return _jittered(sample, _normal_offsets(rng, sigma))
 
 
 class UniformJitterConfig(Config):
@@ -830,7 +922,7 @@ class UniformJitter(Operator[Scene, UniformJitterConfig, UniformJitterParams]):
         if params.is_identity() or len(sample.points) == 0:
             return sample
         rng, amplitude = np.random.default_rng(params.seed), np.float32(params.amplitude)
-        return _jittered(sample, lambda n: (2 * rng.random(n, np.float32) - 1) * amplitude)
+        return _jittered(sample, _uniform_offsets(rng, amplitude))
 
 
 class ImpulseJitterConfig(Config):
@@ -882,9 +974,12 @@ class ImpulseJitter(Operator[Scene, ImpulseJitterConfig, ImpulseJitterParams]):
         rng = np.random.default_rng(params.seed)
         chosen = rng.choice(len(cloud), size=count, replace=False)
         signs = np.where(rng.random((count, 3)) < 0.5, -1.0, 1.0)
-        xyz = cloud.xyz.astype(np.float64)
-        xyz[chosen] += signs * params.offset
-        return _with_xyz(sample, xyz)
+        # only the chosen rows go through float64 (the others would round-trip exactly)
+        data = cloud.data.copy()
+        moved = data[chosen, :3].astype(np.float64)
+        moved += signs * params.offset
+        data[chosen, :3] = moved
+        return sample.with_points(PointCloud(data, cloud.channels))
 
 
 __all__ = [

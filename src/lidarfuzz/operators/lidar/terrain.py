@@ -10,6 +10,8 @@ from pydantic import Field
 
 from lidarfuzz.operators.base import Config, NonNegativeRange, Operator, Params, Relation, Target, uniform
 from lidarfuzz.operators.lidar.common import relabel_in_image
+from lidarfuzz.operators.lidar.geometric import CHUNK
+from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
 Range = tuple[float, float]
@@ -109,9 +111,15 @@ class Terrain(Operator[Scene, TerrainConfig, TerrainParams]):
             return sample
         points = sample.points
         if len(points):
-            xyz = points.xyz.astype(np.float64)
-            xyz[:, 2] += terrain_offset(params, xyz[:, 0], xyz[:, 1])
-            points = points.with_xyz(xyz.astype(np.float32))
+            # z + f(x, y) in float64, rounded once; x and y are not touched (they would round-trip
+            # float32 → float64 → float32 exactly), so no float64 copy of the cloud
+            data = points.data.copy()
+            for start in range(0, len(data), CHUNK):  # float64 temporaries of one cache-sized block
+                rows = data[start:start + CHUNK]
+                height = terrain_offset(params, rows[:, 0], rows[:, 1])
+                height += rows[:, 2]
+                rows[:, 2] = height
+            points = PointCloud(data, points.channels)
         boxes = sample.boxes
         if len(boxes):
             geometric = boxes.has_geometry

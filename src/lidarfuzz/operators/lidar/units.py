@@ -9,6 +9,7 @@ from pydantic import Field
 
 from lidarfuzz.operators.base import Config, Operator, Params, Relation, Target
 from lidarfuzz.operators.lidar.common import scene_intensity_scale
+from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
 Unit = Literal["unit", "percent", "uint8", "uint16"]
@@ -86,11 +87,17 @@ class IntensityUnits(Operator[Scene, IntensityUnitsConfig, IntensityUnitsParams]
             return sample
         scale, integer = UNITS[params.unit]
         cloud = sample.points
-        values = cloud.intensity.astype(np.float64) / params.source_scale * scale
+        # clip(round(i / source · scale), 0, scale): the same float64 steps in one buffer, rounded
+        # to float32 as they are written into the one copy of the data
+        values = cloud.intensity.astype(np.float64)
+        values /= params.source_scale
+        values *= scale
         if integer:
-            values = np.round(values)
-        values = np.clip(values, 0.0, scale)
-        points = cloud.with_channel("intensity", values.astype(np.float32))
+            np.round(values, out=values)
+        np.clip(values, 0.0, scale, out=values)
+        data = cloud.data.copy()
+        data[:, 3] = values
+        points = PointCloud(data, cloud.channels)
         if not params.declare_scale:
             return sample.replace(points=points)
         return sample.replace(points=points, metadata={**sample.metadata, "intensity_scale": scale})
