@@ -19,7 +19,11 @@ from tests.operators.golden import GOLDEN, SEVERITIES, describe, frames, operato
 
 RECORDED = json.loads(GOLDEN.read_text())
 #: operator -> the test bounding its approximation's error against the integral it replaced
-APPROXIMATED: dict[str, str] = {}
+APPROXIMATED: dict[str, str] = {
+    # each beam's expected particle count read from a table instead of integrated (issue 25)
+    "rain": "tests/operators/test_weather_fast.py",
+    "snow": "tests/operators/test_weather_fast.py",
+}
 CASES = [(name, severity, frame) for name in operators() for severity in SEVERITIES for frame in ("vlp16", "hdl64")]
 
 

@@ -26,6 +26,8 @@ else the one the frame's reader declared (``scene.metadata["intensity_scale"]``:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, ClassVar
 
 import numpy as np
@@ -81,25 +83,51 @@ def _scale(configured: float | None, scene: Scene) -> float:
 def _ranges(cloud: PointCloud) -> F64:
     """Each point's range: x² + y² + z² column by column in float32 (a float64 copy of the
     strided N×3 view costs more than the whole sum), the square root in float64."""
-    xyz = cloud.xyz
-    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return _block_ranges(cloud.data)
+
+
+def _block_ranges(data: NDArray[np.float32]) -> F64:
+    """:func:`_ranges` of a block of rows of a cloud's data (x, y, z its first three columns)."""
+    x, y, z = data[:, 0], data[:, 1], data[:, 2]
     return np.sqrt((x * x + y * y + z * z).astype(np.float64))
+
+
+_TINY = float(np.finfo(np.float64).tiny)
+#: Points per block of the per-point passes: the temporaries of a block (a few float64 arrays of
+#: this length, 256 KiB each) stay in cache and are reused, so a pass costs the same per point at
+#: 30k points as at 2M, instead of streaming a dozen fresh N-long temporaries through memory.
+_BLOCK = 32768
+
+
+def _blocks(n: int) -> list[slice]:
+    return [slice(start, min(start + _BLOCK, n)) for start in range(0, n, _BLOCK)]
 
 
 def _rescaled(cloud: PointCloud, keep: NDArray[np.bool_], ranges: F64, new_range: F64, intensity: F64,
               in_air: NDArray[np.bool_]) -> PointCloud:
     """The kept points, each moved along its own beam to ``new_range`` and given a new intensity;
     points whose return now comes from the air lose their label and instance. One float32 copy
-    of the kept rows; only the points whose range changed are rescaled (in float64)."""
+    of the kept rows; only the points whose range changed are rescaled (in float64). Where most
+    rows moved (rain's range noise moves them all), x, y and z are scaled column by column with
+    a factor of exactly 1 for the others — the same bytes, without the gathers and N×3
+    temporaries of a fancy-indexed update."""
     rows = np.flatnonzero(keep)
-    data = cloud.data[rows]
-    moved = np.flatnonzero(new_range[rows] != ranges[rows])
-    if len(moved):
-        source = rows[moved]
+    data = np.take(cloud.data, rows, axis=0)  # ~4× faster than cloud.data[rows], same bytes
+    source = np.flatnonzero(keep & (new_range != ranges))  # kept points that moved
+    if 4 * len(source) > len(rows):
+        kept_ranges, kept_new = np.take(ranges, rows), np.take(new_range, rows)
+        for block in _blocks(len(rows)):
+            factor = np.divide(kept_new[block], kept_ranges[block], out=np.ones(block.stop - block.start),
+                               where=kept_ranges[block] > 0)
+            moved_rows = data[block]
+            for axis in range(3):
+                moved_rows[:, axis] = moved_rows[:, axis] * factor
+    elif len(source):
+        moved = np.searchsorted(rows, source)  # their rows in the copy
         factor = np.divide(new_range[source], ranges[source], out=np.ones(len(source)), where=ranges[source] > 0)
         data[moved, :3] = data[moved, :3] * factor[:, None]
-    data[:, 3] = intensity[rows]
-    air = np.flatnonzero(in_air[rows])
+    data[:, 3] = np.take(intensity, rows)
+    air = np.searchsorted(rows, np.flatnonzero(in_air & keep))
     for name in ("label", "instance"):
         if cloud.has(name) and len(air):
             data[air, cloud.index(name)] = CHANNEL_DEFAULTS[name]
@@ -174,6 +202,31 @@ def fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F
     return r[:n_r0].astype(np.float64), np.asarray(integral, np.float64), np.asarray(distance, np.float64)
 
 
+@lru_cache(maxsize=64)
+def _cached_fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F64, F64, F64]:
+    """:func:`fog_soft_response`, built once per (α, τ_H, step): rebuilding it cost a millisecond
+    a call and a campaign replays the same few visibilities. Read-only, being shared."""
+    tables = fog_soft_response(alpha, tau_h, step)
+    for table in tables:
+        table.flags.writeable = False
+    return tables
+
+
+def _interp_near(ranges: F64, grid: F64, tables: tuple[F64, ...]) -> list[F64]:
+    """``np.interp(ranges, grid, table)`` for each table, interpolating only the points within the
+    grid: beyond its end every table is constant, and np.interp returns exactly its last value
+    there, so the result is the same to the bit at a fraction of the cost (most returns lie far
+    beyond the few metres the fog's soft response depends on)."""
+    near = np.flatnonzero(ranges < grid[-1])
+    results = []
+    for table in tables:
+        values = np.full(len(ranges), table[-1])
+        if len(near):
+            values[near] = np.interp(ranges[near], grid, table)
+        results.append(values)
+    return results
+
+
 class Fog(Operator[Scene, FogConfig, FogParams]):
     """Fog after Hahner et al., "Fog Simulation on Real LiDAR Point Clouds" (ICCV 2021).
 
@@ -245,29 +298,38 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
             return sample
         alpha, scale = params.alpha, params.intensity_scale
         beta = FOG_BACKSCATTER_PER_MOR * alpha / np.log(20.0)
-        r0_grid, integral, distance = fog_soft_response(alpha, params.tau_h_ns * 1e-9)
+        r0_grid, integral, distance = _cached_fog_soft_response(alpha, params.tau_h_ns * 1e-9)
 
-        ranges = _ranges(cloud)
-        power = np.clip(cloud.intensity.astype(np.float64) / scale, 0.0, None)  # clear-weather power, full scale 1
-        transmittance = np.exp(-2.0 * alpha * ranges)
-        hard = power * transmittance
         gain = beta * np.pi / FOG_REFERENCE_REFLECTIVITY * (2.0 / SPEED_OF_LIGHT)
-        soft = np.minimum(power * ranges**2 * gain * np.interp(ranges, r0_grid, integral), 1.0)
-        fog_range = np.interp(ranges, r0_grid, distance)
-
-        in_fog = (soft > hard) & (soft > params.threshold) & (fog_range < ranges)
-        # Every point of the frame was detected in clear weather: it is lost only when the fog's
-        # extinction outweighs its power margin.
-        margin = power_margin(cloud.intensity, ranges, scale=scale, detection_threshold=params.detection_threshold,
-                              draws=power_draws(params.seed, len(cloud)))
-        keep = in_fog | (margin * transmittance >= 1.0)
-        if not in_fog.any() and keep.all() and np.array_equal(hard, power):
+        n = len(cloud)
+        draws = power_draws(params.seed, n)
+        ranges, fog_range, intensity = np.empty(n), np.empty(n), np.empty(n)
+        in_fog, keep = np.empty(n, bool), np.empty(n, bool)
+        unattenuated = True  # every hard return keeps its power (no extinction at all)
+        # One pass, block by block (see _BLOCK): the same float64 arithmetic per point as over the
+        # whole cloud at once, so the same bytes.
+        for block in _blocks(n):
+            rows = cloud.data[block]
+            r = ranges[block] = _block_ranges(rows)
+            power = np.clip(rows[:, 3].astype(np.float64) / scale, 0.0, None)  # clear-weather power, full scale 1
+            transmittance = np.exp(-2.0 * alpha * r)
+            hard = power * transmittance
+            soft_integral, fog_range[block] = _interp_near(r, r0_grid, (integral, distance))
+            soft = np.minimum(power * r**2 * gain * soft_integral, 1.0)
+            fog = in_fog[block] = (soft > hard) & (soft > params.threshold) & (fog_range[block] < r)
+            # Every point of the frame was detected in clear weather: it is lost only when the fog's
+            # extinction outweighs its power margin.
+            margin = power_margin(rows[:, 3], r, scale=scale, detection_threshold=params.detection_threshold,
+                                  draws=draws[block])
+            keep[block] = fog | (margin * transmittance >= 1.0)
+            unattenuated = unattenuated and np.array_equal(hard, power)
+            intensity[block] = np.where(fog, soft, hard) * scale
+        if not in_fog.any() and keep.all() and unattenuated:
             return sample
         rng = np.random.default_rng(params.seed)
         new_range = ranges.copy()
         new_range[in_fog] = np.minimum(fog_range[in_fog] + FOG_RETURN_JITTER * rng.beta(2.0, 20.0, int(in_fog.sum())),
                                        ranges[in_fog])
-        intensity = np.where(in_fog, soft, hard) * scale
         return sample.with_points(_rescaled(cloud, keep, ranges, new_range, intensity, in_fog))
 
 
@@ -277,10 +339,177 @@ WATER_REFLECTANCE = ((1.328 - 1) / (1.328 + 1)) ** 2
 ICE_REFLECTANCE = ((1.3031 - 1) / (1.3031 + 1)) ** 2
 #: Smallest particle diameter drawn, mm (LISA).
 MIN_DIAMETER = 0.05
-#: Geometric nodes of the per-beam integral over the range of the winning particles.
-_NODES = (np.geomspace(1.0, 41.0, 28) - 1.0) / 40.0
 #: Particles farther than this cannot outshine the threshold (diameter needed ∝ r²), metres.
 _PARTICLE_REACH = 40.0
+#: Range step of the expected-count table, metres, and its nodes per decade of the bar.
+_TABLE_RANGE_STEP = 0.05
+_TABLE_NODES_PER_DECADE = 40
+#: Gauss–Legendre nodes and weights on [0, 1] for each cell of the table (3 points: exact for
+#: polynomials of degree 5; the nodes are within 10⁻⁵ of the integral even in the cells where
+#: d_need reaches D_min and the integrand has a kink, far under the interpolation error).
+_GAUSS_NODES = (1.0 + np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)])) / 2.0
+_GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
+
+
+@dataclass(frozen=True)
+class ParticleTable:
+    """The expected number of particles able to outshine a beam's bar, tabulated once per rain
+    (or snow) configuration.
+
+    For a beam whose return must beat the power ``bar`` (the attenuated hard return, at least the
+    receiver threshold), the particles that can win form a thinned Poisson process along the beam
+    with density ``ν(r; bar) = (π θ²/4) (N₀/Λ) r² exp(−Λ d_need(r))`` per metre, where
+    ``d_need = max(10³ θ r √min(need, 1), D_min)`` mm and ``need = (bar/ρ_p) r² exp(2αr)``, and
+    none where ``need ≥ 1`` (beyond ``r_max(bar)``, no drop covering the beam is bright enough).
+    ``counts[i, j]`` is ``∫ ν dr`` from ``min_range`` to ``ranges[j]`` for ``bar = exp(log_bars[i])``,
+    each cell integrated by 3-point Gauss–Legendre up to the cut-off ``r_max``; a beam reads its
+    expected count by bilinear interpolation in (ln bar, reach). The lowest row is the receiver
+    threshold (no bar is lower); beyond the highest row no particle can win at ``min_range``.
+
+    Why a table: the integral used to be taken per point (28 nodes each, ten N × 28 float64
+    temporaries a call, 80 % of the operator's time) although it depends on two numbers only.
+    The table (about 93 × 771 nodes: 40 per decade of bar, 5 cm in range) costs ~2.5 ms to build
+    and is cached per configuration. Its error is bounded in ``tests/operators/test_weather_fast.py``
+    (linear interpolation of a cumulative integral is off by at most h·osc(ν)/4 per direction):
+    within 0.1 % of the exact frame total, and the drawn set of affected points within 1 % (total
+    variation) of the law the exact integral gives — closer than the old 28-node quadrature, which
+    was 0.5-1.5 % off the exact total.
+    """
+
+    log_bars: F64
+    ranges: F64
+    counts: F64
+    alpha: float
+    particle_reflectance: float
+
+    @property
+    def log_bar_step(self) -> float:
+        return float(self.log_bars[1] - self.log_bars[0])
+
+    def locate(self, bar: F64, reach: F64) -> tuple[NDArray[np.intp], F64, F64]:
+        """(flat index of the lower-left table node, weight along ln bar, weight along the range)."""
+        n_bars, n_ranges = self.counts.shape
+        x = (np.log(bar) - self.log_bars[0]) * (1.0 / self.log_bar_step)
+        np.clip(x, 0.0, n_bars - 1.0, out=x)
+        y = (reach - self.ranges[0]) * (1.0 / _TABLE_RANGE_STEP)
+        np.clip(y, 0.0, n_ranges - 1.0, out=y)
+        i = np.minimum(x.astype(np.intp), n_bars - 2)
+        j = np.minimum(y.astype(np.intp), n_ranges - 2)
+        x -= i
+        y -= j
+        i *= n_ranges
+        i += j
+        return i, x, y
+
+    def expected(self, bar: F64, reach: F64) -> F64:
+        """The expected count of winning particles of each beam (bilinear in ln bar and reach)."""
+        flat, wx, wy = self.locate(bar, reach)
+        table = self.counts.ravel()
+        n_ranges = self.counts.shape[1]
+        low = table[flat]
+        low += (table[flat + 1] - low) * wy
+        high = table[flat + n_ranges]
+        high += (table[flat + n_ranges + 1] - high) * wy
+        high -= low
+        high *= wx
+        low += high
+        return low
+
+    def draw_ranges(self, bar: F64, reach: F64, u: F64) -> F64:
+        """Ranges of particles on beams (``bar``, ``reach``), one per uniform ``u`` in [0, 1): the
+        inverse of the beam's cumulative count (interpolated in ln bar, linear within a cell, i.e.
+        uniform density within a cell, as the integral's quadrature assumed before)."""
+        flat, wx, _ = self.locate(bar, reach)
+        n_ranges = self.counts.shape[1]
+        row = flat - flat % n_ranges
+        top = self.counts.ravel()
+
+        def cumulative(k: NDArray[np.intp]) -> F64:
+            return (1.0 - wx) * top[row + k] + wx * top[row + n_ranges + k]
+
+        target = u * self.expected(bar, reach)
+        # Binary search for the first node whose cumulative count reaches the target.
+        low = np.zeros(len(u), np.intp)
+        high = flat % n_ranges + 1
+        while True:
+            active = low < high
+            if not active.any():
+                break
+            mid = (low + high) // 2
+            below = cumulative(mid) < target
+            low = np.where(active & below, mid + 1, low)
+            high = np.where(active & ~below, mid, high)
+        k = np.clip(low, 1, n_ranges - 1)
+        start, end = cumulative(k - 1), cumulative(k)
+        fraction = np.clip(np.divide(target - start, end - start, out=np.zeros(len(u)), where=end > start), 0.0, 1.0)
+        # The count lies before the beam's cut-off: the cell it cuts is spread up to it, and what
+        # the interpolation between two bars puts beyond it (within the table's error) is drawn
+        # just before it — a particle past r_max could not outshine the bar it was drawn to beat.
+        r_max = cutoff_range(bar, self.alpha, self.particle_reflectance) * (1.0 - 1e-12)
+        cell_start = self.ranges[k - 1]
+        cell_end = np.minimum(cell_start + _TABLE_RANGE_STEP, np.maximum(r_max, cell_start))
+        return np.minimum(np.minimum(cell_start + fraction * (cell_end - cell_start), reach), r_max)
+
+
+def cutoff_range(bar: F64, alpha: float, rho_p: float) -> F64:
+    """``r_max(bar)``: where ``(bar/ρ_p) r² exp(2αr) = 1``, i.e. ``r e^{αr} = √(ρ_p/bar)``
+    (Newton from the α = 0 solution, which overshoots: the iteration is monotone)."""
+    target = np.sqrt(rho_p / bar)
+    r = target.copy()
+    for _ in range(50):
+        g = r * np.exp(alpha * r)
+        step = (g - target) / (np.exp(alpha * r) * (1.0 + alpha * r))
+        r = r - step
+        if np.all(np.abs(step) <= 1e-12 * r):
+            break
+    return r
+
+
+@lru_cache(maxsize=16)
+def particle_table(n0: float, lam: float, alpha: float, rho_p: float, theta: float, min_range: float,
+                   p_min: float) -> ParticleTable | None:
+    """The :class:`ParticleTable` of one configuration (cached: a campaign replays the same
+    rates), or None where no particle can win (everything beyond reach or the blind zone)."""
+    end = max(_PARTICLE_REACH, min_range)
+    # Beyond this bar not even a drop at the blind zone's edge covering the whole beam wins.
+    edge = max(min_range, _TABLE_RANGE_STEP)
+    bar_high = rho_p / (edge * edge * np.exp(2.0 * alpha * edge))
+    if end <= min_range or bar_high <= p_min:
+        return None
+    decades = np.log10(bar_high / p_min)
+    n_bars = max(int(np.ceil(decades * _TABLE_NODES_PER_DECADE)) + 1, 2)
+    log_bars = np.linspace(np.log(p_min), np.log(bar_high), n_bars)
+    n_ranges = int(np.ceil((end - min_range) / _TABLE_RANGE_STEP)) + 1
+    ranges = min_range + np.arange(n_ranges, dtype=np.float64) * _TABLE_RANGE_STEP
+    bars = np.exp(log_bars)
+    r_max = cutoff_range(bars, alpha, rho_p)
+    # Inside the cut-off d_need = max(√(bar/ρ_p) · 10³ θ r² e^{αr}, D_min): an outer product of a
+    # factor per bar and one per range, so a full cell costs one exponential per Gauss node.
+    root = np.sqrt(bars / rho_p)
+    left = ranges[:-1]
+    cells = np.zeros((n_bars, n_ranges - 1))
+    for node, weight in zip(_GAUSS_NODES, _GAUSS_WEIGHTS, strict=True):
+        r = left + node * _TABLE_RANGE_STEP
+        d_need = np.maximum(np.multiply.outer(root, 1e3 * theta * r * r * np.exp(alpha * r)), MIN_DIAMETER)
+        cells += (weight * _TABLE_RANGE_STEP) * (r * r) * np.exp(-lam * d_need)
+    # No particle wins beyond the cut-off: cells past it hold nothing, the one it cuts only its part.
+    full = ranges[None, 1:] <= r_max[:, None]
+    partial_row = np.flatnonzero((r_max > ranges[0]) & (r_max < ranges[-1]))
+    partial_col = np.searchsorted(ranges, r_max[partial_row], side="right") - 1  # ranges[col] ≤ r_max < ranges[col+1]
+    cells[~full] = 0.0
+    start = left[partial_col]
+    width = np.maximum(r_max[partial_row] - start, 0.0)
+    partial = np.zeros(len(partial_row))
+    for node, weight in zip(_GAUSS_NODES, _GAUSS_WEIGHTS, strict=True):
+        r = start + node * width
+        d_need = np.maximum(root[partial_row] * 1e3 * theta * r * r * np.exp(alpha * r), MIN_DIAMETER)
+        partial += weight * width * r * r * np.exp(-lam * d_need)
+    cells[partial_row, partial_col] = partial
+    cells *= np.pi * theta**2 / 4.0 * n0 / lam
+    counts = np.zeros((n_bars, n_ranges))
+    np.cumsum(cells, axis=1, out=counts[:, 1:])
+    counts.flags.writeable = False  # shared through the cache
+    return ParticleTable(log_bars, ranges, counts, alpha, rho_p)
 
 
 class PrecipitationConfig(Config):
@@ -347,67 +576,78 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
         n0, lam = self.distribution(params.rate)
         alpha = self.extinction(params.rate)
         rho_p = self.particle_reflectance
-        theta = np.tan(params.beam_divergence)
+        theta = float(np.tan(params.beam_divergence))
         p_min = params.detection_threshold / 100.0**2
+        n = len(cloud)
 
-        ranges = _ranges(cloud)
-        # Every point of the frame was detected: its clear-weather signal (ρ_e / r², the units of
-        # p_min) is its power margin times the threshold.
-        clear = p_min * power_margin(cloud.intensity, ranges, scale=params.intensity_scale,
-                                     detection_threshold=params.detection_threshold,
-                                     draws=power_draws(params.seed, len(cloud)))
-        hard = clear * np.exp(-2.0 * alpha * ranges)
-        bar = np.maximum(hard, p_min)  # what a particle's return must beat
+        table = particle_table(n0, lam, alpha, rho_p, theta, params.min_range, p_min)
+        draws = power_draws(params.seed, n)
+        ranges, bar, reach, expected = np.empty(n), np.empty(n), np.empty(n), np.zeros(n)
+        intensity, sigma, lost = np.empty(n), np.empty(n), np.empty(n, bool)
+        noise_scale = params.range_accuracy**2 * p_min / 2.0
+        # One pass, block by block (see _BLOCK), over everything a point needs before the draws.
+        for block in _blocks(n):
+            rows = cloud.data[block]
+            r = ranges[block] = _block_ranges(rows)
+            # Every point of the frame was detected: its clear-weather signal (ρ_e / r², the units
+            # of p_min) is its power margin times the threshold.
+            clear = power_margin(rows[:, 3], r, scale=params.intensity_scale,
+                                 detection_threshold=params.detection_threshold, draws=draws[block])
+            clear *= p_min
+            transmittance = np.exp(r * (-2.0 * alpha))
+            hard = clear * transmittance
+            lost[block] = hard < p_min
+            b = bar[block] = np.maximum(hard, p_min)  # what a particle's return must beat
+            np.multiply(rows[:, 3], transmittance, out=intensity[block])
+            # Extra range noise from the weaker signal: σ² = dR² (1/(2 SNR) − 1/(2 SNR_clear)), SNR = P/P_min.
+            s = np.reciprocal(np.maximum(hard, _TINY, out=hard), out=hard)  # finite noise where hard underflows
+            s -= np.reciprocal(clear, out=clear)
+            np.maximum(s, 0.0, out=s)
+            s *= noise_scale
+            s[lost[block]] = 0.0  # a lost return gets no noise
+            np.sqrt(s, out=sigma[block])
+            if table is not None:
+                # Particles that can beat the bar form a thinned Poisson process along each beam
+                # (see ParticleTable): its expected count is read from the configuration's table.
+                np.minimum(r, _PARTICLE_REACH, out=reach[block])
+                np.maximum(reach[block], params.min_range, out=reach[block])
+                expected[block] = table.expected(b, reach[block])
 
-        # Particles that can beat the bar form a thinned Poisson process along each beam: at range r
-        # a drop of diameter D returns ρ_p exp(−2αr) min(D/D_b, 1)² / r², D_b = θ r the beam's width.
-        reach = np.clip(np.minimum(ranges, _PARTICLE_REACH), params.min_range, None)
-        r = params.min_range + (reach - params.min_range)[:, None] * _NODES[None, :]  # N × K nodes
-        r2 = r * r
-        need = (bar / rho_p)[:, None] * r2 * np.exp((2.0 * alpha) * r)  # (D/D_b)² needed
-        possible = need < 1.0
-        d_need = np.maximum((1e3 * theta) * r * np.sqrt(np.minimum(need, 1.0)), MIN_DIAMETER)  # mm
-        # Winners per metre: the beam's cross-section π (θ r / 2)² times the drops larger than d_need.
-        density = (np.pi * theta**2 / 4.0 * n0 / lam) * r2 * np.exp(-lam * d_need)
-        density[~possible] = 0.0
-        steps = np.diff(r, axis=1)
-        cells = 0.5 * (density[:, 1:] + density[:, :-1]) * steps
-        expected = cells.sum(axis=1)
-        count = rng.poisson(expected)
-
-        scattered = np.zeros(len(cloud), bool)
+        scattered = np.zeros(n, bool)
         new_range = ranges.copy()
-        intensity = cloud.intensity.astype(np.float64) * np.exp(-2.0 * alpha * ranges)
-        beams = np.flatnonzero(count)
-        if len(beams):
-            owner = np.repeat(beams, count[beams])
-            cdf = np.cumsum(cells[owner], axis=1)
-            u = rng.random(len(owner)) * cdf[:, -1]
-            cell = np.minimum((cdf < u[:, None]).sum(axis=1), cdf.shape[1] - 1)
-            start = np.where(cell > 0, cdf[np.arange(len(owner)), cell - 1], 0.0)
-            fraction = np.clip((u - start) / np.maximum(cells[owner, cell], 1e-300), 0.0, 1.0)
-            r_p = r[owner, cell] + fraction * steps[owner, cell]
+        # Independent Poisson counts per beam, drawn as one Poisson total spread over the beams in
+        # proportion to their expectations: the same distribution, without N Poisson draws.
+        cumulative = np.cumsum(expected)
+        total = float(cumulative[-1])
+        count = int(rng.poisson(total)) if table is not None and total > 0 else 0
+        if table is not None and count:
+            owner = np.minimum(np.searchsorted(cumulative, rng.random(count) * total, side="right"), n - 1)
+            r_p = table.draw_ranges(bar[owner], reach[owner], rng.random(count))
             need_p = bar[owner] * r_p**2 * np.exp(2.0 * alpha * r_p) / rho_p
             d_min = np.maximum(1e3 * theta * r_p * np.sqrt(np.minimum(need_p, 1.0)), MIN_DIAMETER)
-            diameter = d_min + rng.exponential(1.0 / lam, len(owner))  # memoryless tail of N(D)
+            diameter = d_min + rng.exponential(1.0 / lam, count)  # memoryless tail of N(D)
             echo = rho_p * np.exp(-2.0 * alpha * r_p) * np.minimum((diameter / (1e3 * theta * r_p)) ** 2, 1.0)
             power = echo / r_p**2
             order = np.lexsort((-power, owner))  # strongest particle of each beam first
             first = np.ones(len(order), bool)
             first[1:] = owner[order][1:] != owner[order][:-1]
             best = order[first]
-            winner = owner[best][power[best] > bar[owner[best]]]
             best = best[power[best] > bar[owner[best]]]
+            winner = owner[best]
             scattered[winner] = True
             new_range[winner] = r_p[best]
             intensity[winner] = echo[best] * params.intensity_scale
+            sigma[winner] = 0.0  # a particle's return is not the hard return: no extra noise
+            lost[winner] = False
 
-        lost = ~scattered & (hard < p_min)
-        kept_hard = ~scattered & ~lost
-        if params.range_accuracy > 0 and kept_hard.any():
-            # Extra range noise from the weaker signal: σ² = dR² (1/(2 SNR) − 1/(2 SNR_clear)), SNR = P/P_min.
-            var = params.range_accuracy**2 * p_min / 2.0 * (1.0 / hard[kept_hard] - 1.0 / clear[kept_hard])
-            new_range[kept_hard] += rng.normal(0.0, 1.0, int(kept_hard.sum())) * np.sqrt(np.maximum(var, 0.0))
+        if params.range_accuracy > 0:
+            # One normal draw per point (those that get no noise have σ = 0), block by block from
+            # one stream: the same draws as one call for all points.
+            noise = np.empty(min(n, _BLOCK))
+            for block in _blocks(n):
+                z = rng.standard_normal(out=noise[: block.stop - block.start])
+                z *= sigma[block]
+                new_range[block] += z
         return sample.with_points(_rescaled(cloud, ~lost, ranges, new_range, intensity, scattered))
 
 
@@ -603,16 +843,20 @@ class WetGround(Operator[Scene, WetGroundConfig, WetGroundParams]):
         escape = 0.93 / WATER_INDEX**2
         darkening = escape / (1.0 - np.minimum(rho, 1.0) * (1.0 - escape))
         factor = (1.0 - params.wetness) + params.wetness * (1.0 - _fresnel(cos_i)) ** 2 * darkening
-        intensity = cloud.intensity.copy()
-        intensity[index] *= factor.astype(np.float32)
-        dropped = index[rho * factor < floor]  # margin ρ_e / ρ_det times the film's factor under 1
-        if len(dropped):  # one copy of the kept rows
+        wet = rows[:, 3] * factor.astype(np.float32)  # the ground's new intensities
+        lost = rho * factor < floor  # margin ρ_e / ρ_det times the film's factor under 1
+        # One copy of the kept rows; only the ground rows' intensity is then written.
+        if lost.any():
+            dropped = index[lost]
             keep = np.ones(len(cloud), bool)
             keep[dropped] = False
-            data, intensity = cloud.data[keep], intensity[keep]
+            data = np.compress(keep, cloud.data, axis=0)  # ~3× faster than cloud.data[keep], same bytes
+            # Every dropped row is a ground row: a kept ground row moves up by the lost ones before it.
+            kept = ~lost
+            data[index[kept] - np.cumsum(lost)[kept], 3] = wet[kept]
         else:
             data = cloud.data.copy()
-        data[:, 3] = intensity
+            data[index, 3] = wet
         return sample.with_points(PointCloud(data, cloud.channels))
 
 
