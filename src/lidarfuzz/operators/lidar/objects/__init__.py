@@ -12,7 +12,10 @@ Occlusion after a move or an insertion is recomputed with a spherical range imag
 (z-buffer) at the sensor's own angular resolution, estimated from the data around the
 object: one row per beam (from the ``ring`` channel, or elevation clusters when there is
 none) and the azimuth step between neighbouring returns of a beam. Only the wedge of
-azimuth around the object is rasterised: one cheap pass over the frame picks it out.
+azimuth around the object is rasterised. Every neighbourhood (a box, a ground ring, a wedge)
+is found through a per-frame index (points bucketed by a square grid and by azimuth, built once
+per point cloud and cached while it lives, with the ground fits and object points found on it,
+so ``sample`` and ``apply`` share them); the results are exactly those of a scan of all points.
 A moved object is judged against where the frame observed it: a grid estimated from a real
 scan (no ring channel, per-laser offsets) is coarser than the scan, so only what the move
 changes — points it packs into one beam and firing, returns it newly hides or is newly hidden

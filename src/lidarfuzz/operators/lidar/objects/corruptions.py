@@ -72,7 +72,7 @@ class ObjectRemoval(Operator[Scene, ObjectRemovalConfig, ObjectRemovalParams]):
         _check_objects(self.name, sample, params.objects, params.track_ids)
         cloud, arr = sample.points, sample.boxes.as_array()
         rng = np.random.default_rng(params.seed)
-        pts = _Pts(cloud.xyz)
+        pts = _Pts.of(cloud)
         drop = np.zeros(len(cloud), bool)
         fills = []
         for i in params.objects:
@@ -121,7 +121,7 @@ class ObjectCutout(Operator[Scene, ObjectCutoutConfig, ObjectCutoutParams]):
     def sample(self, rng: np.random.Generator, sample: Scene) -> ObjectCutoutParams:
         chosen = _choose_objects(rng, sample, self.config, _draw_count(rng, self.config.count_range))
         arr, xyz = sample.boxes.as_array(), sample.points.xyz
-        pts = _Pts(xyz)
+        pts = _Pts.of(sample.points)
         centers, sizes = [], []
         for i in chosen:
             size = arr[i, 3:6] * uniform(rng, self.config.fraction_range)
@@ -142,7 +142,7 @@ class ObjectCutout(Operator[Scene, ObjectCutoutConfig, ObjectCutoutParams]):
             return sample
         _check_objects(self.name, sample, params.objects, params.track_ids)
         xyz, arr = sample.points.xyz, sample.boxes.as_array()
-        pts = _Pts(xyz)
+        pts = _Pts.of(sample.points)
         drop = np.zeros(len(xyz), bool)
         for i, centre, size in zip(params.objects, params.centers, params.sizes, strict=True):
             own = _object_points(pts, arr[i], _local_ground(pts, arr[i]), sample.points,
@@ -196,7 +196,7 @@ class ObjectDensityLoss(Operator[Scene, ObjectDensityConfig, ObjectDensityParams
             return sample
         _check_objects(self.name, sample, params.objects, params.track_ids)
         xyz, arr = sample.points.xyz, sample.boxes.as_array()
-        pts = _Pts(xyz)
+        pts = _Pts.of(sample.points)
         rng = np.random.default_rng(params.seed)
         drop = np.zeros(len(xyz), bool)
         for i in params.objects:
@@ -245,8 +245,8 @@ class ObjectJitter(Operator[Scene, ObjectJitterConfig, ObjectJitterParams]):
         if params.is_identity() or params.sigma == 0:
             return sample
         _check_objects(self.name, sample, params.objects, params.track_ids)
-        xyz, arr = sample.points.xyz, sample.boxes.as_array()
-        pts = _Pts(xyz)
+        arr = sample.boxes.as_array()
+        pts = _Pts.of(sample.points)
         rng = np.random.default_rng(params.seed)
         own = [_object_points(pts, arr[i], _local_ground(pts, arr[i]), sample.points,
                               int(sample.boxes.track_ids[i])) for i in params.objects]

@@ -26,8 +26,11 @@ from lidarfuzz.operators.lidar.objects.support import (
     _clutter,
     _draw_count,
     _footprint_free,
+    _frozen,
+    _Grown,
     _intensity_scale,
     _local_ground,
+    _memoised,
     _object_points,
     _occlude,
     _on_roi,
@@ -159,7 +162,12 @@ class ObjectLibrary:
         return library
 
     def fingerprint(self) -> str:
-        return hashlib.sha1(self.sources.tobytes() + self.points.tobytes()).hexdigest()[:12]
+        """A short hash of the entries (their sources and points), computed once per library."""
+        cached: str | None = self.__dict__.get("_fingerprint")
+        if cached is None:
+            cached = hashlib.sha1(self.sources.tobytes() + self.points.tobytes()).hexdigest()[:12]
+            object.__setattr__(self, "_fingerprint", cached)  # a library is not changed once built
+        return cached
 
 
 _LIBRARIES: dict[str, ObjectLibrary] = {}
@@ -214,13 +222,20 @@ class ObjectInsertionParams(Params):
 
 @dataclass(frozen=True)
 class _Inserted:
-    """A frame with one more object's points: the new cloud, which of its rows are the object's,
-    and how many returns the sensor got from it alone (visibility's denominator)."""
+    """A frame with one more object's points: the grown frame's changes (not the frame itself: this
+    is kept in the frame's memo, which must neither keep the frame alive nor hold a copy of it), which
+    of the objects inserted before keep their points, how many of this object's points are in, and
+    how many returns the sensor got from it alone (visibility's denominator)."""
 
-    cloud: PointCloud
-    keep_background: NDArray[np.bool_]
+    dropped: NDArray[np.intp]
+    added: NDArray[np.float32]
+    pts: _Pts
+    keep_added: NDArray[np.bool_]  # over the earlier insertions' rows
     visible: int
     sensed: int
+
+    def grown(self, frame: PointCloud) -> _Grown:
+        return _Grown(frame, self.dropped, self.added, self.pts)
 
 
 def _camera_azimuths(calib: KittiCalibration) -> tuple[float, float]:
@@ -304,21 +319,24 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         if len(entries) == 0:
             return ObjectInsertionParams(insertions=(), library=library.fingerprint(),
                                          reason=f"the library has no entries of classes {self.config.classes}")
-        boxes = sample.boxes
-        ids = np.concatenate([boxes.track_ids, sample.points.channel("instance").astype(np.int64)
-                              if sample.points.has("instance") and len(sample.points) else []])
-        next_id = int(ids.max(initial=-1)) + 1
+        points = sample.points
+        labelled = -1
+        if points.has("instance") and len(points):
+            labelled = _memoised(_Pts.of(points), "instance_top",
+                                 lambda: int(points.channel("instance").astype(np.int64).max()))
+        next_id = max(int(np.max(sample.boxes.track_ids, initial=-1)), labelled) + 1
         inserted: list[Insertion] = []
         refused: Counter[str] = Counter()
-        cloud, owner = sample.points, np.full(len(sample.points), -1, np.int64)
+        # owner: which inserted object each added row is (the frame's own rows are nobody's)
+        grown, owner = _Grown.start(points), np.zeros(0, np.int64)
         for _ in range(count):
-            found = self._place(rng, sample, cloud, owner, entries, inserted, next_id, refused)
+            found = self._place(rng, sample, grown, owner, entries, inserted, next_id, refused)
             if found is None:
                 break  # the next object would meet the same crowded frame
             insertion, step = found
             inserted.append(insertion)
-            owner = np.concatenate([owner[step.keep_background], np.full(step.visible, len(inserted) - 1)])
-            cloud = step.cloud
+            owner = np.concatenate([owner[step.keep_added], np.full(step.visible, len(inserted) - 1)])
+            grown = step.grown(points)
             next_id += 1
         reason = ""
         if len(inserted) < count:
@@ -330,12 +348,13 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
     def _box(self, insertion: Insertion) -> F64:
         return np.array([*insertion.center, *self.library.sizes[insertion.entry], insertion.yaw])
 
-    def _place(self, rng: np.random.Generator, sample: Scene, cloud: PointCloud, owner: NDArray[np.int64],
+    def _place(self, rng: np.random.Generator, sample: Scene, grown: _Grown, owner: NDArray[np.int64],
                entries: NDArray[np.intp], placed: list[Insertion], track_id: int,
                refused: Counter[str]) -> tuple[Insertion, _Inserted] | None:
-        """A place for one more object in ``cloud`` (the frame with ``placed`` already inserted,
-        ``owner`` their rows), or None; ``refused`` counts why places were turned down."""
-        library, pts, origin = self.library, _Pts(sample.points.xyz), _Pts(cloud.xyz)
+        """A place for one more object in ``grown`` (the frame with ``placed`` already inserted,
+        ``owner`` the object of each of its added rows), or None; ``refused`` counts why places
+        were turned down."""
+        library, pts = self.library, _Pts.of(sample.points)
         others = Boxes3D.from_array(np.array([self._box(p) for p in placed]).reshape(-1, 7), ["Car"] * len(placed))
         occupied = Boxes3D.concat([sample.boxes, others])
         lo, hi = np.deg2rad(self._azimuths_deg())
@@ -373,12 +392,11 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
             insertion = Insertion(entry=entry, source=str(library.sources[entry]),
                                   center=tuple(float(v) for v in box[:3]), yaw=yaw,  # type: ignore[arg-type]
                                   track_id=track_id)
-            step = self._insert(cloud, origin, insertion)
+            step = self._insert(grown, tuple(placed), insertion)
             if step.visible < min_points:
                 refused[f"fewer than {min_points} points seen (hidden or out of the sensor's view)"] += 1
                 continue
-            survivors = np.bincount(owner[step.keep_background][owner[step.keep_background] >= 0],
-                                    minlength=len(placed))
+            survivors = np.bincount(owner[step.keep_added], minlength=len(placed))
             if len(placed) and survivors.min() < min_points:
                 refused["would hide an object inserted before"] += 1
                 continue
@@ -397,31 +415,36 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         distance = self.library.ranges[entry] * uniform(rng, self.config.distance_ratio_range)
         return entry, float(distance), uniform(rng, (lo, hi))
 
-    def _insert(self, cloud: PointCloud, pts: _Pts, ins: Insertion) -> _Inserted:
-        """``cloud`` with the entry's points placed as ``ins`` says, occlusion applied both ways."""
+    def _insert(self, grown: _Grown, placed: tuple[Insertion, ...], ins: Insertion) -> _Inserted:
+        """``grown`` (the frame with ``placed`` inserted) with the entry's points placed as ``ins``
+        says, occlusion applied both ways (computed once per frame, library and insertions:
+        ``apply`` finds what ``sample`` placed)."""
+        key = ("insert", self.library.fingerprint(), placed, ins)
+        return _memoised(_Pts.of(grown.frame), key, lambda: self._inserted(grown, ins))
+
+    def _inserted(self, grown: _Grown, ins: Insertion) -> _Inserted:
         library = self.library
         local = library.entry_points(ins.entry).astype(np.float64)
         new_xyz = local[:, :3] @ _rotation_z(ins.yaw).T + np.asarray(ins.center)
         steps = library.angular_steps[ins.entry]
         ratio = library.ranges[ins.entry] / max(float(np.hypot(*ins.center[:2])), 1e-3)
-        occlusion = _occlude(cloud, pts, new_xyz, ratio, (float(steps[0]), float(steps[1])))
-        channels = cloud.channels
-        data = np.zeros((len(new_xyz), len(channels)), np.float32)
+        occlusion = _occlude(grown, grown.pts, new_xyz, ratio, (float(steps[0]), float(steps[1])))
+        data = np.zeros((len(new_xyz), len(grown.channels)), np.float32)
         data[:, :3] = new_xyz
-        data[:, 3] = local[:, 3] * _intensity_scale(cloud)
-        if cloud.has("ring"):
-            data[:, cloud.index("ring")] = occlusion.ring
-        if cloud.has("time"):
-            data[:, cloud.index("time")] = occlusion.time if occlusion.time is not None else 0.0
-        if cloud.has("label"):
+        data[:, 3] = local[:, 3] * grown.intensity_scale()
+        if grown.has("ring"):
+            data[:, grown.index("ring")] = occlusion.ring
+        if grown.has("time"):
+            data[:, grown.index("time")] = occlusion.time if occlusion.time is not None else 0.0
+        if grown.has("label"):
             semantic = OBJECT_SEMANTIC.get(str(library.classes[ins.entry]))
-            data[:, cloud.index("label")] = SEMANTIC_ID.get(semantic, 0) if semantic else 0
-        if cloud.has("instance"):
-            data[:, cloud.index("instance")] = ins.track_id
-        merged = PointCloud(np.concatenate([_rows(cloud.data, occlusion.keep_background),
-                                            _rows(data, occlusion.keep_new)]), channels)
-        return _Inserted(merged, occlusion.keep_background, int(np.count_nonzero(occlusion.keep_new)),
-                         int(np.count_nonzero(occlusion.sensed)))
+            data[:, grown.index("label")] = SEMANTIC_ID.get(semantic, 0) if semantic else 0
+        if grown.has("instance"):
+            data[:, grown.index("instance")] = ins.track_id
+        after = grown.grow(occlusion.keep_background, _rows(data, occlusion.keep_new))
+        return _Inserted(_frozen(after.dropped), _frozen(after.added), after.pts,
+                         _frozen(occlusion.keep_background[grown.frame_rows:].copy()),  # not a view of it all
+                         int(np.count_nonzero(occlusion.keep_new)), int(np.count_nonzero(occlusion.sensed)))
 
     def apply(self, sample: Scene, params: ObjectInsertionParams) -> Scene:
         if params.is_identity():
@@ -430,19 +453,19 @@ class ObjectInsertion(Operator[Scene, ObjectInsertionConfig, ObjectInsertionPara
         if params.library != library.fingerprint():
             raise ValueError(f"{self.name}: params were drawn from object library {params.library}, "
                              f"this operator has {library.fingerprint()} (configure the same library path)")
-        cloud = sample.points
-        owner = np.full(len(cloud), -1, np.int64)
+        grown, owner = _Grown.start(sample.points), np.zeros(0, np.int64)  # owner: as in sample
         sensed = []
         for k, ins in enumerate(params.insertions):
             if not (0 <= ins.entry < len(library)) or library.sources[ins.entry] != ins.source:
                 raise ValueError(f"{self.name}: library entry {ins.entry} is not {ins.source!r}")
-            step = self._insert(cloud, _Pts(cloud.xyz), ins)
-            owner = np.concatenate([owner[step.keep_background], np.full(step.visible, k)])
-            cloud = step.cloud
+            step = self._insert(grown, params.insertions[:k], ins)
+            owner = np.concatenate([owner[step.keep_added], np.full(step.visible, k)])
+            grown = step.grown(sample.points)
             sensed.append(step.sensed)
+        cloud = grown.cloud()
         # Occlusion as the simulator labels it: the share of the returns the object would give
         # alone that it gives in the scene (later insertions may hide part of earlier ones).
-        visible = np.bincount(owner[owner >= 0], minlength=len(params.insertions))
+        visible = np.bincount(owner, minlength=len(params.insertions))
         visibility = visible / np.maximum(np.asarray(sensed), 1)
         added = Boxes3D.from_array(np.array([self._box(ins) for ins in params.insertions]),
                                    [str(library.classes[ins.entry]) for ins in params.insertions],

@@ -28,7 +28,7 @@ from lidarfuzz.operators.lidar.objects.support import (
     _on_roi,
     _Pts,
     _rotation_z,
-    _rows,
+    _stack_rows,
 )
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
 from lidarfuzz.scene.points import PointCloud
@@ -67,8 +67,7 @@ def _move_points(cloud: PointCloud, pts: _Pts, old: NDArray[np.intp], new_xyz: F
         moved[:, ring] = np.where(occlusion.same_row, moved[:, ring], occlusion.ring)
     if cloud.has("time") and occlusion.time_shift is not None:
         moved[:, cloud.index("time")] += occlusion.time_shift.astype(np.float32)
-    data = np.concatenate([_rows(cloud.data, keep[:len(cloud)]), _rows(fill.data, keep[len(cloud):]),
-                           _rows(moved, occlusion.keep_new)])
+    data = _stack_rows((cloud.data, keep[:len(cloud)]), (fill.data, keep[len(cloud):]), (moved, occlusion.keep_new))
     return PointCloud(data, cloud.channels)
 
 
@@ -91,7 +90,7 @@ class _ObjectMove:
         i = params.object
         _check_objects(self.name, sample, [i], [params.track_id])
         cloud, box = sample.points, sample.boxes.as_array()[i]
-        pts = _Pts(cloud.xyz)
+        pts = _Pts.of(cloud)
         ground = _local_ground(pts, box)
         own = _object_points(pts, box, ground, cloud, params.track_id)
         new_xyz, new_box = self._map(cloud.xyz[own].astype(np.float64), box, params)
@@ -123,7 +122,7 @@ class _ObjectMove:
         if not candidates:
             return none
         order = rng.permutation(candidates)
-        pts, arr = _Pts(sample.points.xyz), sample.boxes.as_array()
+        pts, arr = _Pts.of(sample.points), sample.boxes.as_array()
         seed = draw_seed(rng)
         for attempt in range(config.attempts):
             params = propose(int(order[attempt % len(order)]), pts, arr, seed)

@@ -3,8 +3,11 @@ ground infill, and the choice of objects."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import weakref
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,28 +35,300 @@ DEPTH_MARGIN = 0.25
 
 # =========================================================================== geometry
 class _Pts:
-    """A frame's coordinates with contiguous x, y, z columns, for fast neighbourhood queries."""
+    """A frame's coordinates with contiguous x, y, z columns and a spatial index, for fast
+    neighbourhood queries.
 
-    __slots__ = ("_max_range", "x", "xyz", "y", "z")
+    Queries touch only the points near the object: :meth:`near` reads the cells of a square grid
+    (points sorted by cell once), :meth:`wedge` the bins of azimuth around a direction. Both then
+    apply the exact test of a full scan to those candidates and return ascending indices, so every
+    result is the one a scan of all points gives (the ground fits sum in that order). The index is
+    built lazily, once per cloud: :meth:`of` caches it on the cloud's data array (the operators'
+    ``sample`` and ``apply``, and every operator applied to one frame, share it), with the results
+    of the ground fits and object point queries made on it (:attr:`memo`)."""
+
+    __slots__ = ("__weakref__", "_azimuth", "_columns", "_farthest", "_grid", "_max_range", "_parent", "_xyz", "memo")
 
     def __init__(self, xyz: NDArray[np.floating]) -> None:
-        self.xyz = xyz
-        self.x, self.y, self.z = np.ascontiguousarray(np.asarray(xyz).T).reshape(3, -1)
+        self._xyz: NDArray[np.floating] | None = xyz
+        self._columns: NDArray[np.float32] | None = np.ascontiguousarray(np.asarray(xyz).T)
         self._max_range: float | None = None
+        self._farthest: tuple[np.float32, int] | None = None
+        self._grid: _Buckets | None = None
+        self._azimuth: _Buckets | None = None
+        #: (parent, the parent's points not kept (ascending), x/y/z columns of the points that follow the
+        #: parent's), see :meth:`derive`
+        self._parent: tuple[_Pts, NDArray[np.intp], NDArray[np.float32]] | None = None
+        #: results computed from these points, keyed by what they depend on (see :func:`_memoised`)
+        self.memo: dict[Hashable, Any] = {}
+
+    @classmethod
+    def of(cls, cloud: PointCloud) -> _Pts:
+        """The (cached) index of ``cloud``'s points: built at the first call for this cloud's data,
+        found again while the cloud lives (a point cloud's data is read-only, so it stays valid)."""
+        data = cloud.data
+        entry = _INDEXES.get(id(data))
+        if entry is not None and entry[0]() is data:
+            _INDEXES.move_to_end(id(data))
+            return entry[1]
+        return _remember(data, cls(cloud.xyz))
+
+    @classmethod
+    def derive(cls, parent: _Pts, kept: NDArray[np.bool_], added: NDArray[np.floating]) -> _Pts:
+        """The index of ``parent``'s points where ``kept`` (in their order) followed by ``added``
+        (N×3, an inserted object's points): its queries ask the parent's index and scan only the
+        added points, and its columns are only gathered if someone reads them, so a frame grown
+        object by object costs no index of its own."""
+        pts = cls.__new__(cls)
+        pts._xyz, pts._columns, pts._max_range, pts._farthest = None, None, None, None
+        pts._grid = pts._azimuth = None
+        pts.memo = {}
+        pts._parent = (parent, np.flatnonzero(~kept), np.ascontiguousarray(np.asarray(added, np.float32).T))
+        return pts
+
+    @property
+    def xyz(self) -> NDArray[np.floating]:
+        """The points, N×3."""
+        return self._xyz if self._xyz is not None else self.columns.T
+
+    @property
+    def columns(self) -> NDArray[np.float32]:
+        """x, y and z, one contiguous row each."""
+        if self._columns is None:
+            parent, dropped, tail = self._parent  # type: ignore[misc]
+            kept = np.ones(len(parent), bool)
+            kept[dropped] = False
+            self._columns = np.ascontiguousarray(np.concatenate([np.compress(kept, parent.columns, axis=1), tail],
+                                                                axis=1))
+        return self._columns
+
+    @property
+    def x(self) -> NDArray[np.float32]:
+        return self.columns[0]
+
+    @property
+    def y(self) -> NDArray[np.float32]:
+        return self.columns[1]
+
+    @property
+    def z(self) -> NDArray[np.float32]:
+        return self.columns[2]
 
     def __len__(self) -> int:
+        if self._parent is not None:
+            parent, dropped, tail = self._parent
+            return len(parent) - len(dropped) + tail.shape[1]
         return len(self.xyz)
+
+    def _kept_rank(self, found: NDArray[np.intp]) -> NDArray[np.intp]:
+        """The indices here of the parent's points ``found`` (ascending) that were kept."""
+        _, dropped, _ = self._parent  # type: ignore[misc]
+        before = np.searchsorted(dropped, found)
+        gone = np.zeros(len(found), bool)
+        if len(dropped):
+            gone = dropped[np.minimum(before, len(dropped) - 1)] == found
+        return (found - before)[~gone]
+
+    def farthest(self) -> tuple[np.float32, int]:
+        """(The largest squared range, in float32 as a scan of the x, y, z columns computes it (NaN if
+        any is), and the index of a point with it, −1 for no point.) A derived index asks its parent:
+        unless the insertion removed the parent's farthest point, only the new points are new."""
+        if self._farthest is None:
+            if self._parent is not None:
+                parent, dropped, tail = self._parent
+                top, at = parent.farthest()
+                if at >= 0 and not np.isin(at, dropped):
+                    squared = tail[0] ** 2 + tail[1] ** 2 + tail[2] ** 2
+                    value = np.append(squared, top).max()
+                    if value == top or (np.isnan(value) and np.isnan(top)):
+                        self._farthest = (value, int(self._kept_rank(np.array([at], np.intp))[0]))
+                    else:
+                        self._farthest = (value, len(self) - len(squared) + int(squared.argmax()))
+                    return self._farthest
+            squared = self.x ** 2 + self.y ** 2 + self.z ** 2
+            self._farthest = (squared.max(initial=np.float32(0.0)), int(squared.argmax()) if len(squared) else -1)
+        return self._farthest
 
     def max_range(self) -> float:
         """The farthest return's range: the sensor returns nothing beyond it in this frame."""
         if self._max_range is None:
-            self._max_range = float(np.sqrt((self.x ** 2 + self.y ** 2 + self.z ** 2).max(initial=0.0)))
+            self._max_range = float(np.sqrt(self.farthest()[0]))
         return self._max_range
 
     def near(self, cx: float, cy: float, reach: float) -> NDArray[np.intp]:
         """Indices of the points in the axis-aligned square of half-edge ``reach`` around (cx, cy)."""
-        index = np.flatnonzero(np.abs(self.x - np.float32(cx)) <= reach)
-        return index[np.abs(self.y[index] - cy) <= reach]
+        if self._parent is not None:
+            parent, _, (x, y, _) = self._parent
+            start = len(self) - len(x)
+            tail = np.flatnonzero((np.abs(x - np.float32(cx)) <= reach) & (np.abs(y - cy) <= reach)) + start
+            return np.concatenate([self._kept_rank(parent.near(cx, cy, reach)), tail])
+        if len(self) < _INDEX_FROM:
+            index = np.flatnonzero(np.abs(self.x - np.float32(cx)) <= reach)
+            return index[np.abs(self.y[index] - cy) <= reach]
+        if self._grid is None:
+            self._grid = _Buckets.grid(self.x, self.y)
+        candidates = self._grid.square(float(cx), float(cy), float(reach))
+        x, y = self.x[candidates], self.y[candidates]
+        keep = (np.abs(x - np.float32(cx)) <= reach) & (np.abs(y - cy) <= reach)
+        return np.sort(candidates[keep])
+
+    def wedge(self, centre: float, half_width: float) -> NDArray[np.intp]:
+        """Indices of the points within ``half_width`` of azimuth ``centre`` (see :func:`_wedge_index`)."""
+        c, s = np.float32(np.cos(centre)), np.float32(np.sin(centre))
+        if half_width >= np.pi / 2:
+            along = self.x * c + self.y * s
+            return np.flatnonzero(along >= np.hypot(self.x, self.y) * np.cos(min(half_width, np.pi)))
+        cos2 = np.float32(np.cos(half_width) ** 2)
+        if self._parent is not None:
+            parent, _, (x, y, _) = self._parent
+            start = len(self) - len(x)
+            along = x * c + y * s
+            tail = np.flatnonzero((along >= 0) & (along ** 2 >= (x ** 2 + y ** 2) * cos2)) + start
+            return np.concatenate([self._kept_rank(parent.wedge(centre, half_width)), tail])
+        if len(self) < _INDEX_FROM:
+            along = self.x * c + self.y * s
+            index = np.flatnonzero(along >= 0)
+            return index[along[index] ** 2 >= (self.x[index] ** 2 + self.y[index] ** 2) * cos2]
+        if self._azimuth is None:
+            self._azimuth = _Buckets.azimuth(self.x, self.y)
+        candidates = self._azimuth.arc(centre, half_width)
+        x, y = self.x[candidates], self.y[candidates]
+        along = x * c + y * s
+        keep = (along >= 0) & (along ** 2 >= (x ** 2 + y ** 2) * cos2)
+        return np.sort(candidates[keep])
+
+
+def _remember(data: NDArray[np.float32], pts: _Pts) -> _Pts:
+    """Cache ``pts`` as the index of the cloud whose data is ``data``, while that array lives."""
+    key = id(data)
+    # the table is bound now: at exit the module's globals may be gone before the last callback
+    _INDEXES[key] = (weakref.ref(data, lambda _, key=key, table=_INDEXES: table.pop(key, None)), pts)  # type: ignore[misc]
+    while len(_INDEXES) > _INDEXES_KEPT:
+        _INDEXES.popitem(last=False)
+    return pts
+
+
+def _stack_rows(*parts: tuple[NDArray[np.float32], NDArray[np.bool_]]) -> NDArray[np.float32]:
+    """The rows of each ``(data, mask)`` where its mask holds, one part after the other, written
+    straight into the result (one pass over the frame, no temporary per part)."""
+    rows = [np.flatnonzero(mask) for _, mask in parts]
+    out = np.empty((sum(len(r) for r in rows), parts[0][0].shape[1]), np.float32)
+    start = 0
+    for (data, _), index in zip(parts, rows, strict=True):
+        # take, not compress: compress (and take in mode "raise") buffers ``out``, a second copy
+        np.take(data, index, axis=0, out=out[start:start + len(index)], mode="clip")
+        start += len(index)
+    return out
+
+
+#: Clouds smaller than this are scanned whole (an index would cost more than it saves).
+_INDEX_FROM = 4096
+#: Point indexes kept (the clouds an operator call and the next few see).
+_INDEXES_KEPT = 8
+_INDEXES: OrderedDict[int, tuple[weakref.ref[NDArray[np.float32]], _Pts]] = OrderedDict()
+#: Azimuth bins of the wedge index (0.5° each).
+_AZIMUTH_BINS = 720
+
+
+@dataclass(frozen=True)
+class _Buckets:
+    """Points sorted by bucket (a cell of a square grid, or a bin of azimuth), with each bucket's
+    slice of the order: one counting sort builds it, a query gathers a few slices.
+
+    The buckets only narrow the search: a query returns every point of the buckets that may hold
+    a match (one bucket of margin on each side, and the points whose bucket is meaningless: non-
+    finite, or at the origin, where every azimuth test holds), and the caller applies the exact test."""
+
+    order: NDArray[np.intp]
+    bounds: NDArray[np.intp]  # bucket b is order[bounds[b]:bounds[b + 1]]
+    always: NDArray[np.intp]  # candidates of every query
+    origin: tuple[float, float]
+    cell: float
+    shape: tuple[int, int]
+
+    @staticmethod
+    def _sorted(key: NDArray[np.integer], buckets: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        # int16 keys take numpy's radix sort: linear in the points
+        order = np.argsort(key.astype(np.int16 if buckets <= 32767 else np.int32), kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=buckets))]).astype(np.intp)
+        return order, bounds
+
+    @classmethod
+    def grid(cls, x: NDArray[np.float32], y: NDArray[np.float32]) -> _Buckets:
+        finite = np.isfinite(x) & np.isfinite(y)
+        if not finite.any():
+            return cls(np.zeros(0, np.intp), np.zeros(2, np.intp), np.flatnonzero(~finite), (0.0, 0.0), 1.0, (1, 1))
+        if not finite.all():
+            x, y = np.where(finite, x, x[finite][0]), np.where(finite, y, y[finite][0])  # they fail every test
+        x0, y0, x1, y1 = float(x.min()), float(y.min()), float(x.max()), float(y.max())
+        cell = max(1.0, max(x1 - x0, y1 - y0) / 180.0)  # at most 181 × 181 cells: int16 keys
+        nx, ny = int((x1 - x0) // cell) + 1, int((y1 - y0) // cell) + 1
+        ix = np.clip(((x - np.float32(x0)) / np.float32(cell)).astype(np.int32), 0, nx - 1)
+        iy = np.clip(((y - np.float32(y0)) / np.float32(cell)).astype(np.int32), 0, ny - 1)
+        order, bounds = cls._sorted(ix * ny + iy, nx * ny)
+        return cls(order, bounds, np.zeros(0, np.intp), (x0, y0), cell, (nx, ny))
+
+    @classmethod
+    def azimuth(cls, x: NDArray[np.float32], y: NDArray[np.float32]) -> _Buckets:
+        with np.errstate(invalid="ignore"):
+            az = np.arctan2(y, x)
+            bins = np.floor((az + np.float32(np.pi)) * np.float32(_AZIMUTH_BINS / (2 * np.pi)))
+            odd = ~np.isfinite(bins) | ~(x * x + y * y >= np.float32(1e-6))
+        # odd points go to a bucket of their own, never read: they are in every answer's candidates
+        key = np.where(odd, _AZIMUTH_BINS, np.clip(np.nan_to_num(bins), 0, _AZIMUTH_BINS - 1)).astype(np.int64)
+        order, bounds = cls._sorted(key, _AZIMUTH_BINS + 1)
+        return cls(order, bounds, np.flatnonzero(odd), (-np.pi, 0.0), 2 * np.pi / _AZIMUTH_BINS, (_AZIMUTH_BINS, 1))
+
+    def _gather(self, starts: NDArray[np.intp], ends: NDArray[np.intp]) -> NDArray[np.intp]:
+        lengths = np.maximum(ends - starts, 0)
+        total = int(lengths.sum())
+        offsets = np.cumsum(lengths) - lengths
+        slots = np.repeat(starts - offsets, lengths) + np.arange(total)
+        return np.concatenate([self.order[slots], self.always]) if len(self.always) else self.order[slots]
+
+    def square(self, cx: float, cy: float, reach: float) -> NDArray[np.intp]:
+        """Candidates for the square of half-edge ``reach`` around (cx, cy)."""
+        nx, ny = self.shape
+        lo_x = max(int(np.floor((cx - reach - self.origin[0]) / self.cell)) - 1, 0)
+        hi_x = min(int(np.floor((cx + reach - self.origin[0]) / self.cell)) + 1, nx - 1)
+        lo_y = max(int(np.floor((cy - reach - self.origin[1]) / self.cell)) - 1, 0)
+        hi_y = min(int(np.floor((cy + reach - self.origin[1]) / self.cell)) + 1, ny - 1)
+        if lo_x > hi_x or lo_y > hi_y:
+            return self.always
+        columns = np.arange(lo_x, hi_x + 1) * ny
+        return self._gather(self.bounds[columns + lo_y], self.bounds[columns + hi_y + 1])
+
+    def arc(self, centre: float, half_width: float) -> NDArray[np.intp]:
+        """Candidates within ``half_width`` of azimuth ``centre`` (radians)."""
+        bins = self.shape[0]
+        lo = int(np.floor((centre - half_width + np.pi) / self.cell)) - 2
+        hi = int(np.floor((centre + half_width + np.pi) / self.cell)) + 2
+        if hi - lo + 1 >= bins:
+            return self._gather(self.bounds[:1], self.bounds[bins:bins + 1])
+        pieces = np.arange(lo, hi + 1) % bins
+        return self._gather(self.bounds[pieces], self.bounds[pieces + 1])
+
+
+#: Results kept per point index (ground fits, object points): a search tries tens of places.
+_MEMO_KEPT = 512
+_T = TypeVar("_T")
+
+
+def _memoised(pts: _Pts, key: Hashable, compute: Callable[[], _T]) -> _T:
+    """``compute()``, or its value from an earlier call with the same ``key`` on the same points
+    (``sample`` and ``apply`` fit the same ground and find the same object points)."""
+    memo = pts.memo
+    if key in memo:
+        return memo[key]  # type: ignore[no-any-return]
+    value = compute()
+    if len(memo) >= _MEMO_KEPT:
+        memo.pop(next(iter(memo)))
+    memo[key] = value
+    return value
+
+
+def _frozen(index: NDArray[Any]) -> NDArray[Any]:
+    index.flags.writeable = False  # shared through the memo: nobody may change it
+    return index
 
 
 def _in_box(pts: _Pts, box: F64, margin: float = 0.0) -> NDArray[np.intp]:
@@ -134,6 +409,13 @@ def _fit_ground(dx: F64, dy: F64, z: F64, weight: F64, level: float) -> F64 | No
 
 
 def _local_ground(pts: _Pts, box: F64, free: bool = False) -> _Ground:
+    """Ground plane under a box's footprint (see :func:`_fit_local_ground`), fitted once per
+    frame, box and kind of place."""
+    box = np.asarray(box, np.float64)
+    return _memoised(pts, ("ground", box.tobytes(), free), lambda: _fit_local_ground(pts, box, free))
+
+
+def _fit_local_ground(pts: _Pts, box: F64, free: bool) -> _Ground:
     """Ground plane under a box's footprint from the frame's own returns around it.
 
     The returns in a ring around the footprint (its rectangle grown by 0.2 m, out to 2 m beyond its
@@ -188,21 +470,29 @@ def _local_ground(pts: _Pts, box: F64, free: bool = False) -> _Ground:
         lowest = _lowest_per_cell(pts.x[ring].astype(np.float64), pts.y[ring].astype(np.float64),
                                   pts.z[ring].astype(np.float64), GROUND_CELL)
         cells = int(np.count_nonzero(near_plane[lowest]))
-        return _Ground(ground.a, ground.b, ground.c, ring[near_plane], cells)
-    return _Ground(0.0, 0.0, bottom, ring[np.abs(pts.z[ring] - bottom) <= 0.1])
+        return _Ground(ground.a, ground.b, ground.c, _frozen(ring[near_plane]), cells)
+    return _Ground(0.0, 0.0, bottom, _frozen(ring[np.abs(pts.z[ring] - bottom) <= 0.1]))
 
 
 def _object_points(pts: _Pts, box: F64, ground: _Ground, cloud: PointCloud | None = None,
                    track_id: int = -1) -> NDArray[np.intp]:
     """Indices of an object's points: inside its (grown) box and above the ground band (the band
     starts at the ground or at the box's bottom, whichever is lower); with an ``instance``
-    channel, the box's points labelled with its track id count too (a tyre's lowest returns)."""
-    inside = _in_box(pts, box, BOX_MARGIN)
-    floor = np.minimum(ground.height(pts.xyz[inside, :2]), box[2] - box[5] / 2)
-    mine = pts.z[inside] > floor + GROUND_BAND
-    if cloud is not None and cloud.has("instance") and track_id >= 0:
-        mine |= cloud.channel("instance")[inside] == track_id
-    return inside[mine]
+    channel, the box's points labelled with its track id count too (a tyre's lowest returns).
+    ``cloud`` is the one ``pts`` index (found once per frame, box, ground and track id)."""
+    box = np.asarray(box, np.float64)
+    labelled = cloud is not None and cloud.has("instance") and track_id >= 0
+    key = ("object", box.tobytes(), ground.a, ground.b, ground.c, track_id if labelled else -1)
+
+    def find() -> NDArray[np.intp]:
+        inside = _in_box(pts, box, BOX_MARGIN)
+        floor = np.minimum(ground.height(pts.xyz[inside, :2]), box[2] - box[5] / 2)
+        mine = pts.z[inside] > floor + GROUND_BAND
+        if labelled:
+            mine |= cloud.channel("instance")[inside] == track_id  # type: ignore[union-attr]
+        return _frozen(inside[mine])
+
+    return _memoised(pts, key, find)
 
 
 def _rows(data: NDArray[np.float32], mask: NDArray[np.bool_]) -> NDArray[np.float32]:
@@ -240,6 +530,80 @@ def _clutter(pts: _Pts, box: F64, ground: _Ground, own: NDArray[np.intp]) -> int
     """Points of something else (a wall, a pole, a tree) above the ground inside ``box``."""
     inside = np.setdiff1d(_in_box(pts, box, 0.0), own, assume_unique=True)
     return int(np.count_nonzero(pts.z[inside] > ground.height(pts.xyz[inside, :2]) + GROUND_BAND))
+
+
+@dataclass(frozen=True)
+class _Grown:
+    """A frame with objects inserted, not yet written out: the frame's points less ``dropped``
+    (ascending indices) followed by the ``added`` rows, with its point index. Each insertion reads
+    only the rows in its wedge, so the frame is copied once, when the last object is in
+    (:meth:`cloud`), and a grown frame costs memory in proportion to what changed."""
+
+    frame: PointCloud
+    dropped: NDArray[np.intp]
+    added: NDArray[np.float32]
+    pts: _Pts
+
+    @classmethod
+    def start(cls, frame: PointCloud) -> _Grown:
+        return cls(frame, np.zeros(0, np.intp), np.zeros((0, len(frame.channels)), np.float32), _Pts.of(frame))
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return self.frame.channels
+
+    def has(self, name: str) -> bool:
+        return self.frame.has(name)
+
+    def index(self, name: str) -> int:
+        return self.frame.index(name)
+
+    @property
+    def frame_rows(self) -> int:
+        """How many of the frame's points are still in (they come first)."""
+        return len(self.frame) - len(self.dropped)
+
+    def __len__(self) -> int:
+        return self.frame_rows + len(self.added)
+
+    def _frame_index(self, position: NDArray[np.intp]) -> NDArray[np.intp]:
+        """The frame's index of the points at ``position`` (< :attr:`frame_rows`): the position plus
+        the dropped points before it (the j-th dropped point precedes position p iff its index − j ≤ p)."""
+        return position + np.searchsorted(self.dropped - np.arange(len(self.dropped)), position, side="right")
+
+    def rows(self, index: NDArray[np.intp]) -> NDArray[np.float32]:
+        """The rows of the points ``index`` (ascending), as the written-out cloud has them."""
+        split = int(np.searchsorted(index, self.frame_rows))
+        return np.concatenate([self.frame.data[self._frame_index(index[:split])],
+                               self.added[index[split:] - self.frame_rows]])
+
+    def grow(self, keep: NDArray[np.bool_], rows: NDArray[np.float32]) -> _Grown:
+        """These points where ``keep`` holds, then ``rows`` (an inserted object's)."""
+        gone = self._frame_index(np.flatnonzero(~keep[:self.frame_rows]))
+        dropped = np.union1d(self.dropped, gone).astype(np.intp)
+        added = np.concatenate([self.added[keep[self.frame_rows:]], rows])
+        return _Grown(self.frame, dropped, added, _Pts.derive(self.pts, keep, rows[:, :3]))
+
+    def intensity_scale(self) -> float:
+        """:func:`intensity_scale` of the points' intensities (the frame's kept ones, the added ones)."""
+        top, at = _memoised(_Pts.of(self.frame), "intensity_top", lambda: _top(self.frame.intensity))
+        if at < 0 or np.isin(at, self.dropped):
+            return intensity_scale(np.concatenate([np.delete(self.frame.intensity, self.dropped), self.added[:, 3]]))
+        return intensity_scale(np.append(self.added[:, 3], top))
+
+    def cloud(self) -> PointCloud:
+        """The points written out, one copy of the frame's rows."""
+        if not len(self.added) and not len(self.dropped):
+            return self.frame
+        kept = np.ones(len(self.frame), bool)
+        kept[self.dropped] = False
+        return PointCloud(_stack_rows((self.frame.data, kept), (self.added, np.ones(len(self.added), bool))),
+                          self.channels)
+
+
+def _top(values: NDArray[np.float32]) -> tuple[np.float32, int]:
+    """(The largest value (NaN if any is), the index of one point with it; −1 for none.)"""
+    return (values.max(), int(values.argmax())) if len(values) else (np.float32(0.0), -1)
 
 
 # =========================================================================== range image
@@ -285,13 +649,7 @@ def _spherical(xyz: NDArray[np.floating], centre: float) -> tuple[F64, F64, F64]
 
 def _wedge_index(pts: _Pts, centre: float, half_width: float) -> NDArray[np.intp]:
     """Indices of the points within ``half_width`` of azimuth ``centre``."""
-    c, s = np.float32(np.cos(centre)), np.float32(np.sin(centre))
-    along = pts.x * c + pts.y * s
-    if half_width >= np.pi / 2:
-        return np.flatnonzero(along >= np.hypot(pts.x, pts.y) * np.cos(min(half_width, np.pi)))
-    cos2 = np.float32(np.cos(half_width) ** 2)
-    index = np.flatnonzero(along >= 0)
-    return index[along[index] ** 2 >= (pts.x[index] ** 2 + pts.y[index] ** 2) * cos2]
+    return pts.wedge(centre, half_width)
 
 
 def _wedge_of(xyz: NDArray[np.floating], ring: NDArray[np.floating] | None, index: NDArray[np.intp],
@@ -375,7 +733,7 @@ def _closing_size(spacing: tuple[float, float]) -> tuple[int, int]:
     return int(np.clip(np.ceil(spacing[0]) + 1, 2, 15)), int(np.clip(np.ceil(spacing[1]) + 1, 2, 15))
 
 
-def _occlude(cloud: PointCloud, pts: _Pts, new_xyz: F64, range_ratio: float,
+def _occlude(cloud: PointCloud | _Grown, pts: _Pts, new_xyz: F64, range_ratio: float,
              source_steps: tuple[float, float] | None = None, exclude: NDArray[np.intp] | None = None,
              extra: PointCloud | None = None, source_xyz: F64 | None = None) -> _Occlusion:
     """Z-buffer of new points (a moved or inserted object) against the frame's points.
@@ -419,11 +777,12 @@ def _occlude(cloud: PointCloud, pts: _Pts, new_xyz: F64, range_ratio: float,
         is_bg[:len(index)] = ~np.isin(index, exclude)
     is_bg[len(index):] = True
     ring = time_values = None
+    rows = cloud.rows(index) if isinstance(cloud, _Grown) else cloud.data[index]
     if cloud.has("ring"):
-        ring = np.concatenate([cloud.channel("ring")[index], extra.channel("ring")[extra_index]])
+        ring = np.concatenate([rows[:, cloud.index("ring")], extra.channel("ring")[extra_index]])
     if cloud.has("time"):
-        time_values = np.concatenate([cloud.channel("time")[index], extra.channel("time")[extra_index]])
-    wedge = _wedge_of(np.concatenate([cloud.xyz[index], extra.xyz[extra_index]]), ring,
+        time_values = np.concatenate([rows[:, cloud.index("time")], extra.channel("time")[extra_index]])
+    wedge = _wedge_of(np.concatenate([rows[:, :3], extra.xyz[extra_index]]), ring,
                       np.concatenate([index, len(cloud) + extra_index]), centre)
     az, elev, depth = _spherical(new_xyz, centre)
     row, col = wedge.cells(az, elev)
@@ -572,10 +931,16 @@ def _draw_count(rng: np.random.Generator, interval: Range) -> int:
 
 def _point_counts(scene: Scene, candidates: NDArray[np.intp]) -> NDArray[np.int64]:
     """Points in each box above its bottom's ground band (cheap: no ground fit)."""
-    arr, pts = scene.boxes.as_array(), _Pts(scene.points.xyz)
-    counts = [np.count_nonzero(pts.z[_in_box(pts, arr[i], BOX_MARGIN)] > arr[i, 2] - arr[i, 5] / 2 + GROUND_BAND)
-              for i in candidates]
-    return np.array(counts, np.int64)
+    arr, pts = scene.boxes.as_array(), _Pts.of(scene.points)
+
+    def count(box: F64) -> int:
+        def above_band() -> int:
+            inside = _in_box(pts, box, BOX_MARGIN)
+            return int(np.count_nonzero(pts.z[inside] > box[2] - box[5] / 2 + GROUND_BAND))
+
+        return _memoised(pts, ("count", box.tobytes()), above_band)
+
+    return np.array([count(arr[i]) for i in candidates], np.int64)
 
 
 def _choose_objects(rng: np.random.Generator, scene: Scene, config: ObjectChoiceConfig, count: int) -> list[int]:
