@@ -273,9 +273,9 @@ class RayExecutor(Executor):
                         break
             waiting = {ref: actor for actor in self._pool for ref in actor.units}
             starting = {actor.ready: actor for actor in self._pool if actor.ready is not None}
+            if not waiting and exhausted and not suspects:
+                return  # every unit answered: an actor still waiting for room is not waited for
             if not waiting and not starting:
-                if exhausted and not suspects:
-                    return
                 raise ClusterError("no system actor is left on the Ray cluster to run the remaining units")
             pending = [*waiting, *starting]
             done, rest = ray.wait(pending, num_returns=1, timeout=5.0)
