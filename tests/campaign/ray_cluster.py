@@ -71,22 +71,21 @@ class LocalRayCluster:
         import_ray_or_skip()
         from ray.cluster_utils import Cluster
 
-        path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
-        with _environment(PYTHONPATH=path):
+        with _environment(PYTHONPATH=_python_path()):
             self._cluster = Cluster(initialize_head=True,
                                     head_node_args={"num_cpus": 0, "include_dashboard": False})
             try:
                 for _ in range(self.workers):
                     self._cluster.add_node(num_cpus=self.cpus)
                 self._cluster.wait_for_nodes()
+                self.restore()
             except BaseException:
                 self.shutdown()
                 raise
-        self.wait_for_cpus(self.workers * self.cpus)
 
     def kill_worker(self) -> None:
         """Kill one worker node at once (SIGKILL to its raylet and its workers: its actors die)."""
-        import ray
+        ray = import_ray_or_skip()
 
         connected = ray._private.worker.global_worker.node if ray.is_initialized() else None
         mine = connected._raylet_socket_name if connected is not None else None
@@ -98,31 +97,35 @@ class LocalRayCluster:
         self._cluster.remove_node(victims[0], allow_graceful=False)
 
     def add_worker(self) -> None:
-        """Start one more worker node and wait until the cluster counts its CPUs."""
-        path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
-        with _environment(PYTHONPATH=path):
-            self._cluster.add_node(num_cpus=self.cpus)
-        self._cluster.wait_for_nodes()
+        """Start one more worker node."""
+        with _environment(PYTHONPATH=_python_path()):
+            self._cluster.add_node(num_cpus=self.cpus)  # waits for it to register (restore() for the rest)
 
     def restore(self) -> None:
-        """Back to ``workers`` live worker nodes, each counted by the cluster (after a test killed one)."""
+        """Back to ``workers`` live worker nodes, as the head sees them: a killed node counted dead
+        (the head notices a lost node by missed health checks, 10-30 s after it went) and the new
+        ones counted alive, with their CPUs."""
         while self.nodes < self.workers:
             self.add_worker()
-        self.wait_for_cpus(self.workers * self.cpus)
+        expected = {self._cluster.head_node.node_id, *(node.node_id for node in self._cluster.worker_nodes)}
+        with self._driver() as ray:
+            deadline = time.monotonic() + SETTLE_SECONDS
+            while ((alive := {n["NodeID"] for n in ray.nodes() if n["Alive"]}) != expected
+                   or float(ray.cluster_resources().get("CPU", 0.0)) != self.workers * self.cpus):
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the local Ray cluster has nodes {sorted(alive)} after "
+                                       f"{SETTLE_SECONDS:g} s, not {sorted(expected)}")
+                time.sleep(0.2)
 
-    def wait_for_cpus(self, cpus: float, limit: float = SETTLE_SECONDS) -> None:
-        """Wait until the cluster's resources count ``cpus`` CPUs (a node's death or arrival is seen
-        by the head a moment later)."""
+    @contextlib.contextmanager
+    def _driver(self) -> Iterator[Any]:
+        """``ray``, connected to this cluster for the block (the test's own connection if it has one)."""
         ray = import_ray_or_skip()
         connected = ray.is_initialized()
         if not connected:
             ray.init(address=self.address, include_dashboard=False, log_to_driver=False, configure_logging=False)
         try:
-            deadline = time.monotonic() + limit
-            while (seen := float(ray.cluster_resources().get("CPU", 0.0))) != cpus:
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f"the local Ray cluster counts {seen:g} CPUs after {limit:g} s, not {cpus:g}")
-                time.sleep(0.2)
+            yield ray
         finally:
             if not connected:
                 ray.shutdown()
@@ -135,6 +138,11 @@ class LocalRayCluster:
         if self._cluster is not None:
             self._cluster.shutdown()
             self._cluster = None
+
+
+def _python_path() -> str:
+    """``PYTHONPATH`` with the repository first (the test systems importable in Ray's workers)."""
+    return os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
 
 
 @contextlib.contextmanager
@@ -166,8 +174,9 @@ def ray_cluster_fixture() -> Iterator[LocalRayCluster]:
 
 @pytest.fixture(name="ray_nodes")
 def ray_nodes_fixture(ray_cluster: LocalRayCluster) -> Iterator[LocalRayCluster]:
-    """The module's cluster with its two worker nodes; a node the test killed is added back after it,
-    and no driver connection of the test outlives it."""
+    """The module's cluster with its two worker nodes live (a node an earlier test killed is added
+    back first: not after that test, where waiting for the head to count it dead would cost 10-30 s
+    for nothing when no test follows); no driver connection of the test outlives it."""
     ray_cluster.restore()
     try:
         yield ray_cluster
@@ -175,4 +184,3 @@ def ray_nodes_fixture(ray_cluster: LocalRayCluster) -> Iterator[LocalRayCluster]
         ray = import_ray_or_skip()
         if ray.is_initialized():
             ray.shutdown()
-        ray_cluster.restore()
