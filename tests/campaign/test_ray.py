@@ -397,6 +397,27 @@ def test_a_run_ends_with_its_last_unit_while_an_actor_still_waits_for_a_cpu(ray_
         store.close()
 
 
+# -- the web app's task workers on the cluster (lidarfuzz serve --executor ray) ---------------------------------
+def test_the_web_app_runs_its_tasks_on_the_cluster(ray_nodes: LocalRayCluster, databases: Workspaces, world: Path,
+                                                     reference: Snapshot) -> None:
+    """``serve --executor ray``: the server's task worker joins the cluster once and runs a queued
+    task there, to the same results as the inline run."""
+    from lidarfuzz.web.workers import TaskWorkers
+
+    store, task_id = new_task(databases.new("web"), world)
+    workers = TaskWorkers(store, threads=1, executor="ray", address=ray_nodes.address)
+    try:
+        workers.start()
+        deadline = time.monotonic() + 180
+        while get_task(store, task_id).status not in (Status.DONE, Status.FAILED) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert get_task(store, task_id).status == Status.DONE
+        assert_same(snapshot(store, task_id), reference)
+    finally:
+        workers.close()
+        store.close()
+
+
 # -- a worker node lost mid-run (last: the head counts a lost node dead 10-30 s later) -----------------------
 def test_a_worker_node_killed_mid_campaign_loses_and_repeats_nothing(ray_nodes: LocalRayCluster,
                                                                       databases: Workspaces, world: Path,
