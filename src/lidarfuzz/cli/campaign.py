@@ -91,11 +91,13 @@ class Placement:
         """Refuse, before anything runs, a Ray run on a store the cluster cannot share.
 
         Raises:
+            MissingDependencyError: ``--executor ray`` without Ray installed.
             ClusterError: An SQLite store with ``--executor ray``.
         """
         if self.executor == ExecutorKind.ray.value:
-            from lidarfuzz.campaign.cluster import require_shared_store
+            from lidarfuzz.campaign.cluster import import_ray, require_shared_store
 
+            import_ray()  # without the ray extra: one line naming it, before a task is created
             require_shared_store(store.url)
 
 
