@@ -248,28 +248,3 @@ def in_unit_order(executor: Executor, units: Iterable[WorkUnit]) -> Iterator[Uni
             yield waiting.pop(issued.popleft())
     if waiting:  # an executor that answered a unit it was not given: a bug, never hidden
         raise RuntimeError(f"results of units never issued: {sorted(waiting)[:3]}")
-
-
-#: What ``--executor`` accepts.
-EXECUTORS = ("pool", "inline", "ray")
-
-
-def make_executor(kind: str = "pool", *, workers: int | None = None, address: str | None = None,
-                  actor_cpus: float = 1.0, actor_gpus: float | None = None) -> Executor:
-    """The executor ``--executor`` names: ``pool`` (a local pool of ``workers`` processes),
-    ``inline`` (this process) or ``ray`` (a Ray cluster at ``address`` with ``workers`` system
-    actors of ``actor_cpus`` CPUs and ``actor_gpus`` GPUs each,
-    :class:`~lidarfuzz.campaign.cluster.RayExecutor`).
-
-    Raises:
-        ValueError: ``kind`` is none of :data:`EXECUTORS`.
-    """
-    if kind == "inline":
-        return InlineExecutor()
-    if kind == "pool":
-        return ProcessExecutor(workers)
-    if kind == "ray":
-        from lidarfuzz.campaign.cluster import RayExecutor
-
-        return RayExecutor(address, actors=workers, cpus_per_actor=actor_cpus, gpus_per_actor=actor_gpus)
-    raise ValueError(f"--executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")

@@ -31,6 +31,32 @@ from lidarfuzz.store.claims import claim_task
 from lidarfuzz.store.models import Task, TaskClaim
 from lidarfuzz.store.store import Store
 
+#: What ``--executor`` accepts.
+EXECUTORS = ("pool", "inline", "ray")
+
+
+def make_executor(kind: str = "pool", *, workers: int | None = None, address: str | None = None,
+                  actor_cpus: float = 1.0, actor_gpus: float | None = None) -> Executor:
+    """The executor ``--executor`` names: ``pool`` (a local pool of ``workers`` processes),
+    ``inline`` (this process) or ``ray`` (a Ray cluster at ``address`` with ``workers`` system
+    actors of ``actor_cpus`` CPUs and ``actor_gpus`` GPUs each,
+    :class:`~lidarfuzz.campaign.cluster.RayExecutor`).
+
+    Raises:
+        ValueError: ``kind`` is none of :data:`EXECUTORS`.
+    """
+    from lidarfuzz.campaign.executor import InlineExecutor, ProcessExecutor
+
+    if kind == "inline":
+        return InlineExecutor()
+    if kind == "pool":
+        return ProcessExecutor(workers)
+    if kind == "ray":
+        from lidarfuzz.campaign.cluster import RayExecutor
+
+        return RayExecutor(address, actors=workers, cpus_per_actor=actor_cpus, gpus_per_actor=actor_gpus)
+    raise ValueError(f"--executor: expected one of {', '.join(EXECUTORS)}, got {kind!r}")
+
 
 def implementation(task: Task) -> KindImplementation:
     """The implementation of ``task``'s kind (see :mod:`lidarfuzz.campaign.kinds`)."""
@@ -64,5 +90,5 @@ def run_task(store: Store, task_id: int, *, executor: Executor | None = None, wo
         return drive(store, task_id, kind, RunOptions(executor, workers, progress, stop))
 
 
-__all__ = ["CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "describe_plan", "implementation",
-           "mark_running", "recount", "run_task"]
+__all__ = ["EXECUTORS", "CancelledError", "ProgressEvent", "RunOutcome", "RunStats", "describe_plan",
+           "implementation", "make_executor", "mark_running", "recount", "run_task"]

@@ -145,8 +145,7 @@ def execute(workspace: str, task_id: int, *, placement: Placement, show_progress
         TimeRemainingColumn,
     )
 
-    from lidarfuzz.campaign.executor import make_executor
-    from lidarfuzz.campaign.runner import ProgressEvent, describe_plan, run_task
+    from lidarfuzz.campaign.runner import ProgressEvent, describe_plan, make_executor, run_task
     from lidarfuzz.campaign.tasks import get_task
     from lidarfuzz.store.models import Status
 

@@ -265,8 +265,7 @@ class TaskWorkers:
                                    f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
 
     def _run(self, task_id: int, running: _Running) -> None:
-        from lidarfuzz.campaign.executor import make_executor
-        from lidarfuzz.campaign.runner import run_task
+        from lidarfuzz.campaign.runner import make_executor, run_task
 
         def progress(_event: ProgressEvent) -> None:
             running.units += 1
