@@ -8,6 +8,8 @@ triangulated with shapely's constrained Delaunay triangulation.
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
@@ -74,10 +76,11 @@ class Mesh:
         parts = [p for p in parts if len(p)]
         if not parts:
             return Mesh.empty()
-        offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
+        # Python-int offsets keep the faces int32 (no int64 detour and cast back).
+        offsets = itertools.accumulate((len(p.vertices) for p in parts[:-1]), initial=0)
         return Mesh(
             np.concatenate([p.vertices for p in parts]),
-            np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)]).astype(np.int32),
+            np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)], dtype=np.int32),
             np.concatenate([p.reflectivity for p in parts]),
             np.concatenate([p.semantic for p in parts]),
             np.concatenate([p.returns for p in parts]),
@@ -188,10 +191,14 @@ def ring(radius: float, tube: float, center: Sequence[float], material_name: str
 
 
 def _rotation_from_z(direction: NDArray[np.float64]) -> NDArray[np.float64]:
-    z = np.array([0.0, 0.0, 1.0])
-    v = np.cross(z, direction)
-    c = float(np.dot(z, direction))
-    if np.linalg.norm(v) < 1e-12:
+    """The rotation taking +z to the unit ``direction`` (Rodrigues' formula about z × direction)."""
+    dx, dy, dz = (float(d) for d in direction)
+    # z × direction and z · direction in scalars, term by term as np.cross and np.dot form them
+    # (same products and differences, so the same doubles): a world compiles ~1,000 cylinders,
+    # and the numpy calls on 3-vectors cost more than the arithmetic.
+    v = (0.0 * dz - 1.0 * dy, 1.0 * dx - 0.0 * dz, 0.0 * dy - 0.0 * dx)
+    c = 0.0 * dx + 0.0 * dy + 1.0 * dz
+    if math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) < 1e-12:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
     vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + vx + vx @ vx / (1.0 + c)

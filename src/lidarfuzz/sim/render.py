@@ -43,6 +43,7 @@ from lidarfuzz.scene.roi import RoiMap
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.labels import LabelConfig, label_actors
 from lidarfuzz.sim.meshes import Mesh
+from lidarfuzz.sim.sensor import LidarSensor
 from lidarfuzz.sim.terrain import TRACK, WHEELBASE, frame_from_slopes
 from lidarfuzz.sim.world import PlacedActor, World, as_multipolygon, poses_on_ground, positions_at
 
@@ -60,6 +61,76 @@ def _poisson_pmf(mean: float) -> NDArray[np.float64]:
     if mean <= 0:
         return (k == 0).astype(np.float64)
     return np.exp(k * np.log(mean) - mean - log_factorial)
+
+
+def covered_rays(columns: int, beams: int, first_column: NDArray[np.int64], span: NDArray[np.int64],
+                 lo_ring: NDArray[np.intp], hi_ring: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Rays (column × beam grid, flattened in firing order) inside any of the rectangles
+    ``first_column[i]`` … ``first_column[i] + span[i] − 1`` (wrapping past the last column to the
+    first) × rings ``lo_ring[i]`` … ``hi_ring[i] − 1``.
+
+    One slice fill per rectangle (and one for its wrapped remainder): a frame has a few dozen
+    road users, and a difference array over the whole grid (~133k cells at HDL-64E
+    resolution) with two cumulative sums costs more for the same union.
+
+    Example:
+        >>> covered_rays(4, 2, np.array([3]), np.array([2]), np.array([1]), np.array([2])).reshape(4, 2)[:, 1]
+        array([ True, False, False,  True])
+    """
+    covered = np.zeros((columns, beams), np.bool_)
+    for start, width, r0, r1 in zip(first_column.tolist(), span.tolist(), lo_ring.tolist(), hi_ring.tolist(),
+                                    strict=True):
+        stop = start + width
+        covered[start:stop, r0:r1] = True  # a slice stops at the last column by itself
+        if stop > columns:
+            covered[: stop - columns, r0:r1] = True
+    return covered.ravel()
+
+
+@dataclass(frozen=True)
+class _RayTables:
+    """Per-ray tables of a sensor (firing order), read-only: every renderer of that sensor shares them."""
+
+    local_directions: NDArray[np.float32]  # N×3, sensor frame
+    direction_components: list[NDArray[np.float32]]  # its x, y and z columns, contiguous
+    ring_of_ray: NDArray[np.float32]
+    ring_index: NDArray[np.intp]
+    drop_rate_of_ray: NDArray[np.float32]
+    time_of_ray: NDArray[np.float32]
+
+
+_RAY_TABLES: dict[tuple[int, int, bytes, bytes, bytes], _RayTables] = {}
+
+
+def _ray_tables(sensor: LidarSensor) -> _RayTables:
+    """The sensor's per-ray tables, built once per process for each distinct beam table.
+
+    A data set's independent frames compile a new world, hence a new renderer, per frame, but
+    share the sensor's beam table; rebuilding these ~133k-row tables cost ~1.4 ms a frame at
+    HDL-64E resolution. The key holds everything the tables derive from (the directions are
+    a function of the ring elevations and the column count).
+    """
+    key = (sensor.beams, sensor.columns, np.asarray(sensor.ring_elevations, np.float64).tobytes(),
+           np.asarray(sensor.beam_drop_rates).tobytes(), np.asarray(sensor.column_times, np.float64).tobytes())
+    tables = _RAY_TABLES.get(key)
+    if tables is None:
+        local = sensor.local_directions.reshape(-1, 3).astype(np.float32)
+        tables = _RayTables(
+            local_directions=local,
+            direction_components=[np.ascontiguousarray(local[:, k]) for k in range(3)],
+            ring_of_ray=np.tile(np.arange(sensor.beams, dtype=np.float32), sensor.columns),
+            ring_index=np.tile(np.arange(sensor.beams, dtype=np.intp), sensor.columns),
+            drop_rate_of_ray=np.tile(sensor.beam_drop_rates, sensor.columns),
+            time_of_ray=np.repeat(sensor.column_times.astype(np.float32), sensor.beams),
+        )
+        shared: list[NDArray[Any]] = [tables.local_directions, *tables.direction_components, tables.ring_of_ray,
+                                      tables.ring_index, tables.drop_rate_of_ray, tables.time_of_ray]
+        for array in shared:
+            array.flags.writeable = False  # shared between renderers
+        if len(_RAY_TABLES) >= 8:  # a few sensors per process at most; never grow without bound
+            _RAY_TABLES.clear()
+        _RAY_TABLES[key] = tables
+    return tables
 
 
 _DEVICE: rtc.EmbreeDevice | None = None
@@ -125,7 +196,11 @@ class Renderer:
         self._still_pose: tuple[NDArray[np.float64], ...] | None = None
         self._tilt_table: tuple[NDArray[np.float64], ...] | None = None
         self._pose_memo: dict[bytes, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
-        self._face_table: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
+        self._face_table: tuple[tuple[NDArray[np.float32], ...], NDArray[np.int64]] | None = None
+        # The last posed moving road users: a frame poses them at the same instants for its labels
+        # (_actor_meshes) and for its rays (moving_parts); posing costs ~0.1 ms per road user.
+        self._moving_memo: tuple[bytes, tuple[int, ...], tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]] | None \
+            = None
         # Road users that never move are static geometry: built into the static scene once.
         self._still = [a for a in world.actors if a.trajectory.speed == 0]
         self._moving = [a for a in world.actors if a.trajectory.speed != 0]
@@ -136,12 +211,11 @@ class Renderer:
         self._still_owner = np.concatenate([np.full(len(m), a.index, np.int32) for (m, _), a in
                                             zip(still, self._still, strict=True)] or [np.zeros(0, np.int32)])
         self._still_poses = {a.index: pose for (_, pose), a in zip(still, self._still, strict=True)}
-        self._local_directions = self.sensor.local_directions.reshape(-1, 3).astype(np.float32)
-        self._direction_components = [np.ascontiguousarray(self._local_directions[:, k]) for k in range(3)]
-        self._ring_of_ray = np.tile(np.arange(self.sensor.beams, dtype=np.float32), self.sensor.columns)
-        self._ring_index = np.tile(np.arange(self.sensor.beams, dtype=np.intp), self.sensor.columns)
-        self._drop_rate_of_ray = np.tile(self.sensor.beam_drop_rates, self.sensor.columns)
-        self._time_of_ray = np.repeat(self.sensor.column_times.astype(np.float32), self.sensor.beams)
+        tables = _ray_tables(self.sensor)
+        self._local_directions = tables.local_directions
+        self._direction_components = tables.direction_components
+        self._ring_of_ray, self._ring_index = tables.ring_of_ray, tables.ring_index
+        self._drop_rate_of_ray, self._time_of_ray = tables.drop_rate_of_ray, tables.time_of_ray
         self._track_of_index = np.array([a.track_id for a in world.actors] + [-1], np.float32)
 
     # ------------------------------------------------------------------ geometry
@@ -232,6 +306,17 @@ class Renderer:
         """Moving road users (``which``, default all) posed at ``times`` (indexed by actor index):
         mesh, each face's owner, and every actor's (x, y, z, yaw) (zeros for the others)."""
         actors = self._moving if which is None else which
+        key, indices = times.tobytes(), tuple(a.index for a in actors)
+        memo = self._moving_memo
+        if memo is not None and memo[0] == key and memo[1] == indices:
+            mesh, owner, poses = memo[2]
+            return mesh, owner, poses.copy()  # callers fill in the still road users' poses
+        result = self._pose_moving(times, actors)
+        self._moving_memo = (key, indices, result)
+        return result[0], result[1], result[2].copy()
+
+    def _pose_moving(self, times: NDArray[np.float64], actors: list[PlacedActor],
+                     ) -> tuple[Mesh, NDArray[np.int32], NDArray[np.float64]]:
         own_times = times[[a.index for a in actors]]
         placed = poses_on_ground(tuple(actors), positions_at(tuple(actors), own_times), self.world.ground)
         rotations = frame_from_slopes(placed[:, 3], placed[:, 4], placed[:, 5])
@@ -329,11 +414,11 @@ class Renderer:
             # the still road users', then a row for "nothing hit").
             table, owners = self._static_faces()
             row = np.where(geometry == 0, result["primID"], np.where(geometry == 1, result["primID"] + len(
-                self.world.static), len(table) - 1))
-            properties = table[row]
-            reflectivity, returns, gloss = (np.ascontiguousarray(properties[:, k]) for k in (0, 2, 3))
-            semantic = properties[:, 1].astype(np.uint8)
-            owner = owners[row]
+                self.world.static), len(owners) - 1))
+            # One 1-D gather per property (np.take on a contiguous column: no N×4 temporary to split).
+            reflectivity, semantic_code, returns, gloss = (np.take(column, row) for column in table)
+            semantic = semantic_code.astype(np.uint8)
+            owner = np.take(owners, row)
         else:
             reflectivity, returns, gloss = np.zeros(n, np.float32), np.ones(n, np.float32), np.zeros(n, np.float32)
             semantic, owner = np.zeros(n, np.uint8), np.full(n, -1, np.int64)
@@ -352,9 +437,9 @@ class Renderer:
             found = self._trace(scene, origins[rays], directions[rays], limit)
             nearer = found["geomID"] >= 0
             hit, face = rays[nearer], found["primID"][nearer]
-            distance = distance.copy()
+            # distance and normal are this call's own arrays (Embree's fresh output, or filled
+            # above): updated in place.
             distance[hit] = found["tfar"][nearer]
-            normal = normal.copy()
             normal[hit] = found["Ng"][nearer]
             geometry[hit] = 1
             reflectivity[hit] = part.mesh.reflectivity[face]
@@ -364,17 +449,18 @@ class Renderer:
             owner[hit] = part.owner[face]
         return Hits(distance, geometry, normal, reflectivity, semantic, owner, returns, gloss)
 
-    def _static_faces(self) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    def _static_faces(self) -> tuple[tuple[NDArray[np.float32], ...], NDArray[np.int64]]:
         """Reflectivity, semantic class, return probability and gloss of every static face (the
-        world's, then the still road users'), and each face's road user (−1 for the world), with
-        a last row for rays that hit nothing."""
+        world's, then the still road users'), one contiguous float32 column each, and each face's
+        road user (−1 for the world), with a last row for rays that hit nothing."""
         if self._face_table is None:
             meshes = (self.world.static, self._still_mesh)
             table = np.concatenate([np.column_stack([m.reflectivity, m.semantic.astype(np.float32), m.returns,
                                                      m.gloss]) for m in meshes] + [[[0.0, 0.0, 1.0, 0.0]]])
             owners = np.concatenate([np.full(len(self.world.static), -1, np.int64), self._still_owner.astype(np.int64),
                                      [-1]])
-            self._face_table = (table.astype(np.float32), owners)
+            columns = tuple(np.ascontiguousarray(column) for column in table.astype(np.float32).T)
+            self._face_table = (columns, owners)
         return self._face_table
 
     def _trace(self, scene: rtcore_scene.EmbreeScene, origins: NDArray[np.float32],
@@ -434,19 +520,7 @@ class Renderer:
         elevations = sensor.ring_elevations
         lo_ring = np.searchsorted(elevations, np.where(close, -np.pi, lo_el - widen))
         hi_ring = np.searchsorted(elevations, np.where(close, np.pi, hi_el + widen))
-        grid = np.zeros((sensor.columns + 1, sensor.beams + 1), np.int32)  # a 2D difference array
-        first_col %= sensor.columns
-        end = first_col + span
-        wrap = end > sensor.columns
-        for start, stop, r0, r1 in ((first_col, np.minimum(end, sensor.columns), lo_ring, hi_ring),
-                                    (np.zeros(int(wrap.sum()), np.int64), end[wrap] - sensor.columns,
-                                     lo_ring[wrap], hi_ring[wrap])):
-            np.add.at(grid, (start, r0), 1)
-            np.add.at(grid, (start, r1), -1)
-            np.add.at(grid, (stop, r0), -1)
-            np.add.at(grid, (stop, r1), 1)
-        covered = grid.cumsum(axis=0).cumsum(axis=1)[: sensor.columns, : sensor.beams] > 0
-        return covered.ravel()
+        return covered_rays(sensor.columns, sensor.beams, first_col % sensor.columns, span, lo_ring, hi_ring)
 
     def visible_rays_alone(self, actors: Mesh, owner: NDArray[np.int32], index: int,
                            origins: NDArray[np.float32], directions: NDArray[np.float32],
