@@ -23,11 +23,12 @@ def provenance(command: str) -> str:
             f"({os.cpu_count()} cores, load {load}) by `{command}`.*")
 
 
-def write_section(name: str, markdown: str, doc: Path = DOC) -> None:
-    """Replace section ``name`` of the page with ``markdown`` (appended when the page lacks it)."""
+def write_section(name: str, markdown: str, doc: Path = DOC, title: str = "# Reliability") -> None:
+    """Replace section ``name`` of the page ``doc`` with ``markdown`` (appended when the page lacks
+    it; a missing page starts with ``title``)."""
     begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
     block = f"{begin}\n{markdown.strip()}\n{end}"
-    text = doc.read_text(encoding="utf-8") if doc.exists() else "# Reliability\n"
+    text = doc.read_text(encoding="utf-8") if doc.exists() else f"{title}\n"
     pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.DOTALL)
     text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
     tmp = doc.with_suffix(".md.tmp")

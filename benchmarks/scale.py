@@ -57,7 +57,6 @@ import hashlib  # noqa: E402
 import itertools  # noqa: E402
 import pickle  # noqa: E402
 import platform  # noqa: E402
-import re  # noqa: E402
 import shutil  # noqa: E402
 import socket  # noqa: E402
 import statistics  # noqa: E402
@@ -517,19 +516,6 @@ def model(m: Measured) -> str:
     return text + "\n\n" + " ".join(notes)
 
 
-# -- the doc -----------------------------------------------------------------------------------
-def write_section(name: str, markdown: str, doc: Path = DOC) -> None:
-    """Replace section ``name`` of docs/scaling.md (appended when the page lacks it)."""
-    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
-    block = f"{begin}\n{markdown.strip()}\n{end}"
-    text = doc.read_text(encoding="utf-8") if doc.exists() else "# Campaigns on a cluster\n"
-    pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.DOTALL)
-    text = pattern.sub(lambda _: block, text) if pattern.search(text) else text.rstrip() + "\n\n" + block + "\n"
-    tmp = doc.with_suffix(".md.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(doc)
-
-
 # -- main --------------------------------------------------------------------------------------
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -709,8 +695,12 @@ def report(args: argparse.Namespace, figures: Figures, cpus: int, pools: list[in
     model_md = f"{inputs}\n\n{model(measured)}"
     print("\n" + model_md)
     if args.write_doc:
-        write_section("scale-figures", figures_md)
-        write_section("scale-model", model_md)
+        if str(ROOT) not in sys.path:  # run as a script: this package importable
+            sys.path.insert(0, str(ROOT))
+        from benchmarks.reliability_doc import write_section
+
+        write_section("scale-figures", figures_md, DOC, title="# Campaigns on a cluster")
+        write_section("scale-model", model_md, DOC, title="# Campaigns on a cluster")
         print(f"\nwrote {DOC.relative_to(ROOT)}")
 
 
