@@ -47,6 +47,8 @@ from lidarfuzz.store.contracts import FailureRecord
 ACTOR_START_SECONDS = 300.0
 #: Actors in a row that die before answering ready() before the run stops (a node without lidarfuzz).
 MAX_FAILED_STARTS = 3
+#: Seconds the actors are given, all together, to close their systems at the end of a run.
+CLOSE_SECONDS = 10.0
 #: Frames kept in the object store beyond those of units in flight: two of the runner's blocks of 16
 #: (units come block by block, each block's frames once per subtask).
 FRAMES_KEPT = 32
@@ -373,10 +375,17 @@ class RayExecutor(Executor):
         ray = self._ray
         if ray is None:
             return
+        # every actor closes its system at once (a worker system's program group is killed there); one on a
+        # node that died unnoticed never answers, so the wait is bounded for all together
+        closing = []
         for actor in self._pool:
             if actor.ready is None:
-                with contextlib.suppress(Exception):  # gone, or its system does not close: killed below
-                    ray.get(actor.handle.close.remote(), timeout=30)
+                with contextlib.suppress(Exception):
+                    closing.append(actor.handle.close.remote())
+        if closing:
+            with contextlib.suppress(Exception):  # gone, or its system does not close: killed below
+                ray.wait(closing, num_returns=len(closing), timeout=CLOSE_SECONDS)
+        for actor in self._pool:
             self._kill(actor)
         self._pool.clear()
         self._frames.clear()
