@@ -7,13 +7,30 @@ and compares bit for bit on many random inputs (the data set tests compare whole
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
 from numpy.typing import NDArray
+from shapely.geometry import MultiPolygon, Polygon, box
 
-from lidarfuzz.sim.meshes import Mesh, _rotation_from_z, cylinder
-from lidarfuzz.sim.render import _ray_tables, covered_rays
+from lidarfuzz.sim.generate import generate_scene
+from lidarfuzz.sim.meshes import Mesh, _rotation_from_z, cylinder, extruded, flat, polygons_of
+from lidarfuzz.sim.render import Renderer, _draw_buffers, _ray_tables, add_triangles, covered_rays
 from lidarfuzz.sim.sensor import load_sensor
+from lidarfuzz.sim.spec import Building, Crosswalk, Wall
+from lidarfuzz.sim.world import (
+    SINK,
+    _ground_and_roads,
+    _on_ground,
+    _static_object,
+    compile_world,
+    footprint_of,
+    footprint_points,
+    trajectory_of,
+)
 
 
 def _covered_by_difference_array(columns: int, beams: int, first_column: NDArray[np.int64], span: NDArray[np.int64],
@@ -115,3 +132,147 @@ def test_ray_tables_are_shared_read_only_and_match_the_sensor() -> None:
                                   sensor.column_times.astype(np.float32)[np.arange(rays) // sensor.beams])
     with pytest.raises(ValueError, match="read-only"):
         first.ring_index[0] = 1
+
+
+def test_add_triangles_gives_embree_the_same_mesh_as_float32_arrays() -> None:
+    """Every hit (distance, normal, face, geometry) through a world's static mesh and its still road
+    users, uploaded as Python objects, is bitwise the hit through the plain float32 upload."""
+    renderer = Renderer(compile_world(generate_scene(4, sensor="VLP-16")), threads=1)
+    origins, directions = renderer.rays(0.0)
+    meshes = [renderer.world.static, renderer._still_mesh]
+    assert all(len(m) for m in meshes)
+    plain, objects = rtcore_scene.EmbreeScene(renderer._device), rtcore_scene.EmbreeScene(renderer._device)
+    for mesh in meshes:
+        TriangleMesh(plain, mesh.vertices.astype(np.float32), mesh.faces)
+        add_triangles(objects, mesh.vertices, mesh.faces)
+    limit = np.full(len(origins), renderer.sensor.max_range, np.float32)
+    expected = plain.run(origins, directions, dists=limit.copy(), output=1)
+    got = objects.run(origins, directions, dists=limit.copy(), output=1)
+    assert (expected["geomID"] >= 0).mean() > 0.5 and (expected["geomID"] == 1).any()
+    for key in ("tfar", "Ng", "primID", "geomID", "u", "v"):
+        assert got[key].tobytes() == expected[key].tobytes(), key
+
+
+def test_add_triangles_takes_float64_vertices_and_an_empty_mesh() -> None:
+    """float64 vertices are rounded to float32 as ``astype`` rounds them (a hit's distance shows it)."""
+    device = Renderer(compile_world(generate_scene(1, sensor="VLP-16")), threads=1)._device
+    vertices = np.array([[5.1, -1.3, -1.7], [5.1, 1.7, -1.9], [5.3, 0.1, 2.3]])
+    rays = np.array([[0.0, 0.0, 0.0]], np.float32), np.array([[1.0, 0.0, 0.0]], np.float32)
+    hits = []
+    for upload in (lambda s: add_triangles(s, vertices, np.array([[0, 1, 2]], np.int32)),
+                   lambda s: TriangleMesh(s, vertices.astype(np.float32), np.array([[0, 1, 2]], np.int32))):
+        scene = rtcore_scene.EmbreeScene(device)
+        upload(scene)
+        hits.append(scene.run(*rays, dists=np.full(1, 100.0, np.float32), output=1)["tfar"])
+    assert hits[0].tobytes() == hits[1].tobytes() and 5.0 < hits[0][0] < 5.3
+    empty = rtcore_scene.EmbreeScene(device)
+    add_triangles(empty, np.zeros((0, 3)), np.zeros((0, 3), np.int32))
+    assert empty.run(*rays, dists=np.full(1, 100.0, np.float32), output=1)["geomID"][0] == -1
+
+
+def test_draw_buffers_give_the_draws_of_fresh_arrays() -> None:
+    """Drawing into the reused rows gives the same stream as drawing fresh arrays; a new size, new rows."""
+    first = _draw_buffers(1000)
+    assert first.shape == (4, 1000) and _draw_buffers(1000) is first and _draw_buffers(999).shape == (4, 999)
+    rows = _draw_buffers(1000)
+    a, b = np.random.default_rng(7), np.random.default_rng(7)
+    a.standard_normal(dtype=np.float32, out=rows[0])
+    a.random(dtype=np.float32, out=rows[1])
+    assert rows[0].tobytes() == b.standard_normal(1000, dtype=np.float32).tobytes()
+    assert rows[1].tobytes() == b.random(1000, dtype=np.float32).tobytes()
+
+
+def _footprint_points_one_by_one(objects: list[object]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The former computation: each object's shapely footprint, its ring's or centroid's coordinates."""
+    points, owner = [], []
+    for k, obj in enumerate(objects):
+        if isinstance(obj, Crosswalk):
+            continue
+        footprint = footprint_of(obj)
+        xy = np.asarray(footprint.exterior.coords) if isinstance(obj, Building | Wall) else np.asarray(
+            footprint.centroid.coords)
+        points.append(xy)
+        owner.append(np.full(len(xy), k))
+    return np.concatenate(points), np.concatenate(owner)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_footprint_points_are_those_of_the_footprints(seed: int) -> None:
+    spec = generate_scene(seed, sensor="VLP-16")
+    objects = list(spec.objects)
+    kinds = {type(o).__name__ for o in objects}
+    assert {"Building", "Tree", "Pole"} <= kinds
+    got, index = footprint_points(objects)
+    expected, expected_index = _footprint_points_one_by_one(objects)
+    assert got.tobytes() == expected.tobytes()
+    np.testing.assert_array_equal(index, expected_index)
+
+
+def test_footprint_points_of_walls_and_open_rings() -> None:
+    """Walls (buffered lines) and a building footprint given open or already closed."""
+    objects = [Wall(start=(0.0, 0.0), end=(3.0, 4.0), height=2.0, thickness=0.3),
+               Building(footprint=[(0.0, 0.0), (5.0, 0.0), (5.0, 4.0)], height=6.0),
+               Building(footprint=[(1.0, 1.0), (6.0, 1.0), (6.0, 5.0), (1.0, 1.0)], height=6.0),
+               Wall(start=(-2.0, 1.0), end=(-2.0, 9.0), height=1.0)]
+    got, index = footprint_points(objects)
+    expected, expected_index = _footprint_points_one_by_one(objects)
+    assert got.tobytes() == expected.tobytes()
+    np.testing.assert_array_equal(index, expected_index)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_on_ground_moves_merged_objects_as_one_by_one(seed: int) -> None:
+    """The merged objects' vertices are bitwise the former per-mesh moves, concatenated."""
+    spec = generate_scene(seed, sensor="VLP-16")
+    _, ground = _ground_and_roads(spec, trajectory_of(spec.ego, spec.ego.speed))
+    assert not ground.is_flat
+    objects = list(spec.objects)
+    meshes = [_static_object(obj) for obj in objects]
+    xy, index = _footprint_points_one_by_one(objects)
+    lowest = np.full(len(objects), np.inf)
+    np.minimum.at(lowest, index, ground.height(xy[:, 0], xy[:, 1]))
+    expected = Mesh.concat([dataclasses.replace(m, vertices=m.vertices + np.array([0.0, 0.0, lowest[k] - SINK]))
+                            if np.isfinite(lowest[k]) and len(m) else m for k, m in enumerate(meshes)])
+    got = _on_ground(meshes, objects, ground)
+    assert got.vertices.tobytes() == expected.vertices.tobytes()
+    for field in ("faces", "reflectivity", "semantic", "returns", "gloss", "material"):
+        assert getattr(got, field).tobytes() == getattr(expected, field).tobytes(), field
+
+
+def _extruded_ring_by_ring(polygon: Polygon | MultiPolygon, z0: float, z1: float, material_name: str,
+                           side_material: str | None = None) -> Mesh:
+    """The former computation: a mesh per ring of wall quads, concatenated after the top."""
+    top = flat(polygon, z1, material_name)
+    rings = []
+    for poly in polygons_of(polygon).geoms:
+        rings.append(np.asarray(poly.exterior.coords))
+        rings.extend(np.asarray(hole.coords) for hole in poly.interiors)
+    walls = []
+    for coords in rings:
+        a, b = coords[:-1], coords[1:]
+        n = len(a)
+        quad = np.stack([
+            np.column_stack([a, np.full(n, z0)]), np.column_stack([b, np.full(n, z0)]),
+            np.column_stack([b, np.full(n, z1)]), np.column_stack([a, np.full(n, z1)]),
+        ], axis=1).reshape(-1, 3)
+        base = np.arange(n, dtype=np.int32)[:, None] * 4
+        faces = np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])]).astype(np.int32)
+        walls.append(Mesh.of(quad, faces, side_material or material_name))
+    return Mesh.concat([top, *walls])
+
+
+@pytest.mark.parametrize("side_material", [None, "window"])
+def test_extruded_is_the_ring_by_ring_mesh(side_material: str | None) -> None:
+    """Footprints with holes, several parts and many corners: the same mesh, bit for bit."""
+    rng = np.random.default_rng(25)
+    courtyard = box(0, 0, 20, 12).difference(box(5, 3, 9, 8)).difference(box(12, 2, 16, 6))
+    star = Polygon([(10 + r * np.cos(a), 30 + r * np.sin(a)) for a, r in
+                    zip(np.linspace(0, 2 * np.pi, 23, endpoint=False), rng.uniform(3, 9, 23), strict=True)])
+    shapes = [box(0, 0, 4, 3), courtyard, star, MultiPolygon([courtyard, star]),
+              Polygon(rng.uniform(-50, 50, (12, 2))).convex_hull]
+    for shape in shapes:
+        got = extruded(shape, -0.5, 7.25, "brick", side_material=side_material)
+        expected = _extruded_ring_by_ring(shape, -0.5, 7.25, "brick", side_material)
+        for field in ("vertices", "faces", "reflectivity", "semantic", "returns", "gloss", "material"):
+            assert getattr(got, field).tobytes() == getattr(expected, field).tobytes(), field
+        assert got.faces.dtype == np.int32 and len(got) == len(expected) > 0

@@ -53,7 +53,6 @@ from typing import Any
 
 import numpy as np
 from embreex import rtcore_scene
-from embreex.mesh_construction import TriangleMesh
 from numpy.typing import NDArray
 
 from lidarfuzz.scene.calib import KittiCalibration
@@ -61,7 +60,7 @@ from lidarfuzz.scene.image import ImageSample
 from lidarfuzz.sim.actors import actor_mesh
 from lidarfuzz.sim.materials import MATERIAL_ID, MATERIALS, PAINT_COLOURS, PAINT_MATERIAL
 from lidarfuzz.sim.meshes import Mesh
-from lidarfuzz.sim.render import Renderer, _thread_pool
+from lidarfuzz.sim.render import Renderer, _thread_pool, add_triangles
 from lidarfuzz.sim.terrain import frame_from_slopes
 from lidarfuzz.sim.world import TILTING_CLASSES
 
@@ -517,7 +516,7 @@ class CameraRenderer:
             actor_poses[moving] = moving_poses[moving]
             if len(mesh):
                 moving_scene = rtcore_scene.EmbreeScene(renderer._device)
-                TriangleMesh(moving_scene, mesh.vertices.astype(np.float32), mesh.faces)
+                add_triangles(moving_scene, mesh.vertices, mesh.faces)
                 material = np.concatenate([material, mesh.material])
                 owner = np.concatenate([owner, mesh_owner.astype(np.int64)])
                 faces = _unit_face_normals(mesh)

@@ -243,15 +243,20 @@ def extruded(polygon: Polygon | MultiPolygon, z0: float, z1: float, material_nam
     for poly in polygons_of(polygon).geoms:
         rings.append(np.asarray(poly.exterior.coords))
         rings.extend(np.asarray(hole.coords) for hole in poly.interiors)
-    walls = []
-    for coords in rings:
+    # One quad per ring edge, all rings in one mesh; each ring's faces are its quads' first
+    # triangles, then their second ones (the order a mesh per ring, concatenated, had).
+    edges = [len(coords) - 1 for coords in rings]
+    quad = np.empty((sum(edges), 4, 3))
+    faces = []
+    start = 0
+    for coords, n in zip(rings, edges, strict=True):
         a, b = coords[:-1], coords[1:]
-        n = len(a)
-        quad = np.stack([
-            np.column_stack([a, np.full(n, z0)]), np.column_stack([b, np.full(n, z0)]),
-            np.column_stack([b, np.full(n, z1)]), np.column_stack([a, np.full(n, z1)]),
-        ], axis=1).reshape(-1, 3)
-        base = np.arange(n, dtype=np.int32)[:, None] * 4
-        faces = np.concatenate([base + np.array([0, 1, 2]), base + np.array([0, 2, 3])]).astype(np.int32)
-        walls.append(Mesh.of(quad, faces, side_material or material_name))
-    return Mesh.concat([top, *walls])
+        ring_quads = quad[start:start + n]
+        ring_quads[:, 0, :2], ring_quads[:, 1, :2], ring_quads[:, 2, :2], ring_quads[:, 3, :2] = a, b, b, a
+        ring_quads[:, :2, 2], ring_quads[:, 2:, 2] = z0, z1
+        base = (np.arange(n, dtype=np.int32)[:, None] + start) * 4
+        faces += [base + np.array([0, 1, 2], np.int32), base + np.array([0, 2, 3], np.int32)]
+        start += n
+    walls = Mesh.of(quad.reshape(-1, 3), np.concatenate(faces) if faces else np.zeros((0, 3), np.int32),
+                    side_material or material_name)
+    return Mesh.concat([top, walls])

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -133,6 +134,26 @@ def _ray_tables(sensor: LidarSensor) -> _RayTables:
     return tables
 
 
+_DRAWS = threading.local()
+
+
+def _draw_buffers(n: int) -> NDArray[np.float32]:
+    """Four float32 rows of ``n`` for a frame's per-ray random draws, reused by every frame this
+    thread renders with ``n`` rays.
+
+    A frame's large temporaries are fresh memory each frame (the C allocator hands freed
+    heap back to the kernel between frames, and every page is faulted in again: ~5 ms of
+    kernel time per HDL-64E frame); the draws are 2 MB of them and never leave
+    :meth:`Renderer.render` (only copies, gathered by index, do), so they can be kept. One set
+    per thread: renderers may run in several threads at once.
+    """
+    buffers: NDArray[np.float32] | None = getattr(_DRAWS, "buffers", None)
+    if buffers is None or buffers.shape[1] != n:
+        buffers = np.empty((4, n), np.float32)
+        _DRAWS.buffers = buffers
+    return buffers
+
+
 _DEVICE: rtc.EmbreeDevice | None = None
 _POOL: ThreadPoolExecutor | None = None
 
@@ -151,6 +172,28 @@ def _shared_device() -> rtc.EmbreeDevice:
     if _DEVICE is None:
         _DEVICE = rtc.EmbreeDevice()
     return _DEVICE
+
+
+def add_triangles(scene: rtcore_scene.EmbreeScene, vertices: NDArray[np.floating[Any]],
+                  faces: NDArray[np.integer[Any]]) -> None:
+    """Add the triangle mesh (``vertices`` V×3, stored as float32; ``faces`` F×3) to ``scene``.
+
+    embreex (4.4) fills Embree's buffers element by element through Python indexing:
+    ``vertices[i, k]`` makes a numpy scalar per coordinate and ``faces[i][k]`` a row view per
+    index, ~7 ms for a world's ~18k vertices and ~10k faces (more than its BVH build). Given an
+    object array of Python floats and a 1-D object array of index tuples instead, each access
+    returns an existing object: the same values reach Embree (float32 coordinates made
+    doubles and cast back exactly; the same integers) at a third of the cost, conversions
+    included. Should a later embreex type its arguments (it would reject object arrays), the
+    plain arrays are passed.
+    """
+    coordinates = np.asarray(vertices, np.float32)
+    index = np.asarray(faces)
+    try:
+        TriangleMesh(scene, coordinates.astype(object),
+                     np.fromiter(zip(*index.T.tolist(), strict=True), dtype=object, count=len(index)))
+    except (TypeError, ValueError):  # an embreex that reads typed buffers: already fast with arrays
+        TriangleMesh(scene, coordinates, index)
 
 
 @dataclass(frozen=True)
@@ -393,7 +436,7 @@ class Renderer:
             # Geometry ids in the order added: the world (0) then the still road users (1).
             for mesh in (static, still):
                 if len(mesh):
-                    TriangleMesh(scene, mesh.vertices.astype(np.float32), mesh.faces)
+                    add_triangles(scene, mesh.vertices, mesh.faces)
                 else:  # keep the ids stable with a degenerate placeholder triangle far away
                     TriangleMesh(scene, np.full((3, 3), -1e6, np.float32), np.array([[0, 1, 2]], np.int32))
             self._static_scene = scene
@@ -432,7 +475,7 @@ class Renderer:
             if not len(rays):
                 continue
             scene = rtcore_scene.EmbreeScene(self._device)
-            TriangleMesh(scene, part.mesh.vertices.astype(np.float32), part.mesh.faces)
+            add_triangles(scene, part.mesh.vertices, part.mesh.faces)
             limit = np.nextafter(distance[rays], np.float32(np.inf))
             found = self._trace(scene, origins[rays], directions[rays], limit)
             nearer = found["geomID"] >= 0
@@ -533,7 +576,7 @@ class Renderer:
         remap = np.zeros(len(actors.vertices), np.int32)
         remap[used] = np.arange(len(used), dtype=np.int32)
         scene = rtcore_scene.EmbreeScene(self._device)
-        TriangleMesh(scene, actors.vertices[used].astype(np.float32), remap[faces])
+        add_triangles(scene, actors.vertices[used], remap[faces])
         limit = np.full(len(candidates), self.sensor.max_range, np.float32)
         result = scene.run(origins[candidates], directions[candidates], dists=limit, output=1)
         hit = (result["geomID"] >= 0) & (result["tfar"] >= self.sensor.min_range)
@@ -590,10 +633,13 @@ class Renderer:
         distance = hits.distance
         # Draw every random number for every ray, so that a change in the scene does not
         # shift the noise of unrelated rays.
-        range_error = rng.standard_normal(n, dtype=np.float32) * np.float32(sensor.range_noise)
-        drop_draw = rng.random(n, dtype=np.float32)
-        return_draw = rng.random(n, dtype=np.float32)
-        intensity_error = rng.standard_normal(n, dtype=np.float32) * np.float32(sensor.intensity_noise)
+        range_error, drop_draw, return_draw, intensity_error = _draw_buffers(n)
+        rng.standard_normal(dtype=np.float32, out=range_error)
+        range_error *= np.float32(sensor.range_noise)
+        rng.random(dtype=np.float32, out=drop_draw)
+        rng.random(dtype=np.float32, out=return_draw)
+        rng.standard_normal(dtype=np.float32, out=intensity_error)
+        intensity_error *= np.float32(sensor.intensity_noise)
 
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             signal = reflectivity * np.sqrt(np.maximum(cos_incidence, np.float32(0.05)))

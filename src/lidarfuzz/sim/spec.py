@@ -192,8 +192,10 @@ def _check_motion(entry: Ego | Actor, moving: bool) -> None:
                              f"got {len(entry.speeds)}")
     if entry.stops and not moving:
         raise ValueError("stops: a road user that does not move cannot stop; give a speed or speeds")
-    length = _route_length(entry.route)
-    for k, stop in enumerate(entry.stops or []):
+    if not entry.stops:
+        return
+    length = _route_length(entry.route)  # only stops need it: every generated road user is validated
+    for k, stop in enumerate(entry.stops):
         if stop.at > length + 1e-6:
             raise ValueError(f"stops[{k}].at: {stop.at} m is beyond the route's end ({length:.1f} m)")
 
