@@ -10,11 +10,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarfuzz.operators.lidar.common import in_axis_box
+from lidarfuzz.operators.lidar.common import in_axis_box, mod_period
 from lidarfuzz.operators.lidar.geometric import CHUNK, transformed_points
-from lidarfuzz.operators.lidar.points import _in_column, _z_extent
-from lidarfuzz.operators.lidar.returns import ring_azimuth_order
-from lidarfuzz.operators.lidar.sensor import _present_rings, farthest_range
+from lidarfuzz.operators.lidar.points import (
+    EXTENT_BLOCK,
+    _extent,
+    _farthest_in_plane,
+    _in_column,
+    _planar_squares_and_extents,
+    _z_extent,
+)
+from lidarfuzz.operators.lidar.returns import (
+    BLOCK,
+    _falling_within_rings,
+    _narrow_rings,
+    far_neighbour,
+    range_and_azimuth,
+    ring_azimuth_order,
+)
+from lidarfuzz.operators.lidar.sensor import SQUARED_BLOCK, _present_rings, _squared_ranges, farthest_range
 from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
 
 
@@ -111,7 +125,7 @@ def test_farthest_range_with_non_finite_points_is_as_before() -> None:
 
 
 @pytest.mark.parametrize("rings", [np.array([3, 3, -1, 0, 63, 5, 5]), np.array([-1, -1]), np.array([], np.int64),
-                                   np.array([70_000, 1, 1])])
+                                   np.array([70_000, 1, 1]), np.array([-5, 2, 2, -1])])
 def test_present_rings_are_the_distinct_known_ones(rings: np.ndarray) -> None:
     rings = rings.astype(np.int64)
     got = _present_rings(rings)
@@ -152,3 +166,161 @@ def test_z_extent_is_cloud_extents_z() -> None:
     cloud = random_cloud(np.random.default_rng(4), 1_000)
     lo, hi = cloud_extent(cloud)
     assert _z_extent(cloud) == (float(lo[2]), float(hi[2]))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("period", [360.0, 2.0 * np.pi])
+def test_mod_period_is_np_mod(dtype: type, period: float) -> None:
+    """Bit for bit, on [−p, 2p) and its edges (±0, ±p, 2p less one ulp, values a rounding away from
+    p), in place and not; values outside that interval (NaN, ±inf, 2p and beyond) take np.mod."""
+    rng = np.random.default_rng(8)
+    p = dtype(period)
+    values = rng.uniform(-float(p), 2 * float(p), 50_000).astype(dtype)
+    edges = [0.0, -0.0, -p, p, np.nextafter(p, dtype(0)), np.nextafter(p, dtype(3 * p)),
+             np.nextafter(2 * p, dtype(0)), np.nextafter(-p, dtype(0)), np.nextafter(dtype(0), dtype(-1))]
+    values[: len(edges)] = edges
+    expected = np.mod(values, period)
+    got = mod_period(values, period)
+    assert got.dtype == expected.dtype and got.tobytes() == expected.tobytes()
+    in_place = values.copy()
+    assert mod_period(in_place, period, out=in_place) is in_place and in_place.tobytes() == expected.tobytes()
+    for outside in (np.nan, np.inf, -np.inf, 2 * float(p), -2 * float(p), 1e9):
+        wide = values.copy()
+        wide[-1] = outside
+        with np.errstate(invalid="ignore"):  # np.mod(±inf) is NaN, with a warning
+            np.testing.assert_array_equal(mod_period(wide, period), np.mod(wide, period))
+    assert mod_period(np.zeros(0, dtype), period).shape == (0,)
+
+
+def far_neighbour_as_before(cloud: PointCloud, ring: np.ndarray, edge_m: float, max_gap_deg: float) -> np.ndarray:
+    """far_neighbour as it was computed before the scan-order path: a full float64 copy, lexsort,
+    the next neighbour first and the previous one when farther still."""
+    n = len(cloud)
+    result = np.full(n, -1, np.int64)
+    xyz = cloud.xyz.astype(np.float64)
+    distance = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+    azimuth = np.arctan2(xyz[:, 1], xyz[:, 0])
+    order = np.lexsort((azimuth, ring))
+    ring_s, az_s, dist_s = ring[order], azimuth[order], distance[order]
+    adjacent = (ring_s[1:] == ring_s[:-1]) & (ring_s[1:] >= 0) & (np.diff(az_s) <= np.radians(max_gap_deg))
+    best = np.full(n, -1, np.int64)
+    best_range = dist_s + edge_m
+    farther = adjacent & (dist_s[1:] > best_range[:-1])
+    best[:-1][farther] = np.flatnonzero(farther) + 1
+    best_range[:-1][farther] = dist_s[1:][farther]
+    farther = adjacent & (dist_s[:-1] > best_range[1:])
+    best[1:][farther] = np.flatnonzero(farther)
+    has = best >= 0
+    result[order[has]] = order[best[has]]
+    return result
+
+
+def scan_cloud(rng: np.random.Generator, rings: int, columns: int) -> tuple[PointCloud, np.ndarray]:
+    """A spinning sensor's frame in firing order: column by column (azimuth falling), each column's
+    rings in turn; ranges jump between a near and a far surface so that edges exist, some
+    neighbours are more than a degree apart (gaps of sky), and a few firings have no return."""
+    azimuth = np.repeat(np.pi - (np.arange(columns) + 0.5) * (2 * np.pi / columns), rings)
+    azimuth += rng.uniform(-1e-4, 1e-4, len(azimuth))  # per-ring offsets, well under half a column
+    ring = np.tile(np.arange(rings), columns)
+    distance = np.where(rng.random(len(ring)) < 0.3, rng.uniform(2, 8, len(ring)), rng.uniform(10, 60, len(ring)))
+    elevation = np.radians(-20 + 0.5 * ring)
+    xyz = np.c_[distance * np.cos(elevation) * np.cos(azimuth), distance * np.cos(elevation) * np.sin(azimuth),
+                distance * np.sin(elevation)]
+    present = rng.random(len(ring)) > 0.1
+    data = np.c_[xyz, rng.random(len(ring)), ring][present].astype(np.float32)
+    return PointCloud(data, ("x", "y", "z", "intensity", "ring")), ring[present].astype(np.int64)
+
+
+@pytest.mark.parametrize("arrangement", ["scan order", "reversed", "shuffled", "unknown rings", "wide rings",
+                                         "a tie", "a NaN"])
+def test_far_neighbour_is_as_before(arrangement: str) -> None:
+    """The scan-order path (no azimuth sort), the sorted path (rings out of order, ties, NaN) and
+    the lexsort path (rings beyond int16) all give what the lexsort code gave."""
+    rng = np.random.default_rng(12)
+    cloud, ring = scan_cloud(rng, 16, 1_500)
+    data = cloud.data.copy()
+    if arrangement == "reversed":
+        data, ring = data[::-1].copy(), ring[::-1].copy()
+    elif arrangement == "shuffled":
+        order = rng.permutation(len(ring))
+        data, ring = data[order], ring[order]
+    elif arrangement == "unknown rings":
+        ring[::7] = -1
+    elif arrangement == "wide rings":
+        ring = ring * 5_000
+    elif arrangement == "a tie":
+        first, second = np.flatnonzero(ring == 0)[:2]
+        data[second, :2] = data[first, :2]  # ring 0's first two firings at one azimuth
+    elif arrangement == "a NaN":
+        data[5, 0] = np.nan
+    cloud = PointCloud(data, cloud.channels)
+    narrow = _narrow_rings(ring)
+    if narrow is None:  # which path the arrangement takes
+        assert arrangement == "wide rings"
+    elif arrangement != "unknown rings":  # (the unknown ones: from several rings of a column)
+        by_ring = np.argsort(narrow, kind="stable")
+        _, azimuth = range_and_azimuth(cloud.data)
+        assert _falling_within_rings(narrow[by_ring], azimuth[by_ring]) == (arrangement == "scan order")
+    for edge_m, max_gap_deg in [(1.0, 1.0), (0.3, 0.1), (5.0, 3.0)]:
+        expected = far_neighbour_as_before(cloud, ring, edge_m, max_gap_deg)
+        assert np.array_equal(far_neighbour(cloud, ring, edge_m, max_gap_deg), expected)
+    assert (expected >= 0).sum() > 100  # edges were there to find
+
+
+def test_range_and_azimuth_are_the_whole_arrays() -> None:
+    """Block by block (several blocks and a shorter last one) as on the whole N×3 float64 copy."""
+    rng = np.random.default_rng(13)
+    cloud = random_cloud(rng, 2 * BLOCK + 1_234)
+    xyz = cloud.xyz.astype(np.float64)
+    distance, azimuth = range_and_azimuth(cloud.data)
+    assert distance.tobytes() == np.sqrt(np.einsum("ij,ij->i", xyz, xyz)).tobytes()
+    assert azimuth.tobytes() == np.arctan2(xyz[:, 1], xyz[:, 0]).tobytes()
+
+
+def test_farthest_in_plane_is_the_full_hypot_maximum() -> None:
+    """Also with a crowd of points within float32 rounding of the farthest planar range, and with
+    NaN or infinite coordinates (the full computation)."""
+    rng = np.random.default_rng(14)
+    for _ in range(50):
+        angle = rng.uniform(-np.pi, np.pi, 5_000)
+        ranges = rng.uniform(1.0, 80.0, 5_000)
+        ranges[:200] = 80.0 * (1 + rng.uniform(-3e-7, 3e-7, 200))
+        xyz = np.c_[ranges * np.cos(angle), ranges * np.sin(angle), rng.normal(0, 2, 5_000)]
+        cloud = cloud_of(xyz, rng)
+        assert _farthest_in_plane(cloud) == float(np.hypot(cloud.xyz[:, 0], cloud.xyz[:, 1]).max())
+    for bad in (np.nan, np.inf, 3e20):
+        xyz[7, 1] = bad
+        cloud = cloud_of(xyz, rng)
+        expected = float(np.hypot(cloud.xyz[:, 0], cloud.xyz[:, 1]).max())
+        assert _farthest_in_plane(cloud) == expected or (np.isnan(expected) and np.isnan(_farthest_in_plane(cloud)))
+
+
+def test_squared_ranges_in_blocks_are_the_column_sums() -> None:
+    rng = np.random.default_rng(15)
+    cloud = random_cloud(rng, 2 * SQUARED_BLOCK + 77)
+    x, y, z = (cloud.xyz[:, i] for i in range(3))
+    assert _squared_ranges(cloud).tobytes() == ((x * x + y * y) + z * z).tobytes()
+    assert _squared_ranges(random_cloud(rng, 0)).shape == (0,)
+
+
+@pytest.mark.parametrize("nan", [False, True])
+def test_extents_in_one_pass_are_the_column_reductions(nan: bool) -> None:
+    """_extent against cloud_extent, and the planar squares and z / intensity extents against
+    the whole columns' arithmetic and reductions, over several blocks and a shorter last one."""
+    from lidarfuzz.operators.lidar.common import cloud_extent
+
+    rng = np.random.default_rng(16)
+    cloud = random_cloud(rng, 2 * EXTENT_BLOCK + 555)
+    if nan:
+        data = cloud.data.copy()
+        data[EXTENT_BLOCK + 3, 2] = np.nan  # z of a point in the second block
+        cloud = PointCloud(data, cloud.channels)
+    low, high = _extent(cloud)
+    expected_low, expected_high = cloud_extent(cloud)
+    np.testing.assert_array_equal(low, expected_low)
+    np.testing.assert_array_equal(high, expected_high)
+    squared, extents = _planar_squares_and_extents(cloud)
+    x, y, z, intensity = (cloud.data[:, i] for i in range(4))
+    assert squared.tobytes() == (x * x + y * y).tobytes()
+    np.testing.assert_array_equal(extents, [z.min(), z.max(), intensity.min(), intensity.max()])
+    assert _farthest_in_plane(cloud, squared) == _farthest_in_plane(cloud) == float(np.hypot(x, y).max())

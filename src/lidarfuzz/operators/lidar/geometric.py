@@ -42,30 +42,45 @@ def transformed_points(points: PointCloud, matrix: NDArray[np.float64], *, offse
     float32 once, every other channel kept.
 
     Computes, per output axis i, ``Σ_k x_k · m[i, k] + m[i, 3]`` column by column in blocks of
-    :data:`CHUNK` points: the float64 values of one block live in preallocated buffers, so there
-    is neither an N×3 float64 copy nor a BLAS call (a 120k×3 by 3×3 product spends more time
-    waking BLAS than multiplying). Terms whose coefficient is exactly 0 are skipped: adding
+    :data:`CHUNK` points: each block of rows is copied into the output and transformed there while
+    it is in the cache, the input columns it needs widened to float64 once into preallocated
+    buffers, so there is neither an N×3 float64 copy nor a BLAS call (a 120k×3 by 3×3 product
+    spends more time waking BLAS than multiplying), and the sums are rounded to float32 as they
+    are written back. Terms whose coefficient is exactly 0 are skipped: adding
     ±0 to a sum leaves it unchanged, and the offset, added last (even when 0), turns −0 into +0
     as the full product does. A coefficient of exactly 1 multiplies exactly, so an axis the
     matrix leaves alone costs one float64 addition. ``offset=False`` skips the offset column (a
     pure scaling, x · f: then −0 stays −0, as that product leaves it).
     """
-    data = points.data.copy()
-    n = len(data)
+    source = points.data
+    n = len(source)
     if n == 0:
         return points
+    data = np.empty_like(source)
     m = np.asarray(matrix, np.float64)
     block = min(CHUNK, n)
-    outputs, term = np.empty((3, block)), np.empty(block)
     terms = [[(k, float(m[i, k])) for k in range(3) if m[i, k] != 0.0] for i in range(3)]
     shifts = [float(m[i, 3]) if offset else None for i in range(3)]
     # an axis mapped to itself with no shift: x + 0 in float32 is float32(float64(x) + 0), exactly
     unchanged = [terms[i] == [(i, 1.0)] and not shifts[i] for i in range(3)]
+    # the input columns some output needs, each widened to float64 once per block (contiguous:
+    # the products are then vectorised, where multiplying the strided float32 column casts it again)
+    needed = sorted({k for i in range(3) if not unchanged[i] for k, _ in terms[i]})
+    inputs = {k: np.empty(block) for k in needed}
+    outputs, term = np.empty((3, block)), np.empty(block)
     for start in range(0, n, block):
         rows = data[start:start + block]
+        np.copyto(rows, source[start:start + block])
         count = len(rows)
+        for k in needed:
+            np.copyto(inputs[k][:count], rows[:, k])
+        sums = []
         for i in range(3):
+            sums.append(outputs[i, :count])
             if unchanged[i]:
+                continue
+            if len(terms[i]) == 1 and terms[i][0][1] == 1.0:  # x_k itself: its widened column, no copy
+                sums[i] = inputs[terms[i][0][0]][:count]
                 continue
             a, t = outputs[i, :count], term[:count]
             if not terms[i]:
@@ -73,19 +88,21 @@ def transformed_points(points: PointCloud, matrix: NDArray[np.float64], *, offse
             for j, (k, coefficient) in enumerate(terms[i]):
                 target = a if j == 0 else t
                 if coefficient == 1.0:
-                    np.copyto(target, rows[:, k])
+                    np.copyto(target, inputs[k][:count])
                 else:
-                    np.multiply(rows[:, k], coefficient, out=target, dtype=np.float64)
+                    np.multiply(inputs[k][:count], coefficient, out=target)
                 if j:
                     a += t
-            shift = shifts[i]
-            if shift is not None:
-                a += shift
         for i in range(3):  # written once every output of the block is computed from its inputs
-            if not unchanged[i]:
-                rows[:, i] = outputs[i, :count]
-            elif offset:
-                rows[:, i] += np.float32(0.0)  # −0 becomes +0, as adding a zero offset in float64 does
+            shift = shifts[i]
+            if unchanged[i]:
+                if offset:
+                    rows[:, i] += np.float32(0.0)  # −0 becomes +0, as adding a zero offset in float64 does
+            elif shift is not None:
+                # the offset added in float64 and the sum rounded to float32 in one pass
+                np.add(sums[i], shift, out=rows[:, i], casting="same_kind")
+            else:
+                rows[:, i] = sums[i]
     return PointCloud(data, points.channels)
 
 

@@ -43,7 +43,7 @@ from lidarfuzz.operators.base import (
     draw_seed,
     uniform,
 )
-from lidarfuzz.operators.lidar.common import scene_intensity_scale
+from lidarfuzz.operators.lidar.common import mod_period, scene_intensity_scale
 from lidarfuzz.operators.lidar.geometric import transformed_points
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
@@ -59,6 +59,11 @@ RING_MIN_SPACING_DEG = 0.12
 
 
 # --------------------------------------------------------------------------- helpers
+#: Rows per block of the in-cache work of motion distortion and jitter (8192 × 32 bytes for an
+#: eight-channel frame).
+MOTION_BLOCK = 8192
+
+
 def estimate_rings(xyz: NDArray[np.floating], bin_deg: float = RING_BIN_DEG,
                    smooth_deg: float = RING_SMOOTH_DEG,
                    min_spacing_deg: float = RING_MIN_SPACING_DEG) -> NDArray[np.int64]:
@@ -110,9 +115,16 @@ def rings_of(cloud: PointCloud) -> tuple[NDArray[np.int64], str]:
     """The ring of each point and where it came from: the ``ring`` channel, or ``elevation``
     (:func:`estimate_rings`) when the cloud has none or only unknown rings (−1, the value
     readers fill in). Points of unknown ring in a ring channel (e.g. added noise) keep −1."""
-    if _has_rings(cloud):
-        return np.rint(cloud.channel("ring")).astype(np.int64), "channel"
+    if cloud.has("ring") and len(cloud):
+        values = cloud.channel("ring").copy()  # one pass over the strided column for both uses
+        if float(values.max()) >= 0:  # (_has_rings)
+            return np.rint(values, out=values).astype(np.int64), "channel"
     return estimate_rings(cloud.xyz), "elevation"
+
+
+def ring_source(cloud: PointCloud) -> str:
+    """Where :func:`rings_of` takes the rings from ("channel" or "elevation"), without computing them."""
+    return "channel" if _has_rings(cloud) else "elevation"
 
 
 def _has_rings(cloud: PointCloud) -> bool:
@@ -121,7 +133,11 @@ def _has_rings(cloud: PointCloud) -> bool:
 
 def _has_times(cloud: PointCloud) -> bool:
     # Readers fill a missing time channel with zeros: a constant channel carries no timing.
-    return cloud.has("time") and bool(len(cloud)) and float(np.ptp(cloud.channel("time"))) > 0
+    # (max > min is ptp > 0, NaN included; on a contiguous copy both reductions are vectorised.)
+    if not cloud.has("time") or len(cloud) == 0:
+        return False
+    times = cloud.channel("time").copy()
+    return float(times.max()) > float(times.min())
 
 
 def _rings_for(cloud: PointCloud, source: str) -> NDArray[np.int64]:
@@ -149,19 +165,28 @@ def azimuth_rad(xyz: NDArray[np.floating]) -> NDArray[np.floating]:
 def time_of_azimuth(azimuth: NDArray[np.floating], rotation_hz: float = 10.0) -> NDArray[np.floating]:
     """Firing time relative to the frame timestamp of a head spinning clockwise from behind
     (0 straight ahead; −period/2 behind at the start of the sweep)."""
-    turns = np.mod(np.pi - azimuth, 2.0 * np.pi) / (2.0 * np.pi)
+    turns = mod_period(np.pi - azimuth, 2.0 * np.pi) / (2.0 * np.pi)
     return (turns - 0.5) / rotation_hz
 
 
+#: Rows per block of :func:`_squared_ranges`: a block's rows (8192 × 32 bytes for an HDL-64E frame's
+#: eight channels) stay in the L2 cache while its three columns are read.
+SQUARED_BLOCK = 8192
+
+
 def _squared_ranges(cloud: PointCloud) -> NDArray[np.float32]:
-    """x² + y² + z² column by column (reductions over the strided N×3 view are several times slower),
-    summed in place in that order."""
-    xyz = cloud.xyz
-    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    total = x * x
-    term = y * y
-    total += term
-    total += np.multiply(z, z, out=term)
+    """x² + y² + z² in float32, summed in that order, block by block: each strided column read
+    from memory separately would bring the whole N×C array through the cache three times."""
+    data = cloud.data
+    n = len(data)
+    total = np.empty(n, np.float32)
+    term = np.empty(min(SQUARED_BLOCK, n), np.float32)
+    for start in range(0, n, SQUARED_BLOCK):
+        rows = data[start:start + SQUARED_BLOCK]
+        out, t = total[start:start + len(rows)], term[:len(rows)]
+        np.multiply(rows[:, 0], rows[:, 0], out=out)
+        out += np.multiply(rows[:, 1], rows[:, 1], out=t)
+        out += np.multiply(rows[:, 2], rows[:, 2], out=t)
     return total
 
 
@@ -179,17 +204,21 @@ def farthest_range(cloud: PointCloud) -> float:
     top = float(squared.max())
     if not np.isfinite(top):  # NaN or inf coordinates: the full computation, as before
         return float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max())
-    candidates = cloud.xyz[squared >= np.float32(top * (1.0 - 1e-5))]
+    # (their indices first: a boolean mask over the strided N×3 view is several times slower)
+    candidates = cloud.xyz[np.flatnonzero(squared >= np.float32(top * (1.0 - 1e-5)))]
     return float(np.linalg.norm(candidates.astype(np.float64), axis=1).max())
 
 
 def _present_rings(ring: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The distinct known rings (≥ 0), sorted, as ``np.unique`` gives them: counted with
-    ``bincount`` (one pass, no sort or hash table) when ring numbers are small, as they are."""
-    known = ring[ring >= 0]
-    if len(known) == 0 or int(known.max()) >= 1 << 16:
-        return np.unique(known)
-    return np.flatnonzero(np.bincount(known)).astype(np.int64)
+    """The distinct known rings (≥ 0), sorted, as ``np.unique`` gives them: marked in a table of
+    the ring numbers (one pass, no sort, no hash table, no copy of the known ones) when they are
+    small, as they are; the unknown ring (−1) marks the table's spare last entry."""
+    if len(ring) == 0 or int(ring.min()) < -1 or int(ring.max()) >= 1 << 16:
+        return np.unique(ring[ring >= 0])
+    top = int(ring.max())
+    seen = np.zeros(top + 2, bool)
+    seen[ring] = True
+    return np.flatnonzero(seen[:top + 1]).astype(np.int64)
 
 
 def _with_intensity(cloud: PointCloud, values: NDArray[np.floating]) -> PointCloud:
@@ -213,14 +242,20 @@ def _signed(rng: np.random.Generator, interval: Range) -> float:
 
 def _jittered(sample: Scene, fill: Callable[[NDArray[np.float32]], object]) -> Scene:
     """The cloud with offsets added to x, then y, then z: ``fill(buffer)`` writes one axis's
-    offsets into a preallocated float32 buffer, added column by column into one copy of the
-    data — no N×3 temporaries, and no new array per axis (positions only: every other channel is
-    copied as is)."""
-    data = sample.points.data.copy()
-    buffer = np.empty(len(data), np.float32)
+    offsets into a preallocated float32 buffer (x's, then y's, then z's: the draws' order), and
+    they are added block by block into the output as each block of rows is copied there, while
+    it is in the cache — no N×3 temporaries, and no pass over a strided column of the whole frame
+    (positions only: every other channel is copied as is)."""
+    source = sample.points.data
+    offsets = np.empty((3, len(source)), np.float32)
     for axis in range(3):
-        fill(buffer)
-        data[:, axis] += buffer
+        fill(offsets[axis])
+    data = np.empty_like(source)
+    for start in range(0, len(source), MOTION_BLOCK):
+        rows = data[start:start + MOTION_BLOCK]
+        np.copyto(rows, source[start:start + MOTION_BLOCK])
+        for axis in range(3):
+            rows[:, axis] += offsets[axis, start:start + len(rows)]
     return sample.with_points(PointCloud(data, sample.points.channels))
 
 
@@ -364,12 +399,18 @@ class CrossSensor(Operator[Scene, CrossSensorConfig, CrossSensorParams]):
             columns = int(np.bincount(ring[ring >= 0]).max()) if (ring >= 0).any() else len(cloud)
             # floor(((π − azimuth) mod 2π) / 2π · columns), the same float32 steps in one buffer
             turns = np.subtract(np.pi, azimuth_rad(cloud.xyz))
-            np.mod(turns, 2.0 * np.pi, out=turns)
+            mod_period(turns, 2.0 * np.pi, out=turns)
             turns /= 2.0 * np.pi
             turns *= columns
             column = np.floor(turns, out=turns).astype(np.int64)
-            np.mod(column, params.azimuth_factor, out=column)
-            keep &= column == int(params.azimuth_phase * params.azimuth_factor)
+            phase = int(params.azimuth_phase * params.azimuth_factor)
+            if int(column.min()) >= 0 and int(column.max()) <= 4 * columns + 4:  # (the cloud is not empty)
+                # column mod factor == phase, read from a table of the few columns (an integer
+                # division per point costs 3× the lookup)
+                keep &= (np.arange(int(column.max()) + 1) % params.azimuth_factor == phase)[column]
+            else:
+                np.mod(column, params.azimuth_factor, out=column)
+                keep &= column == phase
         return sample.with_points(cloud.select(keep))
 
 
@@ -500,7 +541,7 @@ class FovLoss(Operator[Scene, FovLossConfig, FovLossParams]):
         offset = np.degrees(azimuth_rad(sample.points.xyz))
         offset -= params.center
         offset += 180.0
-        np.mod(offset, 360.0, out=offset)
+        mod_period(offset, 360.0, out=offset)
         offset -= 180.0
         lost = np.abs(offset, out=offset) <= params.width / 2
         return sample.with_points(sample.points.select(~lost)) if lost.any() else sample
@@ -564,24 +605,34 @@ class MotionDistortion(Operator[Scene, MotionDistortionConfig, MotionDistortionP
             t = cloud.channel("time")
         else:
             t = time_of_azimuth(azimuth_rad(cloud.xyz), params.rotation_hz).astype(np.float32)
-        # one copy of the data, x and y rewritten in place (the same float32 operations, in order)
-        data = cloud.data.copy()
-        x, y = data[:, 0], data[:, 1]
-        shift = np.multiply(t, np.float32(params.speed))
-        x -= shift
-        if params.yaw_rate == 0:
-            return sample.with_points(PointCloud(data, cloud.channels))
-        angle = np.multiply(t, np.float32(-np.deg2rad(params.yaw_rate)), out=shift)
-        cos, sin = np.cos(angle), np.sin(angle, out=angle)
-        x_moved = np.ascontiguousarray(x)
-        term = sin * y
-        rotated_x = np.multiply(cos, x_moved)
-        rotated_x -= term  # cos·x − sin·y
-        np.multiply(sin, x_moved, out=term)
-        np.multiply(cos, y, out=cos)
-        term += cos  # sin·x + cos·y
-        x[:] = rotated_x
-        y[:] = term
+        # The same float32 operations as on whole columns, block by block: each block of rows is
+        # copied and rewritten while it is in the cache (a pass over a strided column of the whole
+        # frame costs as much as copying it).
+        source = cloud.data
+        data = np.empty_like(source)
+        speed = np.float32(params.speed)
+        turn = np.float32(-np.deg2rad(params.yaw_rate))
+        block = min(MOTION_BLOCK, len(source))
+        shift, cos, x_moved, term, rotated_x = (np.empty(block, np.float32) for _ in range(5))
+        for start in range(0, len(source), block):
+            rows = data[start:start + block]
+            np.copyto(rows, source[start:start + block])
+            k = len(rows)
+            times, x, y = t[start:start + k], rows[:, 0], rows[:, 1]
+            x -= np.multiply(times, speed, out=shift[:k])
+            if params.yaw_rate == 0:
+                continue
+            angle = np.multiply(times, turn, out=shift[:k])
+            c, s = np.cos(angle, out=cos[:k]), np.sin(angle, out=angle)
+            moved = x_moved[:k]
+            np.copyto(moved, x)
+            sin_y = np.multiply(s, y, out=term[:k])
+            new_x = np.multiply(c, moved, out=rotated_x[:k])
+            new_x -= sin_y  # cos·x − sin·y
+            new_y = np.multiply(s, moved, out=sin_y)
+            new_y += np.multiply(c, y, out=c)  # sin·x + cos·y
+            x[:] = new_x
+            y[:] = new_y
         return sample.with_points(PointCloud(data, cloud.channels))
 
 
@@ -721,11 +772,26 @@ class RangeDegradation(Operator[Scene, RangeDegradationConfig, RangeDegradationP
         noisy = np.maximum(noise, np.float32(0.05), out=noise)
         factor = np.divide(noisy, np.maximum(distance, np.float32(1e-9), out=squared), out=noisy)
         if keep is not None and not keep.all():  # one copy: the kept rows only
-            data, factor = np.compress(keep, cloud.data, axis=0), factor[keep]
+            factor = factor[keep]
         else:
-            data = cloud.data.copy()
-        for axis in range(3):  # radially, column by column
-            data[:, axis] *= factor
+            keep = None
+        # radially, column by column, block by block: each block of (kept) rows is copied into the
+        # output and scaled there while it is in the cache
+        source = cloud.data
+        data = np.empty((len(factor), source.shape[1]), np.float32)
+        written = 0
+        for start in range(0, n, MOTION_BLOCK):
+            end = min(start + MOTION_BLOCK, n)
+            if keep is None:
+                rows = data[start:end]
+                np.copyto(rows, source[start:end])
+            else:
+                kept = keep[start:end]
+                rows = data[written:written + int(np.count_nonzero(kept))]
+                np.compress(kept, source[start:end], axis=0, out=rows)
+            for axis in range(3):
+                rows[:, axis] *= factor[written:written + len(rows)]
+            written += len(rows)
         return sample.with_points(PointCloud(data, cloud.channels))
 
 
@@ -985,5 +1051,5 @@ class ImpulseJitter(Operator[Scene, ImpulseJitterConfig, ImpulseJitterParams]):
 __all__ = [
     "BeamMissing", "CrossSensor", "Crosstalk", "FovLoss", "GaussianJitter", "ImpulseJitter", "IntensityQuantisation",
     "IntensitySaturation", "MotionDistortion", "RangeDegradation", "SpatialMisalignment", "UniformJitter",
-    "estimate_rings", "rings_of", "time_of_azimuth",
+    "estimate_rings", "ring_source", "rings_of", "time_of_azimuth",
 ]

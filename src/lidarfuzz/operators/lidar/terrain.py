@@ -113,9 +113,11 @@ class Terrain(Operator[Scene, TerrainConfig, TerrainParams]):
         if len(points):
             # z + f(x, y) in float64, rounded once; x and y are not touched (they would round-trip
             # float32 → float64 → float32 exactly), so no float64 copy of the cloud
-            data = points.data.copy()
+            # (each block copied into the output and changed there while it is in the cache)
+            data = np.empty_like(points.data)
             for start in range(0, len(data), CHUNK):  # float64 temporaries of one cache-sized block
                 rows = data[start:start + CHUNK]
+                np.copyto(rows, points.data[start:start + CHUNK])
                 height = terrain_offset(params, rows[:, 0], rows[:, 1])
                 height += rows[:, 2]
                 rows[:, 2] = height
