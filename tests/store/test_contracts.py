@@ -106,7 +106,7 @@ def test_migration_0004_moves_what_older_versions_stored(tmp_path: Path) -> None
                           '"stats": {}, "violations": [{"relation": "preservation", "kind": "missing", '
                           '"magnitude": NaN, "range_m": Infinity}]}]'})
     store.migrate()
-    assert store.revision() == "0008"
+    assert store.revision() == "0009"
     with store.engine.connect() as c:
         raw = " ".join(str(v) for row in c.execute(sa.text(
             "SELECT t.summary, t.options, s.results, f.params, f.relations FROM tasks t, subtasks s, "
@@ -153,5 +153,5 @@ def test_migration_0004_goes_back_down(tmp_path: Path) -> None:
     assert json.loads(options)["relations"] == [] and "kind_options" not in json.loads(options)
     assert not {"plan", "state"} & columns
     store.migrate()
-    assert store.revision() == "0008"
+    assert store.revision() == "0009"
     store.close()

@@ -7,8 +7,8 @@ commands run in one child process (through :func:`lidarfuzz.cli.app.main`, as th
 command does), each reporting its exit code and output.
 
 Expected values, by hand: the task has originals + rotate_z@3 on 1 frame = 2 units, done; the
-workspace's store was at 0007 for the migration case, and the newest migration is 0008
-(task_claims), so that is the one named.
+workspace's store was at 0007 for the migration case, and the newest migrations are 0008
+(task_claims) and 0009 (sut_outputs.source), so those two are named.
 """
 
 from __future__ import annotations
@@ -135,9 +135,9 @@ def test_a_read_only_workspace_that_needs_a_migration_says_which(tmp_path: Path,
     Store(workspace, migrate=False).migrate("0007")  # as a lidarfuzz before task claims left it
     results = read_only(workspace, [["list", "--workspace", str(workspace)]])  # type: ignore[operator]
     assert results[0]["code"] == 1
-    assert results[0]["err"] == (f"error: the workspace at {workspace} is read-only and needs migration 0008; "
+    assert results[0]["err"] == (f"error: the workspace at {workspace} is read-only and needs migrations 0008, 0009; "
                                  f"run a command with write access once\n")
-    assert Store(workspace).revision() == "0008"  # with write access, it migrates
+    assert Store(workspace).revision() == "0009"  # with write access, it migrates
 
 
 def test_the_store_opens_read_only_and_refuses_a_write(done_workspace: Path, tmp_path: Path) -> None:
@@ -154,7 +154,7 @@ def test_the_store_opens_read_only_and_refuses_a_write(done_workspace: Path, tmp
     _chmod(workspace, writable=False)
     try:
         store = Store(workspace)
-        assert store.read_only and store.revision() == "0008"
+        assert store.read_only and store.revision() == "0009"
         with pytest.raises(StorageError, match=r"is read-only: this command writes to it"), store.session() as s:
             s.execute(update(Task).where(Task.id == 1).values(notes="a note"))
     finally:

@@ -24,9 +24,9 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Store:
 
 
 def test_schema_is_migrated_once_and_idempotently(store: Store) -> None:
-    assert store.revision() == "0008"
+    assert store.revision() == "0009"
     store.migrate()
-    assert store.revision() == "0008"
+    assert store.revision() == "0009"
     assert {"datasets", "models", "tasks", "subtasks", "frame_results", "findings"} <= set(store.tables())
 
 

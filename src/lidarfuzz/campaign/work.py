@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import xxhash
 
 from lidarfuzz.scene.scene import Scene
 from lidarfuzz.store.boxes import StoredBoxes
@@ -87,7 +88,8 @@ class UnitResult:
     seconds: float = 0.0  # the system's own time (0 when cached)
     timings: dict[str, float] = field(default_factory=dict)  # load, mutate, detect, relations, save
     cached: bool = False
-    input_key: str = ""
+    input_key: str = ""  # the input's cache key ("": not cached)
+    input_source: str = ""  # the content digest of the frame the input was made from
 
     def box_columns(self) -> dict[str, Any]:
         """The detections and ground truth as the frame-results table's four columns."""
@@ -105,9 +107,21 @@ def data_fault(unit: WorkUnit, exc: BaseException | str) -> UnitResult:
     return UnitResult(unit, failure=FailureRecord(kind=DATA_FAULT, message=f"frame {unit.frame_id}: {message}"))
 
 
+#: Marks a content digest's algorithm: outputs cached under SHA-256 digests by earlier versions
+#: are simply never found again (a cache miss runs the system), never confused with these.
+DIGEST_PREFIX = "x3:"
+
+
 def content_digest(scene: Scene) -> str:
-    """A digest of everything a system may read from a frame."""
-    h = hashlib.sha256()
+    """A digest of everything a system may read from a frame: XXH3-128 (xxhash) of the point
+    array's own buffer, then the channels, calibration, ROI, frame id and timestamp.
+
+    A cache key, not a signature: nobody forges a frame against their own cache, and with 128
+    bits an accidental collision stays negligible at any cache size (the birthday bound is
+    2⁻⁶⁵ at 2³² cached inputs). XXH3 hashes ~30 GB/s where SHA-256 does ~2 GB/s here: 0.1 ms
+    instead of ~1.8 ms per 120k-point frame, paid for every frame of every run.
+    """
+    h = xxhash.xxh3_128()
     data = np.ascontiguousarray(scene.points.data)
     h.update(data.data.cast("B"))  # the array's own buffer: no copy
     h.update(json.dumps(list(scene.points.channels)).encode())
@@ -116,7 +130,7 @@ def content_digest(scene: Scene) -> str:
     if scene.roi is not None:
         h.update(json.dumps(scene.roi.to_geojson(), sort_keys=True).encode())
     h.update(f"{scene.frame_id}|{scene.timestamp!r}".encode())
-    return h.hexdigest()
+    return f"{DIGEST_PREFIX}{h.hexdigest()}"
 
 
 def mutant_key(source_digest: str, operator: dict[str, Any], params: dict[str, Any]) -> str:
@@ -161,6 +175,7 @@ class Worker:
         if open_data:
             self._dataset = open_worker_dataset(context)
         self._digests: OrderedDict[str, str] = OrderedDict()
+        self._known: OrderedDict[str, dict[str, StoredBoxes]] = OrderedDict()  # cached outputs by frame digest
         self._scenes: OrderedDict[str, Scene] = OrderedDict()  # the runner sends units frame block by block
         self._operators: dict[str, Any] = {}
         self._relations: dict[str, Any] = {}
@@ -245,20 +260,36 @@ class Worker:
                 self._digests.popitem(last=False)
         return found
 
-    def _cached(self, key: str) -> StoredBoxes | None:
+    def _cached(self, source: str, key: str) -> StoredBoxes | None:
+        """The system's cached output for input ``key`` made from the frame with digest ``source``.
+
+        The first look-up for a frame reads all of that frame's cached outputs in one query, and
+        later ones are dictionary look-ups: one query per frame instead of one per unit. Outputs
+        cached after that read (by this run, or another one) are not seen until the frame is
+        read again; such an input is run again — the cache only ever saves work.
+        """
         if self._cache is None:
             return None
+        known = self._known.get(source)
+        if known is None:
+            known = self._read_cached(source)
+            self._known[source] = known
+            if len(self._known) > 4 * SCENE_CACHE:
+                self._known.popitem(last=False)
+        return known.get(key)
+
+    def _read_cached(self, source: str) -> dict[str, StoredBoxes]:
         from sqlalchemy import bindparam, select
 
         from lidarfuzz.store.models import SutOutput
 
         if self._lookup is None:
-            self._lookup = select(SutOutput.boxes, SutOutput.labels).where(
-                SutOutput.fingerprint == self.context.fingerprint, SutOutput.digest == bindparam("key"))
+            self._lookup = select(SutOutput.digest, SutOutput.boxes, SutOutput.labels).where(
+                SutOutput.fingerprint == self.context.fingerprint, SutOutput.source == bindparam("source"))
             self._connection = self._cache.engine.connect()
-        row = self._connection.execute(self._lookup, {"key": key}).first()
+        rows = self._connection.execute(self._lookup, {"source": source}).all()
         self._connection.rollback()  # end the read transaction: never hold a snapshot open
-        return None if row is None else StoredBoxes(row[0], row[1])  # a Core row: the composite's two columns
+        return {digest: StoredBoxes(boxes, labels) for digest, boxes, labels in rows}
 
     # -- one unit ---------------------------------------------------------------------
     def run(self, unit: WorkUnit, scene: Scene | None = None) -> UnitResult:
@@ -321,7 +352,8 @@ class Worker:
         key = digest if unit.operator is None else mutant_key(digest, unit.operator, result.params)
         fresh = self.system_changed  # the recorded fingerprint's outputs are another system's
         result.input_key = "" if fresh else key  # "": the runner caches nothing under it
-        hit = None if fresh else self._cached(key)
+        result.input_source = "" if fresh else digest
+        hit = None if fresh else self._cached(digest, key)
         result.timings["cache"] = time.perf_counter() - t0
         if hit is not None:
             result.detections = hit

@@ -28,6 +28,7 @@ from sqlalchemy import (
     Enum,
     Float,
     ForeignKey,
+    Index,
     Integer,
     LargeBinary,
     String,
@@ -213,11 +214,15 @@ class SutOutput(Base):
     """What a system (by fingerprint) returned for an input (by content digest)."""
 
     __tablename__ = "sut_outputs"
-    __table_args__ = (UniqueConstraint("fingerprint", "digest"),)
+    __table_args__ = (UniqueConstraint("fingerprint", "digest"),
+                      Index("ix_sut_outputs_source", "fingerprint", "source"))
 
     id: Mapped[int] = mapped_column(primary_key=True)
     fingerprint: Mapped[str] = mapped_column(String(64))
     digest: Mapped[str] = mapped_column(String(64))
+    # the content digest of the frame the input was made from (for an original, its own digest):
+    # a worker reads a frame's cached outputs in one query; None for rows of older versions
+    source: Mapped[str | None] = mapped_column(String(64), nullable=True)
     boxes: Mapped[bytes] = mapped_column(LargeBinary)
     labels: Mapped[list[Any]] = mapped_column(default=list)
     output: Mapped[StoredBoxes] = composite(StoredBoxes, "boxes", "labels")

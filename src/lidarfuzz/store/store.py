@@ -182,9 +182,10 @@ class Store:
             if self.read_only:
                 raise StoreError(f"cannot read the store at {self.where}: {exc}") from None
         if self.read_only:
+            pending = self.pending()
             raise StorageError(self.where, "EROFS", f"the workspace at {self.where} is read-only and needs "
-                                                    f"migration {', '.join(self.pending())}; run a command with "
-                                                    f"write access once")
+                                                    f"migration{'s' if len(pending) > 1 else ''} {', '.join(pending)}; "
+                                                    f"run a command with write access once")
         try:
             with self._migration_lock(), self.engine.begin() as connection:
                 if self.engine.dialect.name == "postgresql":  # released when this transaction ends

@@ -23,8 +23,20 @@ from sqlalchemy.types import TypeDecorator, TypeEngine
 logger = logging.getLogger(__name__)
 
 
+_AS_IS = frozenset({str, int, bool, type(None)})
+
+
 def json_safe(value: Any) -> Any:
     """``value`` with NaN and ±Inf as None, numpy scalars as Python numbers, tuples as lists."""
+    kind = type(value)
+    if kind in _AS_IS:  # the leaves of nearly every stored value: decided by the exact type
+        return value
+    if kind is float:
+        return value if math.isfinite(value) else None
+    if kind is dict:
+        return {k: json_safe(v) for k, v in value.items()}
+    if kind is list or kind is tuple:
+        return [json_safe(v) for v in value]
     if isinstance(value, float):
         return None if math.isnan(value) or math.isinf(value) else value
     if isinstance(value, dict):
