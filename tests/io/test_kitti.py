@@ -11,6 +11,7 @@ from lidarfuzz.io import KittiDataset, KittiLog, KittiWriter, NonFiniteWarning, 
 from lidarfuzz.io.atomic import OutputExistsError
 from lidarfuzz.io.formats import bin as bin_format
 from lidarfuzz.io.kitti import format_labels, parse_labels
+from lidarfuzz.io.kitti.writer import compact_channel
 from lidarfuzz.scene import Boxes3D, KittiCalibration, PointCloud, Scene, points_in_boxes
 from tests.conftest import KITTI_000000_CALIB
 from tests.strategies import boxes as box_strategy
@@ -215,3 +216,18 @@ def test_frames_without_any_labels_are_fine(tmp_path):
         warnings.simplefilter("error")
         loaded = open_dataset(tmp_path / "ds")["a"]
     assert len(loaded.boxes) == 0 and loaded.calib is None
+
+
+@pytest.mark.parametrize(("values", "dtype"), [
+    ([0, 1, 63], np.uint8), ([-1, 5], np.int8), ([-129, 5], np.int16), ([-1, 200], np.int16),
+    ([40000, -3], np.int32), ([2**24, 1], np.int32), ([2**25], np.float32), ([1.5, 2], np.float32),
+    ([np.nan, 1], np.float32), ([np.inf, 1], np.float32), ([-np.inf], np.float32), ([0.5, np.nan], np.float32),
+    ([-0.0, 3], np.uint8), ([], np.float32),
+])
+def test_an_extra_channel_is_stored_in_the_smallest_integer_type_that_holds_it(values: list[float],
+                                                                              dtype: type) -> None:
+    """Integers within a type's range (and float32's exact 2**24) shrink; fractions, NaN and ±inf stay float32."""
+    channel = np.array(values, np.float32)
+    stored = compact_channel(channel)
+    assert stored.dtype == dtype
+    assert np.array_equal(stored.astype(np.float32), channel, equal_nan=True)

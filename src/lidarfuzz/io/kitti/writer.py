@@ -115,9 +115,11 @@ def compact_channel(values: NDArray[np.floating]) -> NDArray[np.generic]:
     cloud; on disk they take 1–2 bytes instead of 4, and read back identical.
     """
     v = np.asarray(values)
-    if v.size == 0 or not np.all(np.isfinite(v)) or not np.array_equal(v, np.round(v)):
+    if v.size == 0:
         return v
-    lo, hi = float(v.min()), float(v.max())
+    lo, hi = float(v.min()), float(v.max())  # NaN if any value is: then neither is finite
+    if not (np.isfinite(lo) and np.isfinite(hi)) or not np.array_equal(np.trunc(v), v):
+        return v
     for dtype in (np.uint8, np.int8, np.int16, np.int32):
         info = np.iinfo(dtype)
         if info.min <= lo and hi <= info.max and hi <= 2**24:  # float32 holds integers exactly up to 2**24
