@@ -238,3 +238,24 @@ def test_a_usage_mistake_is_one_line_from_the_entry_point(args, expected, tmp_pa
                           capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert done.returncode == 2
     assert done.stderr.startswith(expected) and done.stderr.count("\n") == 1, done.stderr
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("fog@3,rotate_z@3", "--op 'fog@3,rotate_z@3': one operator per --op, e.g. --op fog@3 --op rotate_z@3"),
+    ("fog@1,3,rotate_z@2,5", "--op 'fog@1,3,rotate_z@2,5': one operator per --op, e.g. --op fog@1,3 --op rotate_z@2,5"),
+    ("fog@high", "--op 'fog@high': severities are integers, e.g. fog@1,3,5"),
+])
+def test_an_op_that_is_not_one_operator_says_how_to_write_it(text: str, message: str) -> None:
+    from lidarfuzz.cli.campaign import parse_op
+    from lidarfuzz.errors import LidarfuzzError
+
+    with pytest.raises(LidarfuzzError) as raised:
+        parse_op(text)
+    assert str(raised.value) == message
+
+
+def test_an_op_names_an_operator_and_its_severities() -> None:
+    from lidarfuzz.cli.campaign import parse_op
+
+    assert parse_op("fog@1, 3,5") == {"name": "fog", "severities": [1, 3, 5]}
+    assert parse_op("rotate_z") == {"name": "rotate_z"}

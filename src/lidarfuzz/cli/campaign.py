@@ -116,6 +116,15 @@ def parse_op(text: str) -> dict[str, Any]:
         try:
             choice["severities"] = [int(v) for v in severities.split(",") if v.strip()]
         except ValueError:
+            if "@" in severities:  # several operators in one --op: say how to write them
+                groups: list[str] = []
+                for part in (p.strip() for p in text.split(",")):
+                    if "@" in part or not groups:
+                        groups.append(part)
+                    elif part:
+                        groups[-1] += f",{part}"
+                raise LidarfuzzError(f"--op {text!r}: one operator per --op, e.g. "
+                                     f"{' '.join(f'--op {g}' for g in groups)}") from None
             raise LidarfuzzError(f"--op {text!r}: severities are integers, e.g. fog@1,3,5") from None
     return choice
 
