@@ -382,29 +382,32 @@ def test_a_pool_that_breaks_between_waits_loses_no_unit(first: _FlakyPool) -> No
 
 
 @pytest.mark.parametrize("every", [0.0, 1e9])
-def test_progress_counters_never_run_ahead_of_the_results_and_agree_at_the_end(
+def test_counters_agree_with_the_results_at_every_commit_and_the_cache_is_written_by_the_end(
         tmp_path: Path, world: Path, monkeypatch: pytest.MonkeyPatch, every: float) -> None:
-    """The counters are written with a subtask's first and last result and, between them, at most every
-    DEFERRED_EVERY seconds: never above the stored results, equal to them at every result when due each
-    time (0 s), behind them inside a subtask when never due by time (1e9 s), and equal at the end."""
+    """Every result is committed with its counters (a kill at any instant leaves them agreeing);
+    the outputs waiting for the cache go in with a subtask's first and last result and at most every
+    CACHE_EVERY seconds between: after a subtask's second result, none of its cache rows lag when
+    due each time (0 s), one does when never due by time (1e9 s); all 12 are there at the end."""
     import lidarfuzz.campaign.mutation as mutation
+    from lidarfuzz.store import SutOutput
 
-    monkeypatch.setattr(mutation, "DEFERRED_EVERY", every)
+    monkeypatch.setattr(mutation, "CACHE_EVERY", every)
     store = Store(tmp_path / "ws")
     task_id = create_task(store, campaign(world))
-    seen: list[tuple[int, int]] = []
+    seen: list[tuple[int, int, int]] = []
 
     def look(event: ProgressEvent) -> None:
         with store.session() as s:
             stored = s.scalar(select(func.count()).select_from(FrameResult).join(Subtask).where(
                 Subtask.task_id == task_id))
-            seen.append((s.scalar(select(Task.done).where(Task.id == task_id)), stored))
+            seen.append((s.scalar(select(Task.done).where(Task.id == task_id)), stored,
+                         s.scalar(select(func.count()).select_from(SutOutput))))
 
     run_task(store, task_id, executor=InlineExecutor(), progress=look)
-    assert len(seen) == 12 and all(counted <= stored for counted, stored in seen)
-    if every == 0.0:
-        assert all(counted == stored for counted, stored in seen)
-    else:  # 4 subtasks of 3 frames: the second result of each is stored before it is counted
-        assert [stored - counted for counted, stored in seen] == [0, 1, 0] * 4
+    assert [(counted, stored) for counted, stored, _ in seen] == [(n, n) for n in range(1, 13)]
+    lag = [stored - cached for _, stored, cached in seen]
+    assert lag == ([0] * 12 if every == 0.0 else [0, 1, 0] * 4)  # 4 subtasks of 3 frames
     task = get_task(store, task_id)
     assert task.done == task.total == 12 and all(sub.done == sub.total == 3 for sub in task.subtasks)
+    with store.session() as s:
+        assert s.scalar(select(func.count()).select_from(SutOutput)) == 12

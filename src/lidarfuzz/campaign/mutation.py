@@ -59,7 +59,7 @@ from lidarfuzz.store.store import Store
 if TYPE_CHECKING:
     from lidarfuzz.campaign.spec import CampaignSpec
 
-DEFERRED_EVERY = 0.5  # seconds between writes of the progress counters and cache rows (_Run._deferred_due)
+CACHE_EVERY = 0.5  # seconds between writes of the outputs waiting for the cache (_Run._cache_due)
 BLOCK = 16  # frames per block (see _Run._units); a worker's scene cache holds one block
 #: Every stored result counts towards progress.
 counted_below: int | None = None
@@ -86,12 +86,10 @@ class _Run:
             done=Subtask.done + bindparam("n"), status=Status.RUNNING,
             started_at=func.coalesce(Subtask.started_at, bindparam("now")))  # set once: its first unit
         self._bump_task = update(Task).where(Task.id == bindparam("task")).values(done=Task.done + bindparam("n"))
-        # Stored results not yet in the subtasks' and task's counters, outputs not yet in the
-        # cache (see _deferred_due).
-        self._uncounted: Counter[int] = Counter()
+        # Outputs not yet in the cache (see _cache_due).
         self._uncached: list[dict[str, Any]] = []
-        self._deferred_at = time.monotonic()
-        self._started: set[int] = set()  # subtasks whose counter this run has written
+        self._cached_at = time.monotonic()
+        self._started: set[int] = set()  # subtasks whose first result this run has stored
         dialect = store.engine.dialect.name
         if dialect not in ("sqlite", "postgresql"):
             raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect}")
@@ -222,60 +220,39 @@ class _Run:
                                      replay=self._replay(result, specs.get(outcome.relation))))
         return findings
 
-    def _deferred_due(self, sub_id: int, *, last: bool) -> bool:
-        """Whether this result's transaction also writes the deferred rows — the progress
-        counters and the output cache: at a subtask's first result (it shows as running at
-        once), at its last (``last``: it is evaluated next), else at most every
-        :data:`DEFERRED_EVERY` seconds.
+    def _cache_due(self, sub_id: int, *, last: bool) -> bool:
+        """Whether this result's transaction also writes the outputs waiting for the cache: at a
+        subtask's first and last result (``last``), else at most every :data:`CACHE_EVERY` seconds.
 
-        Two counter updates and a cache insert per result cost twice the result's own insert;
-        progress needs them a few times a second, and the cache only saves work. The counters
-        run behind the stored results by less than that, and only until the next write:
-        :meth:`close` writes what is left, and a run that was killed is recounted from its
-        results when it resumes (:func:`~lidarfuzz.campaign.lifecycle.mark_running`); cache rows
-        a killed run never wrote mean the system runs on those inputs again.
+        A cache insert per result costs half the result's own insert, and the cache only saves
+        work: cache rows a killed run never wrote mean the system runs on those inputs again.
+        The counters are not deferred: every result is committed whole, with its counters.
         """
         if last or sub_id not in self._started:
             return True
-        return time.monotonic() - self._deferred_at >= DEFERRED_EVERY
+        return time.monotonic() - self._cached_at >= CACHE_EVERY
 
-    def _write_deferred(self, connection: Any, uncounted: Counter[int], uncached: list[dict[str, Any]]) -> None:
-        moment = now()
-        increments = [{"subtask": sub_id, "n": n, "now": moment} for sub_id, n in sorted(uncounted.items()) if n]
-        if increments:
-            connection.execute(self._bump_subtask, increments)
-            connection.execute(self._bump_task, {"task": self.task.id, "n": sum(uncounted.values())})
-        if uncached:
-            connection.execute(self._cache_insert, uncached)
-
-    def _deferred_written(self, uncounted: Counter[int]) -> None:
-        self._started.update(uncounted)
-        self._uncounted, self._uncached = Counter(), []
-        self._deferred_at = time.monotonic()
-
-    def flush_deferred(self) -> None:
-        """Write the counters and cache rows not yet written (the end of a run, or a stop)."""
-        if not +self._uncounted and not self._uncached:
-            return
-        with self._connection.begin():
-            self._write_deferred(self._connection, self._uncounted, self._uncached)
-        self._deferred_written(self._uncounted)
+    def flush_cache(self) -> None:
+        """Write the outputs still waiting for the cache (the end of a run, or a stop)."""
+        if self._uncached:
+            with self._connection.begin():
+                self._connection.execute(self._cache_insert, self._uncached)
+        self._uncached = []
+        self._cached_at = time.monotonic()
 
     def commit(self, result: UnitResult) -> bool:
-        """Store one result with its findings in one transaction (SQLAlchemy Core: the ORM's
-        unit of work costs more than the insert), with the deferred rows when they are due
-        (see :meth:`_deferred_due`); False when it was stored already."""
+        """Store one result with its findings and counters in one transaction (SQLAlchemy Core:
+        the ORM's unit of work costs more than the insert), with the outputs waiting for the cache
+        when they are due (see :meth:`_cache_due`); False when it was stored already."""
         start = time.perf_counter()
         unit = result.unit
         replaced = self._faults.get(result.key)  # a data fault run again: its row is rewritten in place
-        uncounted, uncached = self._uncounted.copy(), list(self._uncached)
-        if replaced is None:  # a replaced fault was counted already
-            uncounted[unit.subtask_id] += 1
+        uncached = list(self._uncached)
         detections = result.detections
         if detections is not None and not detections.missing and not result.cached and result.input_key:
             uncached.append({"fingerprint": self.task.model.fingerprint, "digest": result.input_key,
                              "source": result.input_source, **detections.columns(), "seconds": result.seconds})
-        due = self._deferred_due(unit.subtask_id, last=replaced is None and self.done[
+        due = self._cache_due(unit.subtask_id, last=replaced is None and self.done[
             unit.subtask_id] + 1 >= self.subtasks[unit.subtask_id].total)
         try:
             connection = self._connection
@@ -294,16 +271,21 @@ class _Run:
                 findings = self._findings(result, row_id)
                 if findings:
                     connection.execute(self._insert_finding, findings)
-                if due:
-                    self._write_deferred(connection, uncounted, uncached)
+                if replaced is None:  # a replaced fault was counted already
+                    moment = now()
+                    connection.execute(self._bump_subtask, {"subtask": unit.subtask_id, "n": 1, "now": moment})
+                    connection.execute(self._bump_task, {"task": self.task.id, "n": 1})
+                if due and uncached:
+                    connection.execute(self._cache_insert, uncached)
         except IntegrityError:
             return False  # another run stored this unit first
         finally:
             self.stats.store += time.perf_counter() - start
         if due:
-            self._deferred_written(uncounted)
+            self._started.add(unit.subtask_id)
+            self._uncached, self._cached_at = [], time.monotonic()
         else:
-            self._uncounted, self._uncached = uncounted, uncached
+            self._uncached = uncached
         if replaced is not None:
             del self._faults[result.key]
             self._faults_left[unit.subtask_id] -= 1
@@ -384,7 +366,7 @@ class _Run:
             self.executor.close()
         finally:
             try:
-                self.flush_deferred()
+                self.flush_cache()
             finally:
                 self._connection.close()
 
@@ -403,7 +385,7 @@ class _Run:
             for block in blocks:
                 self.consume(self._units([original], done, {}, block))
             if any(fault for _, _, fault in self._sources(original).values()):
-                self.flush_deferred()
+                self.flush_cache()
                 return  # MSE_orig would miss an original: the mutants wait for a resume that reads it
             self._compute_mse_orig(original, subs[1:])
         for block in blocks:
@@ -411,7 +393,7 @@ class _Run:
                 self.consume(self._units([original], done, {}, block))
             sources = self._sources(original)
             self.consume(self._units(subs[1:], done, sources, block))
-        self.flush_deferred()
+        self.flush_cache()
         for sub in subs:
             if self.done[sub.id] >= sub.total and not self._waiting(sub.id):
                 self.finish(sub)
