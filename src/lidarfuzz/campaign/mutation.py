@@ -54,12 +54,17 @@ from lidarfuzz.store.boxes import StoredBoxes
 from lidarfuzz.store.contracts import TaskSummary, ViolationRecord
 from lidarfuzz.store.errors import StoreError
 from lidarfuzz.store.models import Finding, FrameResult, Model, Status, Subtask, SutOutput, Task
+from lidarfuzz.store.prepared import Prepared
 from lidarfuzz.store.store import Store
 
 if TYPE_CHECKING:
     from lidarfuzz.campaign.spec import CampaignSpec
 
 CACHE_EVERY = 0.5  # seconds between writes of the outputs waiting for the cache (_Run._cache_due)
+#: The columns a result's row is written with, and a finding's (see :meth:`_Run.commit`).
+RESULT_COLUMNS = ("subtask_id", "frame_id", "trial", "params", "boxes", "labels", "gt_boxes", "gt_labels",
+                  "failure", "relations", "seconds", "cached", "created_at")
+FINDING_COLUMNS = ("task_id", "frame_result_id", "kind", "cls", "magnitude", "message", "detail", "replay")
 BLOCK = 16  # frames per block (see _Run._units); a worker's scene cache holds one block
 #: Every stored result counts towards progress.
 counted_below: int | None = None
@@ -80,20 +85,23 @@ class _Run:
         self._calibs: dict[str, Any] = {}
         self._connection = store.engine.connect()  # one for every commit: no pool check-out per result
         # statements built once (building one costs more than running it)
-        self._insert_result = insert(FrameResult).returning(FrameResult.id)
-        self._insert_finding = insert(Finding)
-        self._bump_subtask = update(Subtask).where(Subtask.id == bindparam("subtask")).values(
+        # the hot path's statements compiled once and run on the driver's cursor (see store.prepared)
+        dialect = store.engine.dialect
+        self._insert_result = Prepared(insert(FrameResult).returning(FrameResult.id), dialect, RESULT_COLUMNS)
+        self._insert_finding = Prepared(insert(Finding), dialect, FINDING_COLUMNS)
+        self._bump_subtask = Prepared(update(Subtask).where(Subtask.id == bindparam("subtask")).values(
             done=Subtask.done + bindparam("n"), status=Status.RUNNING,
-            started_at=func.coalesce(Subtask.started_at, bindparam("now")))  # set once: its first unit
-        self._bump_task = update(Task).where(Task.id == bindparam("task")).values(done=Task.done + bindparam("n"))
+            started_at=func.coalesce(Subtask.started_at, bindparam("now"))),  # set once: its first unit
+            dialect, ("subtask", "n", "now"))
+        self._bump_task = Prepared(update(Task).where(Task.id == bindparam("task")).values(
+            done=Task.done + bindparam("n")), dialect, ("task", "n"))
         # Outputs not yet in the cache (see _cache_due).
         self._uncached: list[dict[str, Any]] = []
         self._cached_at = time.monotonic()
         self._started: set[int] = set()  # subtasks whose first result this run has stored
-        dialect = store.engine.dialect.name
-        if dialect not in ("sqlite", "postgresql"):
-            raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect}")
-        dialect_insert = importlib.import_module(f"sqlalchemy.dialects.{dialect}").insert
+        if dialect.name not in ("sqlite", "postgresql"):
+            raise StoreError(f"campaigns run on SQLite or PostgreSQL, not {dialect.name}")
+        dialect_insert = importlib.import_module(f"sqlalchemy.dialects.{dialect.name}").insert
         self._cache_insert: Any = dialect_insert(SutOutput).on_conflict_do_nothing()  # a concurrent twin: fine
         self._dataset: Any = None
         self._mse_orig: dict[str, float] = {}  # DeepTest's MSE_orig by relation spec (see _with_mse_orig)
@@ -265,16 +273,14 @@ class _Run:
                     connection.execute(self._replace_result, {"row": replaced, **values})
                     row_id = replaced
                 else:
-                    row_id = connection.execute(self._insert_result, {
+                    row_id = self._insert_result.execute(connection, {
                         "subtask_id": unit.subtask_id, "frame_id": unit.frame_id, "trial": unit.trial,
-                        **values}).scalar_one()
-                findings = self._findings(result, row_id)
-                if findings:
-                    connection.execute(self._insert_finding, findings)
+                        **values})
+                self._insert_finding.execute_many(connection, self._findings(result, row_id))
                 if replaced is None:  # a replaced fault was counted already
-                    moment = now()
-                    connection.execute(self._bump_subtask, {"subtask": unit.subtask_id, "n": 1, "now": moment})
-                    connection.execute(self._bump_task, {"task": self.task.id, "n": 1})
+                    self._bump_subtask.execute(connection, {"subtask": unit.subtask_id, "n": 1,
+                                                            "now": values["created_at"]})
+                    self._bump_task.execute(connection, {"task": self.task.id, "n": 1})
                 if due and uncached:
                     connection.execute(self._cache_insert, uncached)
         except IntegrityError:
