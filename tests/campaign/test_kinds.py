@@ -65,6 +65,7 @@ class _ProbeRun:
         return summarise(self.store, self.task_id).model_copy(update={"kind_summary": {"probe": "summarised"}})
 
     def close(self) -> None:
+        self.watch.close()
         self.closed = True
 
 

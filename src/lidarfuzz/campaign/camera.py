@@ -482,6 +482,7 @@ class _CameraRun:
 
     def close(self) -> None:
         self.connection.close()
+        self.watch.close()
         self.sut.close()
 
 

@@ -210,6 +210,7 @@ class _SearchRun:
 
     def close(self) -> None:
         self.connection.close()
+        self.watch.close()
         self.sut.close()
 
 

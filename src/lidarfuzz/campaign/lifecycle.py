@@ -187,12 +187,16 @@ def cancel_task(store: Store, task_id: int) -> Status:
 
 class Watch:
     """A running task's look-out: raises :class:`CancelledError` once the task is cancelled (in
-    the store, or by ``stop`` in this process), and writes the heartbeat while it is not. Cheap to
-    call after every unit: it reads the store at most every :data:`CHECK_EVERY` seconds."""
+    the store, or by ``stop`` in this process). Cheap to call after every unit: it reads the
+    task's status at most every :data:`CHECK_EVERY` seconds, one query on a connection of its
+    own. The heartbeat is :class:`Heartbeat`'s (every run has one): writing it here too, twenty
+    times more often than a stale run is judged, cost a transaction per look."""
 
     def __init__(self, store: Store, task_id: int, stop: threading.Event | None) -> None:
         self.store, self.task_id, self.stop = store, task_id, stop
         self._last = time.monotonic()
+        self._status = select(Task.status).where(Task.id == task_id)
+        self._connection: Any = None
 
     def check(self) -> None:
         if self.stop is not None and self.stop.is_set():
@@ -201,11 +205,23 @@ class Watch:
         if moment - self._last < CHECK_EVERY:
             return
         self._last = moment
-        with self.store.session() as s:
-            status = s.scalar(select(Task.status).where(Task.id == self.task_id))
-            if status == Status.CANCELLED:
-                raise CancelledError
-            s.execute(update(Task).where(Task.id == self.task_id).values(heartbeat_at=now()))
+        if self._connection is None:
+            self._connection = self.store.engine.connect()
+        try:
+            status = self._connection.execute(self._status).scalar()
+            self._connection.rollback()  # end the read transaction: never hold a snapshot open
+        except Exception as exc:
+            failed = self.store.failure(exc)
+            if failed is not None and failed is not exc:
+                raise failed from exc
+            raise
+        if status == Status.CANCELLED:
+            raise CancelledError
+
+    def close(self) -> None:
+        if self._connection is not None:
+            self._connection.close()
+            self._connection = None
 
 
 class Heartbeat:

@@ -375,6 +375,7 @@ class _Run:
                 self.flush_cache()
             finally:
                 self._connection.close()
+                self.watch.close()
 
     # -- the whole run ------------------------------------------------------------------
     def execute(self) -> None:

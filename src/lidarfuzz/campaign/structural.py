@@ -644,6 +644,7 @@ class _StructuralRun:
         return summarise(self.store, self.task.id)
 
     def close(self) -> None:
+        self.watch.close()
         self.system.close()
 
 
