@@ -10,7 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lidarfuzz.operators.lidar.common import in_axis_box, mod_period
+from lidarfuzz.operators.lidar.common import (
+    COLUMN_BLOCK,
+    copy_with_maximum,
+    in_axis_box,
+    intensity_scale,
+    mod_period,
+    scene_intensity_scale,
+)
 from lidarfuzz.operators.lidar.geometric import CHUNK, transformed_points
 from lidarfuzz.operators.lidar.points import (
     EXTENT_BLOCK,
@@ -28,8 +35,20 @@ from lidarfuzz.operators.lidar.returns import (
     range_and_azimuth,
     ring_azimuth_order,
 )
-from lidarfuzz.operators.lidar.sensor import SQUARED_BLOCK, _present_rings, _squared_ranges, farthest_range
-from lidarfuzz.scene.points import STANDARD_CHANNELS, PointCloud
+from lidarfuzz.operators.lidar.sensor import (
+    SQUARED_BLOCK,
+    _present_rings,
+    _squared_ranges,
+    farthest_range,
+    farthest_range_and_intensity_scale,
+)
+from lidarfuzz.operators.lidar.weather import _BLOCK as WEATHER_BLOCK
+from lidarfuzz.operators.lidar.weather import _rescaled
+from lidarfuzz.scene.calib import KittiCalibration
+from lidarfuzz.scene.geometry import box_corners
+from lidarfuzz.scene.labels import MIN_DEPTH, camera_labels, image_boxes, image_coverage
+from lidarfuzz.scene.points import CHANNEL_DEFAULTS, STANDARD_CHANNELS, PointCloud
+from lidarfuzz.scene.scene import Scene
 
 
 def cloud_of(xyz: np.ndarray, rng: np.random.Generator) -> PointCloud:
@@ -324,3 +343,124 @@ def test_extents_in_one_pass_are_the_column_reductions(nan: bool) -> None:
     assert squared.tobytes() == (x * x + y * y).tobytes()
     np.testing.assert_array_equal(extents, [z.min(), z.max(), intensity.min(), intensity.max()])
     assert _farthest_in_plane(cloud, squared) == _farthest_in_plane(cloud) == float(np.hypot(x, y).max())
+
+
+@pytest.mark.parametrize("nan", [False, True])
+@pytest.mark.parametrize("n", [1, COLUMN_BLOCK - 1, COLUMN_BLOCK, 2 * COLUMN_BLOCK + 17])
+def test_copy_with_maximum_is_a_copy_and_the_column_maximum(n: int, nan: bool) -> None:
+    rng = np.random.default_rng(n)
+    data = rng.normal(0.0, 100.0, (n, 6)).astype(np.float32)
+    if nan:
+        data[n // 2, 3] = np.nan
+    copy, top = copy_with_maximum(data, 3)
+    assert copy.tobytes() == data.tobytes() and copy is not data
+    expected = float(data[:, 3].max())
+    assert top == expected or (np.isnan(top) and np.isnan(expected))
+
+
+@pytest.mark.parametrize("case", ["inferred", "8-bit", "declared", "nan"])
+def test_farthest_range_and_intensity_scale_in_one_pass(case: str) -> None:
+    rng = np.random.default_rng(3)
+    data = np.column_stack([rng.normal(0.0, 40.0, (3 * SQUARED_BLOCK + 5, 3)),
+                            rng.random(3 * SQUARED_BLOCK + 5)]).astype(np.float32)
+    if case == "8-bit":
+        data[:, 3] *= 200.0
+        data[SQUARED_BLOCK + 1, 3] = 254.5  # the maximum in a middle block
+    if case == "nan":
+        data[2 * SQUARED_BLOCK, 3] = np.nan
+    metadata = {"intensity_scale": "uint16"} if case == "declared" else {}
+    scene = Scene(PointCloud(data), metadata=metadata)
+    farthest, scale = farthest_range_and_intensity_scale(scene)
+    assert farthest == farthest_range(scene.points)
+    expected = scene_intensity_scale(scene)  # declared, else intensity_scale of the whole column
+    assert scale == expected or (np.isnan(scale) and np.isnan(expected))
+    if case == "8-bit":
+        assert scale == intensity_scale(scene.points.intensity) == 255.0
+
+
+def former_camera_labels(calib: KittiCalibration, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(truncation, bbox2d, alpha) as camera_labels computed them before: the corners projected
+    through P2 for their depth alone, then projected again by boxes_to_image; every box's
+    in-front pixels gathered."""
+    inside, front_uv = image_coverage(calib, boxes)
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    n = len(b)
+    out = np.full((n, 4), np.nan)
+    _, depth = calib.rect_to_image(calib.lidar_to_rect(box_corners(b).reshape(-1, 3)))
+    in_front = np.all(depth.reshape(n, 8) > MIN_DEPTH, axis=1)
+    if in_front.any():
+        out[in_front] = calib.boxes_to_image(b[in_front])
+    height, width = calib.image_shape
+    for i in np.flatnonzero(~in_front):
+        if len(front_uv[i]):
+            lo, hi = front_uv[i].min(axis=0), front_uv[i].max(axis=0)
+            out[i] = [np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
+                      np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)]
+    with np.errstate(invalid="ignore"):
+        flat = ~((out[:, 2] > out[:, 0]) & (out[:, 3] > out[:, 1]))
+    out[flat] = np.nan
+    truncation = np.clip(1.0 - inside, 0.0, 1.0).round(2)
+    truncation[~np.isfinite(out).all(axis=1)] = 1.0
+    return truncation, out, calib.alpha(b)
+
+
+def test_camera_labels_project_the_corners_once_with_the_same_results() -> None:
+    """Boxes ahead, beside, behind and across the camera plane (the volume-sample branch)."""
+    rng = np.random.default_rng(11)
+    calib = KittiCalibration.default()
+    n = 400
+    centers = np.column_stack([rng.uniform(-10.0, 60.0, n), rng.uniform(-30.0, 30.0, n), rng.uniform(-2.0, 1.0, n)])
+    centers[:40, 0] = rng.uniform(-1.5, 1.5, 40)  # straddling the camera plane
+    sizes = np.column_stack([rng.uniform(0.5, 6.0, n), rng.uniform(0.5, 3.0, n), rng.uniform(0.5, 3.0, n)])
+    boxes = np.column_stack([centers, sizes, rng.uniform(-np.pi, np.pi, n)])
+    fields = camera_labels(calib, boxes)
+    truncation, bbox2d, alpha = former_camera_labels(calib, boxes)
+    assert fields.truncation.tobytes() == truncation.tobytes()
+    assert fields.bbox2d.tobytes() == bbox2d.tobytes()
+    assert fields.alpha.tobytes() == alpha.tobytes()
+    assert image_boxes(calib, boxes, image_coverage(calib, boxes)[1]).tobytes() == bbox2d.tobytes()
+    assert (~np.isfinite(bbox2d).all(axis=1)).any() and np.isfinite(bbox2d).all(axis=1).any()  # both kinds reached
+    assert camera_labels(calib, np.zeros((0, 7))).bbox2d.shape == (0, 4)
+
+
+def former_rescaled(cloud: PointCloud, keep: np.ndarray, ranges: np.ndarray, new_range: np.ndarray,
+                    intensity: np.ndarray, in_air: np.ndarray) -> PointCloud:
+    """weather._rescaled as it was, allocating its temporaries after the output."""
+    rows = np.flatnonzero(keep)
+    data = np.take(cloud.data, rows, axis=0)
+    source = np.flatnonzero(keep & (new_range != ranges))
+    if 4 * len(source) > len(rows):
+        kept_ranges, kept_new = np.take(ranges, rows), np.take(new_range, rows)
+        for start in range(0, len(rows), WEATHER_BLOCK):
+            block = slice(start, min(start + WEATHER_BLOCK, len(rows)))
+            factor = np.divide(kept_new[block], kept_ranges[block], out=np.ones(block.stop - block.start),
+                               where=kept_ranges[block] > 0)
+            moved_rows = data[block]
+            for axis in range(3):
+                moved_rows[:, axis] = moved_rows[:, axis] * factor
+    elif len(source):
+        moved = np.searchsorted(rows, source)
+        factor = np.divide(new_range[source], ranges[source], out=np.ones(len(source)), where=ranges[source] > 0)
+        data[moved, :3] = data[moved, :3] * factor[:, None]
+    data[:, 3] = np.take(intensity, rows)
+    air = np.searchsorted(rows, np.flatnonzero(in_air & keep))
+    for name in ("label", "instance"):
+        if cloud.has(name) and len(air):
+            data[air, cloud.index(name)] = CHANNEL_DEFAULTS[name]
+    return PointCloud(data, cloud.channels)
+
+
+@pytest.mark.parametrize("moved_share", [0.0, 0.1, 1.0])
+def test_rescaled_with_temporaries_first_is_as_before(moved_share: float) -> None:
+    rng = np.random.default_rng(5)
+    n = 2 * WEATHER_BLOCK + 123
+    xyz = rng.normal(0.0, 20.0, (n, 3))
+    xyz[:50] = 0.0  # range 0: factor 1
+    data = np.column_stack([xyz, rng.random(n), rng.integers(0, 64, n), rng.random(n), rng.integers(0, 20, n),
+                            rng.integers(-1, 9, n)]).astype(np.float32)
+    cloud = PointCloud(data, (*STANDARD_CHANNELS, "ring", "time", "label", "instance"))
+    ranges = np.sqrt((xyz * xyz).sum(axis=1))
+    new_range = np.where(rng.random(n) < moved_share, ranges * rng.uniform(0.2, 1.0, n), ranges)
+    keep, in_air, intensity = rng.random(n) < 0.9, rng.random(n) < 0.05, rng.random(n)
+    new = _rescaled(cloud, keep, ranges, new_range, intensity, in_air)
+    assert new.data.tobytes() == former_rescaled(cloud, keep, ranges, new_range, intensity, in_air).data.tobytes()

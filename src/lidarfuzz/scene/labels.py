@@ -23,6 +23,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,13 +48,10 @@ def occlusion_level(visibility: ArrayLike) -> NDArray[np.int64]:
     return np.where(v >= 0.8, 0, np.where(v >= 0.4, 1, 2)).astype(np.int64)
 
 
-def image_coverage(calib: KittiCalibration, boxes: ArrayLike) -> tuple[F64, list[F64]]:
-    """Share of each box's volume samples that project into the image, and the pixels of each
-    box's samples in front of the camera (for the 2D box of a box across the camera plane)."""
-    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+def _coverage(calib: KittiCalibration, b: F64) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """Share of each box's volume samples (``b`` M×7, M ≥ 1) that project into the image, with the
+    samples' pixels (M×125×2) and which lie in front of the camera (M×125)."""
     n = len(b)
-    if n == 0:
-        return np.zeros(0), []
     c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
     local = VOLUME_SAMPLES[None, :, :] * b[:, None, 3:6]  # n × 125 × 3
     world = np.empty_like(local)
@@ -66,7 +64,44 @@ def image_coverage(calib: KittiCalibration, boxes: ArrayLike) -> tuple[F64, list
     front = depth > MIN_DEPTH
     with np.errstate(invalid="ignore"):
         inside = front & (uv[..., 0] >= 0) & (uv[..., 0] < width) & (uv[..., 1] >= 0) & (uv[..., 1] < height)
-    return inside.mean(axis=1), [uv[i][front[i]] for i in range(n)]
+    return inside.mean(axis=1), uv, front
+
+
+def image_coverage(calib: KittiCalibration, boxes: ArrayLike) -> tuple[F64, list[F64]]:
+    """Share of each box's volume samples that project into the image, and the pixels of each
+    box's samples in front of the camera (for the 2D box of a box across the camera plane)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    if len(b) == 0:
+        return np.zeros(0), []
+    share, uv, front = _coverage(calib, b)
+    return share, [uv[i][front[i]] for i in range(len(b))]
+
+
+def _boxes_2d(calib: KittiCalibration, b: F64, front_pixels: Callable[[int], F64]) -> F64:
+    """:func:`image_boxes` of ``b`` (M×7), ``front_pixels(i)`` giving box i's in-front sample
+    pixels — asked only for the boxes across the camera plane (few), so the others' are never
+    gathered."""
+    n = len(b)
+    out = np.full((n, 4), np.nan)
+    if n == 0:
+        return out
+    # only the corners' depth is needed here (the rectified z): the devkit's 2D box below
+    # projects its own corners through P2, so these are not projected to pixels too
+    depth = calib.lidar_to_rect(box_corners(b).reshape(-1, 3))[:, 2]
+    in_front = np.all(depth.reshape(n, 8) > MIN_DEPTH, axis=1)
+    if in_front.any():
+        out[in_front] = calib.boxes_to_image(b[in_front])
+    height, width = calib.image_shape
+    for i in np.flatnonzero(~in_front):  # a loop over boxes (few), not points
+        pixels = front_pixels(int(i))
+        if len(pixels):
+            lo, hi = pixels.min(axis=0), pixels.max(axis=0)
+            out[i] = [np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
+                      np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)]
+    with np.errstate(invalid="ignore"):
+        flat = ~((out[:, 2] > out[:, 0]) & (out[:, 3] > out[:, 1]))
+    out[flat] = np.nan
+    return out
 
 
 def image_boxes(calib: KittiCalibration, boxes: ArrayLike, front_uv: list[F64]) -> F64:
@@ -74,25 +109,7 @@ def image_boxes(calib: KittiCalibration, boxes: ArrayLike, front_uv: list[F64]) 
     front of the camera; for the others, the clipped extent of their in-front volume samples
     (``front_uv`` from :func:`image_coverage`); NaN where the clipped box has no area — a box
     beside the image would otherwise get a zero-width box the devkit still counts."""
-    b = np.asarray(boxes, np.float64).reshape(-1, 7)
-    n = len(b)
-    out = np.full((n, 4), np.nan)
-    if n == 0:
-        return out
-    _, depth = calib.rect_to_image(calib.lidar_to_rect(box_corners(b).reshape(-1, 3)))
-    in_front = np.all(depth.reshape(n, 8) > MIN_DEPTH, axis=1)
-    if in_front.any():
-        out[in_front] = calib.boxes_to_image(b[in_front])
-    height, width = calib.image_shape
-    for i in np.flatnonzero(~in_front):  # a loop over boxes (few), not points
-        if len(front_uv[i]):
-            lo, hi = front_uv[i].min(axis=0), front_uv[i].max(axis=0)
-            out[i] = [np.clip(lo[0], 0, width - 1), np.clip(lo[1], 0, height - 1),
-                      np.clip(hi[0], 0, width - 1), np.clip(hi[1], 0, height - 1)]
-    with np.errstate(invalid="ignore"):
-        flat = ~((out[:, 2] > out[:, 0]) & (out[:, 3] > out[:, 1]))
-    out[flat] = np.nan
-    return out
+    return _boxes_2d(calib, np.asarray(boxes, np.float64).reshape(-1, 7), front_uv.__getitem__)
 
 
 @dataclass(frozen=True)
@@ -117,8 +134,11 @@ def camera_labels(calib: KittiCalibration, boxes: ArrayLike) -> CameraLabels:
     no 2D box. KITTI labels exist only in the camera's view, so the devkit then ignores it at
     every difficulty instead of counting a box no camera-based label could have."""
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
-    inside, front_uv = image_coverage(calib, b)
-    bbox2d = image_boxes(calib, b, front_uv)
+    if len(b) == 0:
+        inside, bbox2d = np.zeros(0), np.full((0, 4), np.nan)
+    else:
+        inside, uv, front = _coverage(calib, b)
+        bbox2d = _boxes_2d(calib, b, lambda i: uv[i][front[i]])
     truncation = np.clip(1.0 - inside, 0.0, 1.0).round(2)
     truncation[~np.isfinite(bbox2d).all(axis=1)] = 1.0
     return CameraLabels(truncation=truncation, bbox2d=bbox2d, alpha=calib.alpha(b), inside=inside)

@@ -110,11 +110,30 @@ def intensity_scale(values: NDArray[np.floating]) -> float:
     """The data's intensity full scale, inferred: 1 for [0, 1] data (KITTI, the simulator), 255 for
     8-bit, 65535 for 16-bit, else the maximum itself. Operators that model physics convert with
     it explicitly (a model fed 0–255 units with [0, 1] data is a known defect of public tools)."""
-    top = float(values.max()) if len(values) else 0.0
+    return scale_of_maximum(float(values.max()) if len(values) else 0.0)
+
+
+def scale_of_maximum(top: float) -> float:
+    """:func:`intensity_scale` of values whose maximum is ``top`` (0 for no values)."""
     for scale in (1.0, 255.0, 65535.0):
         if top <= scale:
             return scale
     return top
+
+
+def copy_with_maximum(data: NDArray[np.float32], column: int,
+                      block: int = COLUMN_BLOCK) -> tuple[NDArray[np.float32], float]:
+    """A copy of the non-empty N×C ``data`` and the maximum of one of its columns (NaN if it holds
+    a NaN, as ``ndarray.max`` gives it), read block by block from the copy while the block is in
+    the cache: the strided column of the whole frame read on its own would bring the whole array
+    through the cache a second time."""
+    out = np.empty_like(data)
+    tops = np.empty(-(-len(data) // block), data.dtype)
+    for k, start in enumerate(range(0, len(data), block)):
+        rows = out[start:start + block]
+        np.copyto(rows, data[start:start + block])
+        tops[k] = rows[:, column].max()
+    return out, float(tops.max())
 
 
 #: Integer intensity types a reader may record instead of a number (LAS: ``"uint16"``).

@@ -43,7 +43,12 @@ from lidarfuzz.operators.base import (
     draw_seed,
     uniform,
 )
-from lidarfuzz.operators.lidar.common import mod_period, scene_intensity_scale
+from lidarfuzz.operators.lidar.common import (
+    declared_intensity_scale,
+    mod_period,
+    scale_of_maximum,
+    scene_intensity_scale,
+)
 from lidarfuzz.operators.lidar.geometric import transformed_points
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
@@ -174,20 +179,39 @@ def time_of_azimuth(azimuth: NDArray[np.floating], rotation_hz: float = 10.0) ->
 SQUARED_BLOCK = 8192
 
 
-def _squared_ranges(cloud: PointCloud) -> NDArray[np.float32]:
+def _squared_ranges(cloud: PointCloud, tops: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """x² + y² + z² in float32, summed in that order, block by block: each strided column read
-    from memory separately would bring the whole N×C array through the cache three times."""
+    from memory separately would bring the whole N×C array through the cache three times.
+    ``tops`` (one entry per block of :data:`SQUARED_BLOCK` rows), when given, receives each
+    block's largest intensity, read while the block is in the cache (see
+    :func:`farthest_range_and_intensity_scale`)."""
     data = cloud.data
     n = len(data)
     total = np.empty(n, np.float32)
     term = np.empty(min(SQUARED_BLOCK, n), np.float32)
-    for start in range(0, n, SQUARED_BLOCK):
+    for k, start in enumerate(range(0, n, SQUARED_BLOCK)):
         rows = data[start:start + SQUARED_BLOCK]
         out, t = total[start:start + len(rows)], term[:len(rows)]
         np.multiply(rows[:, 0], rows[:, 0], out=out)
         out += np.multiply(rows[:, 1], rows[:, 1], out=t)
         out += np.multiply(rows[:, 2], rows[:, 2], out=t)
+        if tops is not None:
+            tops[k] = rows[:, 3].max()
     return total
+
+
+def farthest_range_and_intensity_scale(sample: Scene) -> tuple[float, float]:
+    """(:func:`farthest_range` of the non-empty cloud, :func:`scene_intensity_scale` of the
+    frame) in one pass over the points: where the scale is not declared, the intensity maximum
+    it is inferred from is read block by block with the ranges (a strided column of the whole
+    frame read on its own brings the whole array through the cache again)."""
+    cloud = sample.points
+    declared = declared_intensity_scale(sample)
+    if declared is not None:
+        return farthest_range(cloud), declared
+    tops = np.empty(-(-len(cloud) // SQUARED_BLOCK), np.float32)
+    farthest = _farthest_of(cloud, _squared_ranges(cloud, tops))
+    return farthest, scale_of_maximum(float(tops.max()))  # NaN if an intensity is NaN, as ndarray.max
 
 
 def farthest_range(cloud: PointCloud) -> float:
@@ -200,7 +224,11 @@ def farthest_range(cloud: PointCloud) -> float:
     square of at least (1 − 4e-7) times the largest one; every point above (1 − 1e-5) times it is
     a candidate, and the float64 norms of those (a handful) give the same maximum, bit for bit.
     """
-    squared = _squared_ranges(cloud)
+    return _farthest_of(cloud, _squared_ranges(cloud))
+
+
+def _farthest_of(cloud: PointCloud, squared: NDArray[np.float32]) -> float:
+    """:func:`farthest_range` from the cloud's float32 squared ranges."""
     top = float(squared.max())
     if not np.isfinite(top):  # NaN or inf coordinates: the full computation, as before
         return float(np.linalg.norm(cloud.xyz.astype(np.float64), axis=1).max())
@@ -464,9 +492,11 @@ class Crosstalk(Operator[Scene, CrosstalkConfig, CrosstalkParams]):
 
     def sample(self, rng: np.random.Generator, sample: Scene) -> CrosstalkParams:
         cloud = sample.points
-        farthest = farthest_range(cloud) if len(cloud) else 100.0
+        if len(cloud):
+            farthest, scale = farthest_range_and_intensity_scale(sample)
+        else:
+            farthest, scale = 100.0, scene_intensity_scale(sample)
         high = max(self.config.max_range_m or farthest, 1.0)
-        scale = scene_intensity_scale(sample)
         lo, hi = self.config.intensity_range
         return CrosstalkParams(ratio=uniform(rng, self.config.ratio_range), range_low=min(1.0, high), range_high=high,
                                intensity_low=lo * scale, intensity_high=hi * scale, seed=draw_seed(rng))
