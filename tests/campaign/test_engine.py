@@ -8,7 +8,7 @@ import threading
 from pathlib import Path
 
 import pytest
-from sqlalchemy import func, select
+from sqlalchemy import Engine, event, func, select
 
 from lidarfuzz.campaign.executor import InlineExecutor, ProcessExecutor
 from lidarfuzz.campaign.replay import replay_finding
@@ -119,11 +119,26 @@ def test_results_do_not_depend_on_the_executor(reference, tmp_path: Path, world:
 
 
 def test_unchanged_inputs_come_from_the_cache(tmp_path: Path, world: Path) -> None:
-    store = Store(tmp_path / "ws")
-    first = create_task(store, campaign(world))
-    assert run_task(store, first, executor=InlineExecutor()).stats.cached == 0
-    second = create_task(store, campaign(world))
-    outcome = run_task(store, second, executor=InlineExecutor())
+    """Each frame's cached outputs are read in one query; a system with nothing cached yet is
+    asked about once per run, not once per frame."""
+    reads: list[str] = []
+
+    def count(_conn, _cursor, statement: str, *_: object) -> None:
+        if statement.lstrip().upper().startswith("SELECT") and "FROM sut_outputs" in statement:
+            reads.append(statement)
+
+    event.listen(Engine, "before_cursor_execute", count)
+    try:
+        store = Store(tmp_path / "ws")
+        first = create_task(store, campaign(world))
+        assert run_task(store, first, executor=InlineExecutor()).stats.cached == 0
+        assert len(reads) == 1  # nothing cached for the system: no frame is read
+        reads.clear()
+        second = create_task(store, campaign(world))
+        outcome = run_task(store, second, executor=InlineExecutor())
+        assert len(reads) == 1 + 3  # the same question, then the 3 frames' outputs, one query each
+    finally:
+        event.remove(Engine, "before_cursor_execute", count)
     assert outcome.stats.cached == outcome.stats.units == 12 and outcome.stats.sut == 0
     assert outputs(store, second) == outputs(store, first)
     # another seed: originals cached, mutants new

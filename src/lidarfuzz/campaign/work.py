@@ -183,6 +183,7 @@ class Worker:
         self._cache: Any = None
         self._lookup: Any = None
         self._connection: Any = None
+        self._empty: bool | None = None  # the cache had no output of this system (see _cache_empty)
         self._changed: bool | None = None
         if context.store_url is not None:
             from lidarfuzz.store.store import Store
@@ -268,7 +269,7 @@ class Worker:
         cached after that read (by this run, or another one) are not seen until the frame is
         read again; such an input is run again — the cache only ever saves work.
         """
-        if self._cache is None:
+        if self._cache is None or self._cache_empty():
             return None
         known = self._known.get(source)
         if known is None:
@@ -278,6 +279,29 @@ class Worker:
                 self._known.popitem(last=False)
         return known.get(key)
 
+    def _cache_empty(self) -> bool:
+        """Whether the cache held no output of this system when this worker first looked (asked
+        once): then no frame is read from it. A run's own outputs are never looked for by that run
+        (each frame's outputs are read once, at its first unit, before the run caches any), so a
+        system's first run skips a query per frame and finds exactly what it would have found."""
+        if self._empty is None:
+            from sqlalchemy import select
+
+            from lidarfuzz.store.models import SutOutput
+
+            any_output = select(SutOutput.digest).where(SutOutput.fingerprint == self.context.fingerprint).limit(1)
+            self._empty = not self._execute(any_output)
+        return self._empty
+
+    def _execute(self, statement: Any, parameters: dict[str, Any] | None = None) -> Any:
+        """``statement``'s rows from the cache, read in a transaction ended at once (never hold a
+        snapshot open)."""
+        if self._connection is None:
+            self._connection = self._cache.engine.connect()
+        rows = self._connection.execute(statement, parameters).all()
+        self._connection.rollback()
+        return rows
+
     def _read_cached(self, source: str) -> dict[str, StoredBoxes]:
         from sqlalchemy import bindparam, select
 
@@ -286,9 +310,7 @@ class Worker:
         if self._lookup is None:
             self._lookup = select(SutOutput.digest, SutOutput.boxes, SutOutput.labels).where(
                 SutOutput.fingerprint == self.context.fingerprint, SutOutput.source == bindparam("source"))
-            self._connection = self._cache.engine.connect()
-        rows = self._connection.execute(self._lookup, {"source": source}).all()
-        self._connection.rollback()  # end the read transaction: never hold a snapshot open
+        rows = self._execute(self._lookup, {"source": source})
         return {digest: StoredBoxes(boxes, labels) for digest, boxes, labels in rows}
 
     # -- one unit ---------------------------------------------------------------------
