@@ -17,15 +17,26 @@ from numpy.typing import NDArray
 from shapely.geometry import MultiPolygon, Polygon, box
 
 from lidarfuzz.sim.generate import generate_scene
+from lidarfuzz.sim.materials import MATERIAL_ID
 from lidarfuzz.sim.meshes import Mesh, _rotation_from_z, cylinder, extruded, flat, polygons_of
-from lidarfuzz.sim.render import Renderer, _draw_buffers, _ray_tables, add_triangles, covered_rays
-from lidarfuzz.sim.sensor import load_sensor
+from lidarfuzz.sim.render import (
+    Renderer,
+    _draw_buffers,
+    _ray_tables,
+    add_triangles,
+    covered_rays,
+    incidence_cosines,
+)
+from lidarfuzz.sim.sensor import RETRO_READING, Receiver, load_sensor
 from lidarfuzz.sim.spec import Building, Crosswalk, Wall
 from lidarfuzz.sim.world import (
     SINK,
+    _building,
+    _buildings,
     _ground_and_roads,
     _on_ground,
     _static_object,
+    _static_objects,
     compile_world,
     footprint_of,
     footprint_points,
@@ -276,3 +287,178 @@ def test_extruded_is_the_ring_by_ring_mesh(side_material: str | None) -> None:
         for field in ("vertices", "faces", "reflectivity", "semantic", "returns", "gloss", "material"):
             assert getattr(got, field).tobytes() == getattr(expected, field).tobytes(), field
         assert got.faces.dtype == np.int32 and len(got) == len(expected) > 0
+
+
+def _same_mesh(got: Mesh, expected: Mesh) -> None:
+    for field in ("vertices", "faces", "reflectivity", "semantic", "returns", "gloss", "material"):
+        a, b = getattr(got, field), getattr(expected, field)
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), field
+
+
+def _random_footprint(rng: np.random.Generator) -> list[tuple[float, float]]:
+    """A star-shaped (concave) or convex footprint, either orientation, open or closed."""
+    corners = int(rng.integers(3, 14))
+    angles = np.sort(rng.uniform(0, 2 * np.pi, corners))
+    radii = rng.uniform(2.0, 25.0, corners) if rng.random() < 0.6 else np.full(corners, rng.uniform(2.0, 25.0))
+    centre = rng.uniform(-200, 200, 2)
+    ring = [(float(centre[0] + r * np.cos(a)), float(centre[1] + r * np.sin(a))) for a, r in
+            zip(angles, radii, strict=True)]
+    if rng.random() < 0.5:
+        ring = ring[::-1]  # clockwise
+    if rng.random() < 0.3:
+        ring.append(ring[0])  # given closed
+    return ring
+
+
+def test_buildings_together_are_the_one_by_one_meshes() -> None:
+    """Random footprints (concave, clockwise, closed, tall and short, with and without windows), the
+    generated scenes' buildings, and invalid footprints (repaired one by one): bit for bit the
+    meshes of :func:`_building`, in order."""
+    rng = np.random.default_rng(26)
+    buildings = []
+    for _ in range(300):
+        footprint = _random_footprint(rng)
+        # An invalid footprint (repaired into several parts) cannot have windows (_windows needs one ring).
+        windows = bool(rng.random() < 0.7) and Polygon(footprint).is_valid
+        buildings.append(Building(footprint=footprint, height=float(rng.choice([2.0, 2.7, 4.6, 4.7, 9.0, 31.5])),
+                                  material=str(rng.choice(["plaster", "brick", "concrete", "window"])),
+                                  windows=windows))
+    bowtie = Building(footprint=[(0.0, 0.0), (10.0, 10.0), (10.0, 0.0), (0.0, 10.0)], height=12.0, windows=False)
+    repeated = Building(footprint=[(0.0, 0.0), (8.0, 0.0), (8.0, 0.0), (8.0, 6.0), (0.0, 6.0)], height=7.0)
+    buildings[5:5] = [bowtie, repeated]
+    for seed in range(12):
+        buildings += [o for o in generate_scene(seed, sensor="VLP-16").objects if isinstance(o, Building)]
+    got = _buildings(buildings)
+    assert len(got) == len(buildings)
+    windows = 0
+    for mesh, building in zip(got, buildings, strict=True):
+        expected = _building(building)
+        _same_mesh(mesh, expected)
+        windows += int((mesh.material == MATERIAL_ID["window"]).sum())
+    assert windows > 1000
+    assert _buildings([]) == []
+
+
+def test_static_objects_keep_the_objects_order() -> None:
+    spec = generate_scene(3, sensor="VLP-16")
+    objects = list(spec.objects)
+    assert len({type(o) for o in objects}) > 3
+    for got, obj in zip(_static_objects(objects), objects, strict=True):
+        _same_mesh(got, _static_object(obj))
+
+
+def test_incidence_cosines_are_the_einsum_formula() -> None:
+    """|n · d| / max(|n|, 1e-12) summed by einsum (the former computation), bit for bit, on random,
+    tiny, huge, zero and signed-zero normals."""
+    rng = np.random.default_rng(27)
+    n = 200_000
+    normal = (rng.standard_normal((n, 3)) * 10.0 ** rng.integers(-20, 18, (n, 1))).astype(np.float32)
+    normal[rng.random((n, 3)) < 0.05] = 0.0
+    normal[rng.random((n, 3)) < 0.05] = -0.0
+    directions = rng.standard_normal((n, 3))
+    directions = (directions / np.linalg.norm(directions, axis=1, keepdims=True)).astype(np.float32)
+    directions[rng.random((n, 3)) < 0.02] = -0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        dot = np.einsum("ij,ij->i", normal, directions)
+        norm = np.sqrt(np.einsum("ij,ij->i", normal, normal))
+        expected = np.abs(dot) / np.maximum(norm, np.float32(1e-12))
+        got = incidence_cosines(normal, directions)
+    assert got.dtype == np.float32
+    assert got.tobytes() == expected.tobytes()
+
+
+def _read_with_temporaries(receiver: Receiver, reflectivity: NDArray[np.float32], cos_incidence: NDArray[np.float32],
+                           distance: NDArray[np.float32], ring: NDArray[np.intp], noise: NDArray[np.float32],
+                           beams: int) -> NDArray[np.float32]:
+    """The former computation of :meth:`Receiver.read`: a fresh array per step."""
+    gain, offset = receiver.calibration(beams)
+    weight = np.float32(receiver.incidence_weight)
+    scatter = reflectivity * (np.float32(1.0) - weight + weight * cos_incidence)
+    scatter *= np.exp(-distance / np.float32(400.0))
+    above = np.maximum(scatter - np.float32(receiver.dark), np.float32(0.0))
+    reading = above if receiver.knee is None else np.float32(1.0) - np.exp(-above / np.float32(receiver.knee))
+    reading *= np.float32(receiver.scale)
+    if receiver.falloff_length is not None:
+        beyond = np.maximum(distance - np.float32(receiver.falloff_start), np.float32(0.0))
+        reading *= np.exp(-np.square(beyond / np.float32(receiver.falloff_length)))
+    reading = reading * gain[ring] + offset[ring] + noise
+    if receiver.retro_reflectivity is not None:
+        reading[reflectivity >= np.float32(receiver.retro_reflectivity)] = np.float32(RETRO_READING)
+    np.clip(reading, 0.0, 1.0, out=reading)
+    if receiver.step > 0:
+        per_unit = round(1.0 / receiver.step)
+        if abs(per_unit * receiver.step - 1.0) < 1e-9:
+            reading = np.floor(reading * np.float32(per_unit) + np.float32(1e-3)) / np.float32(per_unit)
+        else:
+            reading = np.floor(reading / np.float32(receiver.step) + np.float32(1e-3)) * np.float32(receiver.step)
+    return reading.astype(np.float32)
+
+
+@pytest.mark.parametrize("receiver", [
+    Receiver(), Receiver.clean(), Receiver(knee=None), Receiver(falloff_length=None), Receiver(step=0.03),
+    Receiver(step=0.0, retro_reflectivity=None, calibration_seed=5), Receiver(scale=2.5, dark=0.0, knee=0.2),
+], ids=["default", "clean", "linear", "no-falloff", "step-0.03", "continuous", "bright"])
+def test_receiver_read_in_place_is_the_step_by_step_formula(receiver: Receiver) -> None:
+    rng = np.random.default_rng(28)
+    n, beams = 150_000, 64
+    reflectivity = rng.uniform(0.0, 1.0, n).astype(np.float32)
+    cos_incidence = rng.uniform(0.0, 1.0, n).astype(np.float32)
+    distance = rng.uniform(0.9, 130.0, n).astype(np.float32)
+    ring = rng.integers(0, beams, n).astype(np.intp)
+    noise = (rng.standard_normal(n) * 0.03).astype(np.float32)
+    arguments = (reflectivity, cos_incidence, distance, ring, noise, beams)
+    copies = [a.copy() for a in arguments[:-1]]
+    got = receiver.read(*arguments)
+    expected = _read_with_temporaries(receiver, *arguments)
+    assert got.dtype == np.float32 and got.tobytes() == expected.tobytes()
+    for before, after in zip(copies, arguments[:-1], strict=True):
+        np.testing.assert_array_equal(before, after)  # the inputs are left alone
+
+
+def test_cast_gathers_the_static_faces_as_the_row_table_did() -> None:
+    """A world with still road users: every static property of every ray is what the former
+    gather gave (a row per ray: the world's face, a still road user's face after them, or a
+    last row for a miss), and a miss has primID −1 (which the gather relies on)."""
+    renderer = Renderer(compile_world(generate_scene(4, sensor="VLP-16")), threads=1)
+    origins, directions = renderer.rays(0.0)
+    got = renderer.cast(origins, directions)
+    static, still = renderer.world.static, renderer._still_mesh
+    result = renderer._trace(renderer._static(), origins, directions,
+                             np.full(len(origins), renderer.sensor.max_range, np.float32))
+    geometry, primitive = result["geomID"].astype(np.int32), result["primID"]
+    assert (geometry == 1).any() and (geometry == -1).any()
+    assert (primitive[geometry < 0] == -1).all()
+    table = np.concatenate([np.column_stack([m.reflectivity, m.semantic.astype(np.float32), m.returns, m.gloss])
+                            for m in (static, still)] + [[[0.0, 0.0, 1.0, 0.0]]]).astype(np.float32)
+    owners = np.concatenate([np.full(len(static), -1, np.int64), renderer._still_owner.astype(np.int64), [-1]])
+    row = np.where(geometry == 0, primitive, np.where(geometry == 1, primitive + len(static), len(owners) - 1))
+    expected = {"reflectivity": table[row, 0], "semantic": table[row, 1].astype(np.uint8), "returns": table[row, 2],
+                "gloss": table[row, 3], "owner": owners[row], "geometry": geometry, "distance": result["tfar"],
+                "normal": result["Ng"]}
+    for name, values in expected.items():
+        field = getattr(got, name)
+        assert field.dtype == values.dtype and field.tobytes() == values.tobytes(), name
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_visible_rays_alone_counts_as_the_compacted_mesh_did(seed: int) -> None:
+    """Uploading the span of an actor's vertices (the former: only the vertices its faces use,
+    renumbered) gives the same hits for every road user."""
+    renderer = Renderer(compile_world(generate_scene(seed, sensor="VLP-16")), threads=1)
+    origins, directions = renderer.rays(0.0)
+    actors, owner, _ = renderer._actor_meshes(renderer.actor_times(0.0))
+    everything = np.arange(len(origins))
+    counted = 0
+    for index in np.unique(owner).tolist():
+        faces = actors.faces[owner == index]
+        used = np.unique(faces)
+        remap = np.zeros(len(actors.vertices), np.int32)
+        remap[used] = np.arange(len(used), dtype=np.int32)
+        scene = rtcore_scene.EmbreeScene(renderer._device)
+        add_triangles(scene, actors.vertices[used], remap[faces])
+        result = scene.run(origins, directions, dists=np.full(len(origins), renderer.sensor.max_range, np.float32),
+                           output=1)
+        expected = int(((result["geomID"] >= 0) & (result["tfar"] >= renderer.sensor.min_range)).sum())
+        assert renderer.visible_rays_alone(actors, owner, index, origins, directions, everything) == expected
+        counted += expected
+    assert counted > 0

