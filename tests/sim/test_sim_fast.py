@@ -8,14 +8,20 @@ and compares bit for bit on many random inputs (the data set tests compare whole
 from __future__ import annotations
 
 import dataclasses
+import json
+from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
+import shapely
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from numpy.typing import NDArray
-from shapely.geometry import MultiPolygon, Polygon, box
+from shapely.geometry import LineString, MultiPolygon, Polygon, box
+from shapely.ops import substring, unary_union
 
+from lidarfuzz.sim.dataset import SUMMARY_FILE, GenerationConfig, generate_dataset
 from lidarfuzz.sim.generate import generate_scene
 from lidarfuzz.sim.materials import MATERIAL_ID
 from lidarfuzz.sim.meshes import Mesh, _rotation_from_z, cylinder, extruded, flat, polygons_of
@@ -28,15 +34,17 @@ from lidarfuzz.sim.render import (
     incidence_cosines,
 )
 from lidarfuzz.sim.sensor import RETRO_READING, Receiver, load_sensor
-from lidarfuzz.sim.spec import Building, Crosswalk, Wall
+from lidarfuzz.sim.spec import Building, Bush, Crosswalk, Pole, Sign, Tree, Wall
 from lidarfuzz.sim.world import (
     SINK,
     _building,
     _buildings,
+    _dashes,
     _ground_and_roads,
     _on_ground,
     _static_object,
     _static_objects,
+    _street_furniture,
     compile_world,
     footprint_of,
     footprint_points,
@@ -347,6 +355,51 @@ def test_static_objects_keep_the_objects_order() -> None:
         _same_mesh(got, _static_object(obj))
 
 
+def _random_street_furniture(rng: np.random.Generator) -> list[object]:
+    """Trees, poles (with and without arms, any yaw) and signs (some too short for their plate,
+    which the batch leaves to the one-by-one path), bushes between them, at awkward positions
+    too (the origin, -0.0, far away)."""
+    objects: list[object] = []
+    for _ in range(400):
+        position = (float(rng.uniform(-500, 500)), float(rng.uniform(-500, 500)))
+        if rng.random() < 0.1:
+            position = (float(rng.choice([0.0, -0.0, 1e5])), float(rng.choice([0.0, -0.0, -3.25])))
+        kind = rng.integers(4)
+        if kind == 0:
+            objects.append(Tree(position=position, height=float(rng.uniform(1.01, 40)),
+                                canopy_radius=float(rng.uniform(0.01, 10)), trunk_radius=float(rng.uniform(0.01, 2))))
+        elif kind == 1:
+            objects.append(Pole(position=position, height=float(rng.uniform(0.01, 30)),
+                                radius=float(rng.uniform(0.01, 1)),
+                                arm=float(rng.choice([0.0, rng.uniform(0, 10)])),
+                                yaw=float(rng.choice([0.0, 90.0, -180.0, 45.0, rng.uniform(-720, 720)]))))
+        elif kind == 2:
+            objects.append(Sign(position=position, height=float(rng.uniform(0.51, 8)),
+                                plate=float(rng.uniform(0.11, 3)),
+                                yaw=float(rng.choice([0.0, -90.0, rng.uniform(-720, 720)]))))
+        else:
+            objects.append(Bush(position=position))
+    return objects
+
+
+def test_street_furniture_together_is_the_one_by_one_meshes() -> None:
+    """Trees, poles and signs built together: bit for bit the meshes :func:`_static_object` builds
+    one by one (the former code, still the path for objects the batch leaves out), in order."""
+    objects = _random_street_furniture(np.random.default_rng(27))
+    for seed in range(12):
+        objects += list(generate_scene(seed, sensor="VLP-16").objects)
+    short_signs = [o for o in objects if isinstance(o, Sign) and o.height - o.plate / 2 <= 0]
+    assert short_signs  # the one-by-one path is exercised too
+    got = _street_furniture(objects)
+    assert set(got) == {k for k, o in enumerate(objects) if isinstance(o, Tree | Pole | Sign)}
+    for k, mesh in got.items():
+        _same_mesh(mesh, _static_object(objects[k]))
+    merged = _static_objects(objects)
+    for mesh, obj in zip(merged, objects, strict=True):
+        _same_mesh(mesh, _static_object(obj))
+    assert _street_furniture([]) == {}
+
+
 def test_incidence_cosines_are_the_einsum_formula() -> None:
     """|n · d| / max(|n|, 1e-12) summed by einsum (the former computation), bit for bit, on random,
     tiny, huge, zero and signed-zero normals."""
@@ -462,3 +515,73 @@ def test_visible_rays_alone_counts_as_the_compacted_mesh_did(seed: int) -> None:
         assert renderer.visible_rays_alone(actors, owner, index, origins, directions, everything) == expected
         counted += expected
     assert counted > 0
+
+
+def _label_counts_from_files(root: Path, frames: int) -> Counter[str]:
+    """The former count: every frame's label file read back at the end of the run."""
+    counts: Counter[str] = Counter()
+    for index in range(frames):
+        path = root / "label_2" / f"{index:06d}.txt"
+        if path.is_file():
+            counts.update(line.split(" ", 1)[0] for line in path.read_text(encoding="utf-8").splitlines() if line)
+    return counts
+
+
+def test_label_counts_from_the_workers_are_those_of_the_files(tmp_path: Path) -> None:
+    """The summary's class counts (and their order, which the summary file keeps) come from the
+    workers and from the label files of resumed frames only: the counts of all the files."""
+    root = tmp_path / "set"
+    config = GenerationConfig(frames=6, seed=8, sensor="VLP-16")
+    summary = generate_dataset(root, config, workers=1)
+    expected = _label_counts_from_files(root, 6)
+    assert sum(expected.values()) > 10 and len(expected) > 1
+    assert list(summary.label_counts.items()) == list(expected.items())
+    record = json.loads((root / SUMMARY_FILE).read_text())
+    assert list(record["label_counts"].items()) == list(expected.items())
+    # Resumed: frames 1 and 4 rendered again, the others' label files read.
+    for path in [*root.glob("*/000001.*"), *root.glob("*/000004.*")]:
+        path.unlink()
+    (root / SUMMARY_FILE).write_text(json.dumps({**record, "complete": False}))
+    resumed = generate_dataset(root, config, workers=1, resume=True)
+    assert (resumed.generated, resumed.resumed) == (2, 4)
+    assert list(resumed.label_counts.items()) == list(expected.items())
+
+
+def _dashes_one_by_one(line: LineString, on: float, off: float, half_width: float) -> object:
+    """The former dashes: each piece buffered with the geometry method."""
+    starts = np.arange(0.0, line.length, on + off)
+    pieces = [substring(line, s, min(s + on, line.length)) for s in starts]
+    return unary_union([p.buffer(half_width, cap_style="flat") for p in pieces if p.length > 0])
+
+
+def test_dashes_buffered_together_are_the_one_by_one_dashes() -> None:
+    """Straight and bent lines (round joins inside a dash: quad_segs matters), lines shorter than
+    a dash or ending exactly on a gap, the generated scenes' lane dividers: the same geometry,
+    coordinate for coordinate."""
+    rng = np.random.default_rng(28)
+    lines = [LineString([(0.0, 0.0), (2.0, 0.0)]), LineString([(0.0, 0.0), (9.0, 0.0)]),
+             LineString([(0.0, 0.0), (18.0, 0.0)]), LineString([(0.0, 0.0), (3.0, 0.0)])]
+    for _ in range(60):
+        corners = int(rng.integers(2, 8))
+        steps = rng.normal(0.0, 1.0, (corners, 2)) * rng.uniform(1.0, 40.0)
+        lines.append(LineString(np.cumsum(np.vstack([rng.uniform(-100, 100, (1, 2)), steps]), axis=0)))
+    for seed in range(6):
+        for road in generate_scene(seed, sensor="VLP-16").roads:
+            lines.append(LineString(road.centerline).offset_curve(road.lane_width / 2))
+    for line in lines:
+        got, expected = _dashes(line, 3.0, 6.0, 0.075), _dashes_one_by_one(line, 3.0, 6.0, 0.075)
+        assert shapely.to_wkb(got) == shapely.to_wkb(expected)
+
+
+def test_still_road_users_posed_together_are_posed_as_one_by_one() -> None:
+    """The renderer's still road users, their frames computed in one call: bit for bit the
+    meshes :meth:`PlacedActor.mesh_at` builds one by one (each its own frame), tilted ones included."""
+    tilted = 0
+    for seed in range(8):
+        world = compile_world(generate_scene(seed, sensor="VLP-16"))
+        renderer = Renderer(world, threads=1)
+        still = [a for a in world.actors if a.trajectory.speed == 0]
+        expected = [a.mesh_at(0.0, world.ground, pose=renderer._still_poses[a.index])[0] for a in still]
+        _same_mesh(renderer._still_mesh, Mesh.concat(expected))
+        tilted += sum(1 for a in still if any(renderer._still_poses[a.index][4:]))
+    assert tilted > 10

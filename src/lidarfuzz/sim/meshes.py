@@ -114,19 +114,22 @@ class Mesh:
 
 # --------------------------------------------------------------------------- templates
 @cache
-def _unit_box() -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+def unit_box() -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """The unit cube's vertices and faces, centred at the origin (shared: never modify them)."""
     box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
     return np.asarray(box.vertices), np.asarray(box.faces, np.int32)
 
 
 @cache
-def _unit_cylinder(sections: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+def unit_cylinder(sections: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """A cylinder of radius 1 and height 1 with ``sections`` sides (shared: never modify it)."""
     cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=sections)
     return np.asarray(cyl.vertices), np.asarray(cyl.faces, np.int32)  # axis z, centred at the origin
 
 
 @cache
-def _unit_sphere(subdivisions: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+def unit_sphere(subdivisions: int) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """An icosphere of radius 1 (shared: never modify it)."""
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
     return np.asarray(sphere.vertices), np.asarray(sphere.faces, np.int32)
 
@@ -147,7 +150,7 @@ def box(size: Sequence[float], center: Sequence[float], material_name: str | Non
     ``top_material`` (when not ``False``) gives the upward face its own material, e.g.
     a painted roof over a glass cabin.
     """
-    verts, faces = _unit_box()
+    verts, faces = unit_box()
     v = verts * np.asarray(size, np.float64)
     if top_size is not None:
         top = verts[:, 2] > 0
@@ -166,7 +169,7 @@ def box(size: Sequence[float], center: Sequence[float], material_name: str | Non
 def cylinder(radius: float, p0: Sequence[float], p1: Sequence[float], material_name: str | None = None, *,
              sections: int = 10) -> Mesh:
     """A cylinder of ``radius`` from point ``p0`` to point ``p1`` (any direction)."""
-    verts, faces = _unit_cylinder(sections)
+    verts, faces = unit_cylinder(sections)
     a, b = np.asarray(p0, np.float64), np.asarray(p1, np.float64)
     axis = b - a
     length = float(np.linalg.norm(axis))
@@ -178,7 +181,7 @@ def cylinder(radius: float, p0: Sequence[float], p1: Sequence[float], material_n
 
 def ellipsoid(radii: Sequence[float], center: Sequence[float], material_name: str | None = None, *,
               subdivisions: int = 1) -> Mesh:
-    verts, faces = _unit_sphere(subdivisions)
+    verts, faces = unit_sphere(subdivisions)
     return Mesh.of(verts * np.asarray(radii, np.float64) + np.asarray(center, np.float64), faces, material_name)
 
 

@@ -45,7 +45,7 @@ from lidarfuzz.scene.scene import Scene
 from lidarfuzz.sim.labels import LabelConfig, label_actors
 from lidarfuzz.sim.meshes import Mesh
 from lidarfuzz.sim.sensor import LidarSensor
-from lidarfuzz.sim.terrain import TRACK, WHEELBASE, frame_from_slopes
+from lidarfuzz.sim.terrain import TRACK, WHEELBASE, frame_from_heading, frame_from_slopes
 from lidarfuzz.sim.world import PlacedActor, World, as_multipolygon, poses_on_ground, positions_at
 
 CHANNELS = ("x", "y", "z", "intensity", "ring", "time", "label", "instance")
@@ -269,7 +269,13 @@ class Renderer:
         self._moving = [a for a in world.actors if a.trajectory.speed != 0]
         still_poses = poses_on_ground(tuple(self._still), positions_at(tuple(self._still), np.zeros(len(self._still))),
                                       world.ground)
-        still = [a.mesh_at(0.0, world.ground, pose=tuple(p)) for a, p in zip(self._still, still_poses, strict=True)]
+        # Their frames in one call (a frame per road user cost ~25 µs), each heading's cosine and
+        # sine taken one by one as mesh_at takes them: the same rotations.
+        rotations = frame_from_heading(np.array([np.cos(p[3]) for p in still_poses], np.float64),
+                                       np.array([np.sin(p[3]) for p in still_poses], np.float64),
+                                       still_poses[:, 4], still_poses[:, 5])
+        still = [a.mesh_at(0.0, world.ground, pose=tuple(p), rotation=r.copy())
+                 for a, p, r in zip(self._still, still_poses, rotations, strict=True)]
         self._still_mesh = Mesh.concat([m for m, _ in still])
         self._still_owner = np.concatenate([np.full(len(m), a.index, np.int32) for (m, _), a in
                                             zip(still, self._still, strict=True)] or [np.zeros(0, np.int32)])

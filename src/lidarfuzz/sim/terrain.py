@@ -347,7 +347,13 @@ def frame_from_slopes(yaw: ArrayLike, rise_forward: ArrayLike, rise_left: ArrayL
     """
     yaw, rise_forward, rise_left = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in
                                                          (yaw, rise_forward, rise_left)))
-    c, s = np.cos(yaw), np.sin(yaw)
+    return frame_from_heading(np.cos(yaw), np.sin(yaw), rise_forward, rise_left)
+
+
+def frame_from_heading(c: NDArray[np.float64], s: NDArray[np.float64], rise_forward: NDArray[np.float64],
+                       rise_left: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`frame_from_slopes` given the heading's cosine ``c`` and sine ``s`` (arrays of one
+    shape): for a caller that must take them one by one, as a single body's frame takes them."""
     # forward = (c, s, rf)/|·|; up = forward × (−s, c, rl), normalised; left = up × forward.
     norm = np.sqrt(1.0 + rise_forward * rise_forward)
     fx, fy, fz = c / norm, s / norm, rise_forward / norm
@@ -358,4 +364,4 @@ def frame_from_slopes(yaw: ArrayLike, rise_forward: ArrayLike, rise_left: ArrayL
     return np.stack([np.stack([fx, lx, ux], -1), np.stack([fy, ly, uy], -1), np.stack([fz, lz, uz], -1)], -2)
 
 __all__ = ["MAX_EDGE", "MIN_EDGE", "RAMP_LIP", "TOLERANCE", "TRACK", "VERGE_CELLS", "VERGE_TOLERANCE", "WHEELBASE",
-           "Ground", "curvature", "frame_from_slopes", "grid_triangles", "verge_cell"]
+           "Ground", "curvature", "frame_from_heading", "frame_from_slopes", "grid_triangles", "verge_cell"]
