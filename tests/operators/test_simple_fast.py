@@ -7,6 +7,8 @@ cases (ties, signed zeros, NaN, points at the edge of a region, near-equal farth
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -21,14 +23,19 @@ from lidarfuzz.operators.lidar.common import (
 from lidarfuzz.operators.lidar.geometric import CHUNK, transformed_points
 from lidarfuzz.operators.lidar.points import (
     EXTENT_BLOCK,
+    RegionIntensityParams,
+    RegionIntensityScaling,
     _extent,
     _farthest_in_plane,
     _in_column,
     _planar_squares_and_extents,
     _z_extent,
 )
+from lidarfuzz.operators.lidar.power import effective_reflectivity, power_draw_stream, power_draws
 from lidarfuzz.operators.lidar.returns import (
     BLOCK,
+    DualReturn,
+    DualReturnParams,
     _falling_within_rings,
     _narrow_rings,
     far_neighbour,
@@ -36,19 +43,38 @@ from lidarfuzz.operators.lidar.returns import (
     ring_azimuth_order,
 )
 from lidarfuzz.operators.lidar.sensor import (
+    MOTION_BLOCK,
     SQUARED_BLOCK,
+    CrossSensor,
+    CrossSensorParams,
+    MotionDistortion,
+    MotionDistortionParams,
     _present_rings,
+    _ring_mask,
+    _rings_for,
     _squared_ranges,
+    azimuth_rad,
     farthest_range,
     farthest_range_and_intensity_scale,
+    time_of_azimuth,
 )
 from lidarfuzz.operators.lidar.weather import _BLOCK as WEATHER_BLOCK
-from lidarfuzz.operators.lidar.weather import _rescaled
+from lidarfuzz.operators.lidar.weather import _GROUND_BLOCK as WET_BLOCK
+from lidarfuzz.operators.lidar.weather import (
+    WATER_INDEX,
+    WetGround,
+    WetGroundParams,
+    _fresnel,
+    _ground,
+    _rescaled,
+    ground_plane,
+)
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.geometry import box_corners
 from lidarfuzz.scene.labels import MIN_DEPTH, camera_labels, image_boxes, image_coverage
 from lidarfuzz.scene.points import CHANNEL_DEFAULTS, STANDARD_CHANNELS, PointCloud
 from lidarfuzz.scene.scene import Scene
+from tests.operators.golden import GOLDEN, simd_features
 
 
 def cloud_of(xyz: np.ndarray, rng: np.random.Generator) -> PointCloud:
@@ -168,13 +194,19 @@ def test_ring_azimuth_order_is_lexsort() -> None:
     assert np.array_equal(ring_azimuth_order(wide, np.zeros(4)), np.lexsort((np.zeros(4), wide)))
 
 
-def test_in_column_is_in_axis_box() -> None:
-    """Including points exactly on the region's faces (the float32 comparison decides)."""
+@pytest.mark.parametrize("n", [300, COLUMN_BLOCK, 2 * COLUMN_BLOCK + 17])
+def test_in_column_is_in_axis_box(n: int) -> None:
+    """Including points exactly on the region's faces (the float32 comparison decides), NaN
+    coordinates, a cloud of one block, and blocks that end inside and outside the region; the
+    cloud as operators pass it (the strided x, y, z of an N×C array)."""
     rng = np.random.default_rng(9)
-    xyz = rng.uniform(-20, 20, (30_000, 3)).astype(np.float32)
+    data = rng.uniform(-20, 20, (n, 5)).astype(np.float32)
+    xyz = data[:, :3]
     center, size = (1.5, -2.25, 0.0), (4.0, 4.0, 50.0)
     xyz[:100, 0] = np.float32(center[0] + size[0] / 2)  # on the faces
     xyz[100:200, 1] = np.float32(center[1] - size[1] / 2)
+    xyz[200:210, 0], xyz[210:220, 1], xyz[220:230, 2] = np.nan, np.nan, np.nan
+    xyz[-300:] = (1.5, -2.25, 0.0)  # the last block ends inside the region
     assert np.array_equal(_in_column(xyz, center, size), in_axis_box(xyz, center, size))
     assert np.array_equal(_in_column(xyz[:0], center, size), in_axis_box(xyz[:0], center, size))
 
@@ -251,10 +283,12 @@ def scan_cloud(rng: np.random.Generator, rings: int, columns: int) -> tuple[Poin
 
 
 @pytest.mark.parametrize("arrangement", ["scan order", "reversed", "shuffled", "unknown rings", "wide rings",
-                                         "a tie", "a NaN"])
+                                         "a tie", "a NaN", "a late tie", "a late NaN"])
 def test_far_neighbour_is_as_before(arrangement: str) -> None:
-    """The scan-order path (no azimuth sort), the sorted path (rings out of order, ties, NaN) and
-    the lexsort path (rings beyond int16) all give what the lexsort code gave."""
+    """The scan-order path (no azimuth sort), the sorted path (rings out of order, ties, NaN; the
+    late ones in the last ring, found by the scan-order path's last block of ring-sorted positions
+    after the others passed) and the lexsort path (rings beyond int16) all give what the lexsort
+    code gave."""
     rng = np.random.default_rng(12)
     cloud, ring = scan_cloud(rng, 16, 1_500)
     data = cloud.data.copy()
@@ -272,6 +306,11 @@ def test_far_neighbour_is_as_before(arrangement: str) -> None:
         data[second, :2] = data[first, :2]  # ring 0's first two firings at one azimuth
     elif arrangement == "a NaN":
         data[5, 0] = np.nan
+    elif arrangement == "a late tie":
+        first, second = np.flatnonzero(ring == 15)[-2:]
+        data[second, :2] = data[first, :2]  # the last ring's last two firings at one azimuth
+    elif arrangement == "a late NaN":
+        data[np.flatnonzero(ring == 15)[-1], 1] = np.nan
     cloud = PointCloud(data, cloud.channels)
     narrow = _narrow_rings(ring)
     if narrow is None:  # which path the arrangement takes
@@ -280,20 +319,36 @@ def test_far_neighbour_is_as_before(arrangement: str) -> None:
         by_ring = np.argsort(narrow, kind="stable")
         _, azimuth = range_and_azimuth(cloud.data)
         assert _falling_within_rings(narrow[by_ring], azimuth[by_ring]) == (arrangement == "scan order")
+        if arrangement.startswith("a late"):
+            assert _falling_within_rings(narrow[by_ring][:-BLOCK], azimuth[by_ring][:-BLOCK])
     for edge_m, max_gap_deg in [(1.0, 1.0), (0.3, 0.1), (5.0, 3.0)]:
         expected = far_neighbour_as_before(cloud, ring, edge_m, max_gap_deg)
         assert np.array_equal(far_neighbour(cloud, ring, edge_m, max_gap_deg), expected)
     assert (expected >= 0).sum() > 100  # edges were there to find
 
 
-def test_range_and_azimuth_are_the_whole_arrays() -> None:
-    """Block by block (several blocks and a shorter last one) as on the whole N×3 float64 copy."""
+@pytest.mark.parametrize("n", [1, 2 * BLOCK + 1_234, 200_000])
+def test_range_and_azimuth_are_the_whole_arrays(n: int) -> None:
+    """Block by block (several blocks and a shorter last one) as on the whole N×3 float64 copy:
+    the einsum's sum of three squares bit for bit (200k points: thousands of rows where another
+    order of the additions rounds differently), with zeros, ±0, infinities, NaN, subnormal and
+    overflowing squares."""
     rng = np.random.default_rng(13)
-    cloud = random_cloud(rng, 2 * BLOCK + 1_234)
+    cloud = random_cloud(rng, n)
+    if n > 100:
+        data = cloud.data.copy()
+        data[60:70, 0], data[70:80, 1], data[80:90, 2] = np.inf, -np.inf, np.nan
+        data[90:95, :3], data[95:100, :3] = 1e-30, np.float32(3e38)
+        cloud = PointCloud(data, cloud.channels)
     xyz = cloud.xyz.astype(np.float64)
     distance, azimuth = range_and_azimuth(cloud.data)
-    assert distance.tobytes() == np.sqrt(np.einsum("ij,ij->i", xyz, xyz)).tobytes()
-    assert azimuth.tobytes() == np.arctan2(xyz[:, 1], xyz[:, 0]).tobytes()
+    reference = np.sqrt(np.einsum("ij,ij->i", xyz, xyz))
+    if simd_features() == json.loads(GOLDEN.read_text())["simd"]:
+        assert distance.tobytes() == reference.tobytes()
+        assert azimuth.tobytes() == np.arctan2(xyz[:, 1], xyz[:, 0]).tobytes()
+    else:  # einsum's order of the three additions (and arctan2's last bit) are the CPU's: one rounding
+        np.testing.assert_allclose(distance, reference, rtol=4.5e-16, equal_nan=True)
+        np.testing.assert_allclose(azimuth, np.arctan2(xyz[:, 1], xyz[:, 0]), rtol=4.5e-16, equal_nan=True)
 
 
 def test_farthest_in_plane_is_the_full_hypot_maximum() -> None:
@@ -464,3 +519,261 @@ def test_rescaled_with_temporaries_first_is_as_before(moved_share: float) -> Non
     keep, in_air, intensity = rng.random(n) < 0.9, rng.random(n) < 0.05, rng.random(n)
     new = _rescaled(cloud, keep, ranges, new_range, intensity, in_air)
     assert new.data.tobytes() == former_rescaled(cloud, keep, ranges, new_range, intensity, in_air).data.tobytes()
+
+
+# --------------------------------------------------------------------------- second round (issue 25)
+def test_power_draws_in_blocks_are_one_draw() -> None:
+    """Block after block from :func:`power_draw_stream`: the numbers of one ``power_draws``."""
+    whole = power_draws(123, 50_000)
+    stream = power_draw_stream(123)
+    parts = [stream.random(k) for k in (1, 16_383, 16_384, 17_232)]
+    assert np.concatenate(parts).tobytes() == whole.tobytes()
+
+
+def wet_ground_cloud(rng: np.random.Generator, n: int, *, labelled: bool) -> PointCloud:
+    """A frame-like cloud: ground (labelled or flat) and other points, with the readings the power
+    model treats apart: zeros, sub-step readings, bright ones, points at the origin."""
+    xyz = rng.normal(0.0, 25.0, (n, 3))
+    ground = rng.random(n) < 0.6
+    xyz[ground, 2] = rng.normal(-1.7, 0.03, int(ground.sum()))
+    xyz[~ground, 2] = -1.2 + np.abs(xyz[~ground, 2]) / 5  # above it: the fitted plane is the ground
+    xyz[:20] = 0.0  # range 0: the 1e-6 floor
+    intensity = rng.random(n)
+    intensity[rng.random(n) < 0.3] = 0.0
+    intensity[rng.random(n) < 0.05] = 0.002  # under one quantisation step
+    columns = [xyz, intensity]
+    channels: tuple[str, ...] = STANDARD_CHANNELS
+    if labelled:
+        label = np.where(ground, rng.choice([1, 2, 3, 4, 16], n), rng.choice([0, 5, 7, 11], n))
+        columns.append(label)
+        channels = (*STANDARD_CHANNELS, "label")
+    return PointCloud(np.column_stack(columns).astype(np.float32), channels)
+
+
+def former_wet_ground(sample: Scene, params: WetGroundParams) -> Scene:
+    """WetGround.apply before the blocks: whole-array temporaries, the draws in one call."""
+    cloud = sample.points
+    index, normal = _ground(cloud)
+    if len(index) == 0:
+        return sample
+    rows = np.take(cloud.data, index, axis=0)
+    x, y, z = rows[:, 0], rows[:, 1], rows[:, 2]
+    ranges = np.maximum(np.sqrt(x * x + y * y + z * z), np.float32(1e-6))
+    nx, ny, nz = normal.astype(np.float32)
+    cos_i = np.abs(x * nx + y * ny + z * nz) / ranges
+    rho, floor = effective_reflectivity(rows[:, 3], ranges, scale=params.intensity_scale,
+                                        detection_threshold=params.detection_threshold,
+                                        draws=power_draws(params.seed, len(index)))
+    escape = 0.93 / WATER_INDEX**2
+    darkening = escape / (1.0 - np.minimum(rho, 1.0) * (1.0 - escape))
+    factor = (1.0 - params.wetness) + params.wetness * (1.0 - _fresnel(cos_i)) ** 2 * darkening
+    wet = rows[:, 3] * factor.astype(np.float32)
+    lost = rho * factor < floor
+    if lost.any():
+        keep = np.ones(len(cloud), bool)
+        keep[index[lost]] = False
+        data = np.compress(keep, cloud.data, axis=0)
+        kept = ~lost
+        data[index[kept] - np.cumsum(lost)[kept], 3] = wet[kept]
+    else:
+        data = cloud.data.copy()
+        data[index, 3] = wet
+    return sample.with_points(PointCloud(data, cloud.channels))
+
+
+@pytest.mark.parametrize("labelled", [True, False])
+@pytest.mark.parametrize("wetness", [0.0001, 0.6, 1.0])
+@pytest.mark.parametrize("n", [5, WET_BLOCK - 1, 3 * WET_BLOCK + 77])
+def test_wet_ground_in_blocks_is_as_before(labelled: bool, wetness: float, n: int) -> None:
+    """Block by block (ground rows on both sides of block edges), with and without lost returns
+    (a trace of water loses none), labelled ground and the fitted plane."""
+    cloud = wet_ground_cloud(np.random.default_rng(n), n, labelled=labelled)
+    sample = Scene(points=cloud)
+    params = WetGroundParams(wetness=wetness, detection_threshold=0.4, intensity_scale=1.0, seed=99)
+    new = WetGround().apply(sample, params).points.data
+    assert new.tobytes() == former_wet_ground(sample, params).points.data.tobytes()
+    if n > WET_BLOCK and wetness == 1.0:
+        assert len(new) < n  # the dropping path is the one compared
+
+
+def former_region_intensity(sample: Scene, params: RegionIntensityParams) -> Scene:
+    """RegionIntensityScaling.apply before the intensity maximum was read during the copy."""
+    cloud = sample.points
+    inside = in_axis_box(cloud.xyz, params.center, params.size)
+    if not inside.any():
+        return sample
+    limit = scene_intensity_scale(sample)
+    data = cloud.data.copy()
+    rows = np.flatnonzero(inside)
+    scaled = data[rows, 3].astype(np.float64)
+    scaled *= params.factor
+    data[rows, 3] = np.clip(scaled, 0.0, limit, out=scaled)
+    return sample.with_points(PointCloud(data, cloud.channels))
+
+
+@pytest.mark.parametrize("case", ["[0, 1]", "8-bit", "declared", "nan"])
+def test_region_intensity_scaling_is_as_before(case: str) -> None:
+    rng = np.random.default_rng(21)
+    cloud = random_cloud(rng, 2 * COLUMN_BLOCK + 5)
+    data = cloud.data.copy()
+    if case == "8-bit":
+        data[:, 3] *= 255
+    if case == "nan":
+        data[7, 3] = np.nan
+    metadata = {"intensity_scale": 255} if case == "declared" else {}
+    sample = Scene(points=PointCloud(data, cloud.channels), metadata=metadata)
+    for factor in (0.3, 4.0):
+        params = RegionIntensityParams(center=(5.0, -3.0, 0.0), size=(30.0, 30.0, 200.0), factor=factor)
+        new = RegionIntensityScaling().apply(sample, params).points.data
+        assert new.tobytes() == former_region_intensity(sample, params).points.data.tobytes()
+
+
+def former_cross_sensor(sample: Scene, params: CrossSensorParams) -> Scene:
+    """CrossSensor.apply before the known rings were tested once."""
+    cloud = sample.points
+    ring = _rings_for(cloud, params.ring_source)
+    keep = np.ones(len(cloud), bool)
+    if params.beam_factor > 1 and (ring >= 0).any():
+        top = int(ring.max()) + 1
+        kept_rings = np.unique(np.floor(np.arange(params.beam_phase, top, params.beam_factor)).astype(np.int64))
+        keep &= _ring_mask(ring, kept_rings, unknown=True)
+    if params.azimuth_factor > 1:
+        columns = int(np.bincount(ring[ring >= 0]).max()) if (ring >= 0).any() else len(cloud)
+        turns = np.subtract(np.pi, np.arctan2(cloud.xyz[:, 1], cloud.xyz[:, 0]))
+        turns = np.mod(turns, 2.0 * np.pi)
+        turns /= 2.0 * np.pi
+        turns *= columns
+        keep &= np.mod(np.floor(turns).astype(np.int64), params.azimuth_factor) == int(
+            params.azimuth_phase * params.azimuth_factor)
+    return sample.with_points(cloud.select(keep))
+
+
+@pytest.mark.parametrize("rings", ["all known", "some unknown", "none known"])
+def test_cross_sensor_is_as_before(rings: str) -> None:
+    rng = np.random.default_rng(13)
+    n = 20_000
+    ring = rng.integers(0, 64, n)
+    if rings == "some unknown":
+        ring[rng.random(n) < 0.1] = -1
+    if rings == "none known":
+        ring[:] = -1
+    xyz = rng.normal(0.0, 20.0, (n, 3))
+    cloud = PointCloud(np.column_stack([xyz, rng.random(n), ring]).astype(np.float32), (*STANDARD_CHANNELS, "ring"))
+    sample = Scene(points=cloud)
+    for beam, azimuth in [(2.0, 3), (4 / 3, 1), (1.0, 2)]:
+        params = CrossSensorParams(beam_factor=beam, beam_phase=0.4, azimuth_factor=azimuth, azimuth_phase=0.5,
+                                   ring_source="channel")
+        new = CrossSensor().apply(sample, params).points.data
+        assert new.tobytes() == former_cross_sensor(sample, params).points.data.tobytes()
+
+
+def former_motion_distortion(sample: Scene, params: MotionDistortionParams) -> Scene:
+    """MotionDistortion.apply before the rotation read x and y into contiguous buffers."""
+    cloud = sample.points
+    if params.time_source == "channel":
+        t = cloud.channel("time")
+    else:
+        t = time_of_azimuth(azimuth_rad(cloud.xyz), params.rotation_hz).astype(np.float32)
+    source = cloud.data
+    data = np.empty_like(source)
+    speed = np.float32(params.speed)
+    turn = np.float32(-np.deg2rad(params.yaw_rate))
+    block = min(MOTION_BLOCK, len(source))
+    for start in range(0, len(source), block):
+        rows = data[start:start + block]
+        np.copyto(rows, source[start:start + block])
+        times, x, y = t[start:start + len(rows)], rows[:, 0], rows[:, 1]
+        x -= times * speed
+        if params.yaw_rate == 0:
+            continue
+        angle = times * turn
+        c, s = np.cos(angle), np.sin(angle)
+        moved = x.copy()
+        new_x = c * moved - s * y
+        new_y = s * moved + c * y
+        x[:] = new_x
+        y[:] = new_y
+    return sample.with_points(PointCloud(data, cloud.channels))
+
+
+@pytest.mark.parametrize("time_source", ["channel", "azimuth"])
+@pytest.mark.parametrize("yaw_rate", [0.0, -35.0, 12.5])
+def test_motion_distortion_is_as_before(time_source: str, yaw_rate: float) -> None:
+    rng = np.random.default_rng(17)
+    n = 2 * MOTION_BLOCK + 321
+    xyz = rng.normal(0.0, 25.0, (n, 3))
+    xyz[:30] = 0.0
+    xyz[30:60] = -0.0
+    data = np.column_stack([xyz, rng.random(n), rng.uniform(-0.05, 0.05, n)]).astype(np.float32)
+    sample = Scene(points=PointCloud(data, (*STANDARD_CHANNELS, "time")))
+    params = MotionDistortionParams(speed=13.7, yaw_rate=yaw_rate, rotation_hz=10.0, time_source=time_source)
+    new = MotionDistortion().apply(sample, params).points.data
+    assert new.tobytes() == former_motion_distortion(sample, params).points.data.tobytes()
+
+
+def former_ground_plane(xyz: np.ndarray) -> tuple[np.ndarray, float]:
+    """ground_plane before its rows were picked with np.compress (boolean indexing)."""
+    xyz = xyz[:: max(1, len(xyz) // 4000)]
+    candidates = xyz[xyz[:, 2] <= np.percentile(xyz[:, 2], 30)]
+    for _ in range(3):
+        design = np.column_stack([candidates[:, 0], candidates[:, 1], np.ones(len(candidates))])
+        (a, b, c), *_ = np.linalg.lstsq(design, candidates[:, 2], rcond=None)
+        residual = xyz[:, 2] - (a * xyz[:, 0] + b * xyz[:, 1] + c)
+        inliers = np.abs(residual) < 0.2
+        if inliers.sum() < 3:
+            break
+        candidates = xyz[inliers]
+    normal = np.array([-a, -b, 1.0]) / np.sqrt(a * a + b * b + 1.0)
+    return normal, float(c / np.sqrt(a * a + b * b + 1.0))
+
+
+@pytest.mark.parametrize("case", ["flat ground", "tilted", "no inliers after the first fit", "subsampled"])
+def test_ground_plane_is_as_before(case: str) -> None:
+    rng = np.random.default_rng(23)
+    n = 9_000 if case == "subsampled" else 3_000
+    xyz = rng.uniform(-40, 40, (n, 3))
+    xyz[: n // 2, 2] = rng.normal(-1.7, 0.05, n // 2)
+    if case == "tilted":
+        xyz[: n // 2, 2] += 0.03 * xyz[: n // 2, 0]
+    if case == "no inliers after the first fit":
+        xyz[:, 2] = rng.normal(0.0, 1e4, n)  # (almost) nothing within 0.2 m of any plane: the loop breaks
+    normal, offset = ground_plane(xyz)
+    former_normal, former_offset = former_ground_plane(xyz)
+    assert normal.tobytes() == former_normal.tobytes() and offset == former_offset
+
+
+def former_dual_return(sample: Scene, params: DualReturnParams) -> Scene:
+    """DualReturn.apply before the output came first and the neighbours came as pairs."""
+    cloud = sample.points
+    n = len(cloud)
+    count = round(params.ratio * n)
+    picked = np.zeros(n, bool)
+    picked[np.random.default_rng(params.seed).choice(n, size=count, replace=False)] = True
+    chosen = np.flatnonzero(picked)
+    behind = far_neighbour(cloud, _rings_for(cloud, params.ring_source), params.edge_m, params.max_gap_deg)[chosen]
+    data = np.repeat(cloud.data, picked.view(np.uint8) + np.uint8(1), axis=0)
+    distinct = np.flatnonzero(behind >= 0)
+    second, far = cloud.data[chosen[distinct]], cloud.data[behind[distinct]]
+    xyz = second[:, :3].astype(np.float64)
+    scale = np.linalg.norm(far[:, :3].astype(np.float64), axis=1) / np.maximum(np.linalg.norm(xyz, axis=1), 1e-9)
+    second[:, :3] = xyz * scale[:, None]
+    second[:, 3] = far[:, 3] * params.behind_share
+    data[chosen[distinct] + 1 + distinct] = second
+    return sample.with_points(cloud.with_data(data))
+
+
+@pytest.mark.parametrize("arrangement", ["scan order", "shuffled"])
+@pytest.mark.parametrize("ratio", [0.05, 0.6, 1.0])
+def test_dual_return_is_as_before(arrangement: str, ratio: float) -> None:
+    """Both neighbour paths (in scan order, block by block; sorted), few and all firings doubled."""
+    rng = np.random.default_rng(31)
+    cloud, _ = scan_cloud(rng, 16, 1_500)
+    if arrangement == "shuffled":
+        cloud = PointCloud(cloud.data[rng.permutation(len(cloud))], cloud.channels)
+    sample = Scene(points=cloud)
+    params = DualReturnParams(ratio=ratio, edge_m=1.0, max_gap_deg=1.0, behind_share=0.5, ring_source="channel",
+                              seed=5)
+    new = DualReturn().apply(sample, params).points.data
+    assert new.tobytes() == former_dual_return(sample, params).points.data.tobytes()
+    assert len(new) == len(cloud) + round(ratio * len(cloud))
+    assert (far_neighbour(cloud, _rings_for(cloud, "channel"), 1.0, 1.0) >= 0).sum() > 100  # distinct ones exist

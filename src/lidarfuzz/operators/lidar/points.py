@@ -26,12 +26,12 @@ from lidarfuzz.operators.base import (
     uniform,
 )
 from lidarfuzz.operators.lidar.common import (
+    COLUMN_BLOCK,
     cloud_extent,
     column_blocks,
     copy_with_maximum,
     declared_intensity_scale,
     scale_of_maximum,
-    scene_intensity_scale,
     with_added_points,
 )
 from lidarfuzz.scene.drivable import ESTIMATED, FRAME_MAP, estimate_drivable, road_user_footprints
@@ -117,14 +117,23 @@ def _extent(cloud: PointCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]
 def _in_column(xyz: NDArray[np.float32], center: tuple[float, float, float],
                size: tuple[float, float, float]) -> NDArray[np.bool_]:
     """:func:`in_axis_box`, the same comparisons in float32, made on the points that pass x only:
-    a region is a small share of the cloud, so y and z are tested on a few hundred points
-    instead of all of them."""
-    inside = np.abs(xyz[:, 0] - np.float32(center[0])) <= np.float32(size[0] / 2)
-    candidates = np.flatnonzero(inside)
-    rows = xyz[candidates]
-    passed = np.abs(rows[:, 1] - np.float32(center[1])) <= np.float32(size[1] / 2)
-    passed &= np.abs(rows[:, 2] - np.float32(center[2])) <= np.float32(size[2] / 2)
-    inside[candidates[~passed]] = False
+    a region is a small share of the cloud, so y and z are tested on the few that pass instead
+    of all of them. Block by block (:data:`COLUMN_BLOCK` rows): reading x brings the block's rows
+    into the cache, where the candidates' y and z are then gathered, each from its own column
+    (indexing a one-dimensional strided column is ~3× faster than gathering N×3 rows)."""
+    n = len(xyz)
+    inside = np.empty(n, bool)
+    cx, cy, cz = (np.float32(value) for value in center)
+    hx, hy, hz = (np.float32(value / 2) for value in size)
+    buffer = np.empty(min(COLUMN_BLOCK, n), np.float32)
+    for start in range(0, n, COLUMN_BLOCK):
+        rows = xyz[start:start + COLUMN_BLOCK]
+        x = np.subtract(rows[:, 0], cx, out=buffer[:len(rows)])
+        mask = np.less_equal(np.abs(x, out=x), hx, out=inside[start:start + len(rows)])
+        candidates = np.flatnonzero(mask)
+        passed = np.abs(rows[:, 1][candidates] - cy) <= hy
+        passed &= np.abs(rows[:, 2][candidates] - cz) <= hz
+        mask[candidates[~passed]] = False
     return inside
 
 
@@ -487,12 +496,6 @@ class IntensityScaleParams(Params):
         return self.ratio == 0 or self.factor_low == self.factor_high == 1.0
 
 
-def _intensity_limit(scene: Scene) -> float:
-    # The data's own scale (declared by its reader, else inferred): [0, 1] clouds stay in [0, 1],
-    # 8-bit ones in 0–255, 16-bit ones in 0–65535.
-    return scene_intensity_scale(scene)
-
-
 class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParams]):
     """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
     a random share of the points get their intensity multiplied by a random factor each
@@ -529,7 +532,9 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
         rng = np.random.default_rng(params.seed)
         chosen = rng.choice(len(cloud), size=count, replace=False)
         declared = declared_intensity_scale(sample)
-        if declared is None:  # (_intensity_limit: the scale inferred from the maximum, read as the data is copied)
+        # The limit is the data's own scale (scene_intensity_scale: declared by its reader, else inferred,
+        # here from the maximum read as the data is copied): [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255.
+        if declared is None:
             data, top = copy_with_maximum(cloud.data, 3)
             limit = scale_of_maximum(top)
         else:
@@ -614,13 +619,20 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
         inside = _in_column(cloud.xyz, params.center, params.size)
         if not inside.any():
             return sample
-        limit = _intensity_limit(sample)
-        # float64 for the region's points only: the others would round-trip float32 → float64 exactly
-        data = cloud.data.copy()
-        rows = np.flatnonzero(inside)
-        scaled = data[rows, 3].astype(np.float64)
+        declared = declared_intensity_scale(sample)
+        # The limit is the data's own scale (scene_intensity_scale: declared by its reader, else inferred,
+        # here from the maximum read as the data is copied): [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255.
+        if declared is None:
+            data, top = copy_with_maximum(cloud.data, 3)
+            limit = scale_of_maximum(top)
+        else:
+            data, limit = cloud.data.copy(), declared
+        # float64 for the region's points only: the others would round-trip float32 → float64 exactly;
+        # their intensities as flat positions (take/put: no 2-D fancy-index machinery), as IntensityScaling
+        flat, where = data.reshape(-1), np.flatnonzero(inside) * data.shape[1] + 3
+        scaled = flat.take(where).astype(np.float64)
         scaled *= params.factor
-        data[rows, 3] = np.clip(scaled, 0.0, limit, out=scaled)
+        flat.put(where, np.clip(scaled, 0.0, limit, out=scaled))  # rounded to float32 as written
         return sample.with_points(PointCloud(data, cloud.channels))
 
 

@@ -92,10 +92,17 @@ def detection_floor(ranges: NDArray[np.floating], detection_threshold: float) ->
     return detection_threshold * r * r
 
 
+def power_draw_stream(seed: int) -> np.random.Generator:
+    """The generator :func:`power_draws` reads: ``random(k)`` calls on it, block after block,
+    give the same numbers as one ``power_draws(seed, n)``, so an operator that works in blocks
+    never holds all n draws at once."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x9E7]))
+
+
 def power_draws(seed: int, n: int) -> F64:
     """Uniform draws in [0, 1) for the unresolved returns, from a stream of their own (so an
     operator's other draws from ``seed`` are unchanged by them)."""
-    return np.random.default_rng(np.random.SeedSequence([seed, 0x9E7])).random(n)
+    return power_draw_stream(seed).random(n)
 
 
 def effective_reflectivity(intensity: NDArray[np.floating], ranges: NDArray[np.floating], *, scale: float,
@@ -136,5 +143,5 @@ def power_margin(intensity: NDArray[np.floating], ranges: NDArray[np.floating], 
 
 __all__ = [
     "HDL64E_DETECTION_THRESHOLD", "QUANTISATION_STEP", "REFERENCE_RANGE", "detection_floor",
-    "effective_reflectivity", "power_draws", "power_margin",
+    "effective_reflectivity", "power_draw_stream", "power_draws", "power_margin",
 ]

@@ -418,13 +418,16 @@ class CrossSensor(Operator[Scene, CrossSensorConfig, CrossSensorParams]):
         if params.is_identity() or len(cloud) == 0:
             return sample
         ring = _rings_for(cloud, params.ring_source)
+        # The known rings (≥ 0), tested once: where none is unknown, as in a full scan, they are all
+        # of them, and no mask or copy of them is made.
+        known = ring if int(ring.min()) >= 0 else ring[ring >= 0]
         keep = np.ones(len(cloud), bool)
-        if params.beam_factor > 1 and (ring >= 0).any():
+        if params.beam_factor > 1 and len(known):
             top = int(ring.max()) + 1
             kept_rings = np.unique(np.floor(np.arange(params.beam_phase, top, params.beam_factor)).astype(np.int64))
             keep &= _ring_mask(ring, kept_rings, unknown=True)
         if params.azimuth_factor > 1:
-            columns = int(np.bincount(ring[ring >= 0]).max()) if (ring >= 0).any() else len(cloud)
+            columns = int(np.bincount(known).max()) if len(known) else len(cloud)
             # floor(((π − azimuth) mod 2π) / 2π · columns), the same float32 steps in one buffer
             turns = np.subtract(np.pi, azimuth_rad(cloud.xyz))
             mod_period(turns, 2.0 * np.pi, out=turns)
@@ -643,26 +646,27 @@ class MotionDistortion(Operator[Scene, MotionDistortionConfig, MotionDistortionP
         speed = np.float32(params.speed)
         turn = np.float32(-np.deg2rad(params.yaw_rate))
         block = min(MOTION_BLOCK, len(source))
-        shift, cos, x_moved, term, rotated_x = (np.empty(block, np.float32) for _ in range(5))
+        shift, cos, x_moved, y_copy, term = (np.empty(block, np.float32) for _ in range(5))
         for start in range(0, len(source), block):
             rows = data[start:start + block]
             np.copyto(rows, source[start:start + block])
             k = len(rows)
             times, x, y = t[start:start + k], rows[:, 0], rows[:, 1]
-            x -= np.multiply(times, speed, out=shift[:k])
             if params.yaw_rate == 0:
+                x -= np.multiply(times, speed, out=shift[:k])
                 continue
+            # the moved x and the old y in contiguous buffers (each strided column read once), the
+            # rotated values written straight into the rows: the same float32 operations
+            moved = np.subtract(x, np.multiply(times, speed, out=shift[:k]), out=x_moved[:k])  # x − v·t
+            old_y = y_copy[:k]
+            np.copyto(old_y, y)
             angle = np.multiply(times, turn, out=shift[:k])
             c, s = np.cos(angle, out=cos[:k]), np.sin(angle, out=angle)
-            moved = x_moved[:k]
-            np.copyto(moved, x)
-            sin_y = np.multiply(s, y, out=term[:k])
-            new_x = np.multiply(c, moved, out=rotated_x[:k])
-            new_x -= sin_y  # cos·x − sin·y
-            new_y = np.multiply(s, moved, out=sin_y)
-            new_y += np.multiply(c, y, out=c)  # sin·x + cos·y
-            x[:] = new_x
-            y[:] = new_y
+            sin_y = np.multiply(s, old_y, out=term[:k])
+            np.multiply(c, moved, out=x)
+            x -= sin_y  # cos·x − sin·y
+            np.multiply(s, moved, out=y)
+            y += np.multiply(c, old_y, out=c)  # sin·x + cos·y
         return sample.with_points(PointCloud(data, cloud.channels))
 
 
