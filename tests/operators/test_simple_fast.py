@@ -8,6 +8,7 @@ cases (ties, signed zeros, NaN, points at the edge of a region, near-equal farth
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import numpy as np
 import pytest
@@ -61,12 +62,15 @@ from lidarfuzz.operators.lidar.sensor import (
 from lidarfuzz.operators.lidar.weather import _BLOCK as WEATHER_BLOCK
 from lidarfuzz.operators.lidar.weather import _GROUND_BLOCK as WET_BLOCK
 from lidarfuzz.operators.lidar.weather import (
+    FOG_OVERLAP,
+    SPEED_OF_LIGHT,
     WATER_INDEX,
     WetGround,
     WetGroundParams,
     _fresnel,
     _ground,
     _rescaled,
+    fog_soft_response,
     ground_plane,
 )
 from lidarfuzz.scene.calib import KittiCalibration
@@ -777,3 +781,36 @@ def test_dual_return_is_as_before(arrangement: str, ratio: float) -> None:
     assert new.tobytes() == former_dual_return(sample, params).points.data.tobytes()
     assert len(new) == len(cloud) + round(ratio * len(cloud))
     assert (far_neighbour(cloud, _rings_for(cloud, "channel"), 1.0, 1.0) >= 0).sum() > 100  # distinct ones exist
+
+
+def _fog_soft_response_before(alpha: float, tau_h: float, step: float = 0.05) -> tuple[Any, Any, Any]:
+    """fog_soft_response as it was before the pulse kernel was cached (the reference)."""
+    width = SPEED_OF_LIGHT * tau_h
+    r1, r2 = FOG_OVERLAP
+    n_r0 = int(np.ceil((r2 + width + 1.0) / step)) + 1
+    n = n_r0 + int(np.ceil(width / step)) + 1
+    r = np.arange(n) * step
+    overlap = np.clip((r - r1) / (r2 - r1), 0.0, 1.0)
+    g = np.divide(overlap * np.exp(-2.0 * alpha * r), r**2, out=np.zeros(n), where=r > 0)
+    lag = r[:, None] - r[None, :]
+    in_pulse = (lag >= 0) & (lag <= width)
+    weights = np.where(in_pulse, np.sin(np.pi * np.clip(lag, 0, width) / width) ** 2, 0.0) * g[None, :] * step
+    cumulative = np.cumsum(weights, axis=1)
+    j = np.arange(n)[:, None]
+    m = np.arange(n_r0)[None, :]
+    seen = cumulative[j, np.minimum(j, m)]
+    best = np.argmax(seen, axis=0)
+    integral = seen[best, np.arange(n_r0)]
+    distance = np.maximum(r[best] - width / 2, r1)
+    return r[:n_r0].astype(np.float64), np.asarray(integral, np.float64), np.asarray(distance, np.float64)
+
+
+@pytest.mark.parametrize(("tau_h", "step"), [(20e-9, 0.05), (10e-9, 0.05), (35e-9, 0.1)])
+def test_fog_soft_response_with_the_cached_pulse_kernel_is_the_former_table(tau_h: float, step: float) -> None:
+    """Every severity's MOR range (40–900 m) and beyond, several pulse widths and grid steps:
+    the same bytes, the kernel shared between visibilities (a campaign draws a new one per frame)."""
+    for mor in (40.0, 61.3, 150.0, 199.99, 250.0, 600.0, 900.0, 5000.0):
+        alpha = float(np.log(20.0) / mor)
+        for now, before in zip(fog_soft_response(alpha, tau_h, step), _fog_soft_response_before(alpha, tau_h, step),
+                               strict=True):
+            assert now.tobytes() == before.tobytes()

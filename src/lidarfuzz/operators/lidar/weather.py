@@ -199,9 +199,7 @@ def fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F
     r = np.arange(n) * step
     overlap = np.clip((r - r1) / (r2 - r1), 0.0, 1.0)
     g = np.divide(overlap * np.exp(-2.0 * alpha * r), r**2, out=np.zeros(n), where=r > 0)
-    lag = r[:, None] - r[None, :]  # R_j − r_k
-    in_pulse = (lag >= 0) & (lag <= width)
-    weights = np.where(in_pulse, np.sin(np.pi * np.clip(lag, 0, width) / width) ** 2, 0.0) * g[None, :] * step
+    weights = _pulse_kernel(n, step, width) * g[None, :] * step
     cumulative = np.cumsum(weights, axis=1)  # C[j, k]: fog up to r_k, seen at R_j
     j = np.arange(n)[:, None]
     m = np.arange(n_r0)[None, :]
@@ -210,6 +208,20 @@ def fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F
     integral = seen[best, np.arange(n_r0)]
     distance = np.maximum(r[best] - width / 2, r1)
     return r[:n_r0].astype(np.float64), np.asarray(integral, np.float64), np.asarray(distance, np.float64)
+
+
+@lru_cache(maxsize=8)
+def _pulse_kernel(n: int, step: float, width: float) -> F64:
+    """The pulse's weight ``sin²(π (R_j − r_k) / (c τ_H))`` of fog at grid range ``r_k`` seen at
+    ``R_j`` (0 outside the pulse), n × n. It does not depend on the fog (α), which a campaign
+    draws afresh for every frame (the MOR is a range per severity): built once per pulse width,
+    it leaves :func:`fog_soft_response` a product and a cumulative sum. Read-only, being shared."""
+    r = np.arange(n) * step
+    lag = r[:, None] - r[None, :]  # R_j − r_k
+    in_pulse = (lag >= 0) & (lag <= width)
+    kernel = np.where(in_pulse, np.sin(np.pi * np.clip(lag, 0, width) / width) ** 2, 0.0)
+    kernel.flags.writeable = False
+    return kernel
 
 
 @lru_cache(maxsize=64)
