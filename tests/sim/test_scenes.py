@@ -78,6 +78,11 @@ ego: {speed: 8}
     ("objects:\n  - {kind: castle, position: [1, 2]}\n", "objects.0", None),
     ("actors:\n  - {class: Car, position: [1, 2], parked: true, speed: 3}\n", "actors.0", None),
     ("ego: {speed: 8\nactors: []\n", None, 2),
+    # corners out of order: a bow-tie (repairing it would keep one lobe) and a split footprint
+    ("objects:\n  - {kind: building, footprint: [[10, 10], [20, 20], [20, 10], [10, 20]]}\n",
+     "objects.0.building.footprint", None),
+    ("objects:\n  - {kind: tree, position: [0, 0]}\n  - {kind: building, "
+     "footprint: [[10, 0], [20, 0], [20, 10], [15, -5], [10, 10]]}\n", "objects.1.building.footprint", None),
     ("- just\n- a list\n", None, None),
 ])
 def test_bad_scene_files_name_the_key_or_line(tmp_path, text, where, line):

@@ -93,12 +93,28 @@ class Crosswalk(_Model):
 
 class Building(_Model):
     kind: Literal["building"] = "building"
-    footprint: list[Point2] = Field(min_length=3)
+    footprint: list[Point2] = Field(min_length=3, description="corners in order around the building")
     height: float = Field(default=10.0, gt=0, le=300)
     material: str = "plaster"
     windows: bool = True
 
     _material = field_validator("material")(_known_material)
+
+    @field_validator("footprint")
+    @classmethod
+    def _simple_polygon(cls, value: list[Point2]) -> list[Point2]:
+        """A footprint that crosses itself (corners out of order) has no one inside: repairing it
+        keeps part of it (a bow-tie's one lobe) or splits it, and the building would stand where
+        the description does not put it. Refused, with where it goes wrong."""
+        import shapely
+        from shapely.geometry import Polygon
+
+        polygon = Polygon(value)
+        if not polygon.is_valid:
+            reason = shapely.is_valid_reason(polygon)
+            raise ValueError(f"the footprint is not a simple polygon ({reason}): list its corners in order "
+                             "around the building, without crossing edges")
+        return value
 
 
 class Wall(_Model):
