@@ -142,6 +142,9 @@ def main() -> None:
         print(f"\nengine overhead against the bare loop, {what} time: **{med(shares):.1f} %** of SUT time "
               f"(runs: {', '.join(f'{x:.1f}' for x in shares)}; campaign − AP evaluation − bare loop; "
               f"targets ≤ 5 %, ≤ 2 %)", end="")
+    per_unit = med(1000 * (c[1] - c[3].get("evaluate", 0.0) - b[1]) / units for b, c in zip(bare, inline, strict=True))
+    print(f"\nengine CPU per unit: {per_unit:.2f} ms (the same median in absolute terms: the share it is of a "
+          f"system's time falls as the system gets slower; this one took {1000 * sut / units:.1f} ms a unit)", end="")
     work = sum(stages.get(k, 0.0) for k in ("load", "mutate", "detect", "relations", "evaluate"))
     own = med(c[0] for c in inline) - work
     print(f"\nengine's own time inside the campaign: {own:.2f} s = {100 * own / sut:.1f} % of SUT time "
