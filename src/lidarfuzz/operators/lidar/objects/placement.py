@@ -10,7 +10,7 @@ from pydantic import Field
 
 from lidarfuzz.operators.base import Config, NonNegativeRange
 from lidarfuzz.operators.base import uniform as draw_uniform
-from lidarfuzz.operators.lidar.objects.insertion import ObjectInsertion, ObjectInsertionParams
+from lidarfuzz.operators.lidar.objects.insertion import ObjectInsertion, ObjectInsertionParams, _pick
 from lidarfuzz.operators.lidar.objects.support import Range
 
 #: An entry is placed no nearer than its source range over this: farther, the z-buffer thins it to
@@ -79,5 +79,5 @@ class ObjectPlacement(ObjectInsertion):
                     hi: float) -> tuple[int, float, float]:
         distance = draw_uniform(rng, self.config.distance_range)  # type: ignore[attr-defined]
         dense_enough = entries[self.library.ranges[entries] <= NEAREST_RATIO * distance]
-        entry = int(rng.choice(dense_enough if len(dense_enough) else entries))
+        entry = int(_pick(rng, dense_enough if len(dense_enough) else entries))
         return entry, distance, draw_uniform(rng, (lo, hi))

@@ -16,7 +16,7 @@ from pydantic import Field
 from lidarfuzz.operators.base import Config, NonNegativeRange, Params, Target
 from lidarfuzz.operators.lidar.common import intensity_scale
 from lidarfuzz.scene.boxes import Boxes3D, wrap_angle
-from lidarfuzz.scene.geometry import bev_corners, bev_intersection_area
+from lidarfuzz.scene.geometry import bev_intersection_area
 from lidarfuzz.scene.points import PointCloud
 from lidarfuzz.scene.scene import Scene
 
@@ -373,9 +373,39 @@ class _Ground:
 
 
 def _lowest_per_cell(dx: F64, dy: F64, z: F64, cell: float) -> NDArray[np.intp]:
-    """Index of the lowest point of each occupied ``cell`` × ``cell`` square (one sort, no loop)."""
+    """Index of the lowest point of each occupied ``cell`` × ``cell`` square, by cell (the first
+    such point where several are lowest), as a sort of (cell, z) orders them (no loop).
+
+    Cells are few (a ground fit's ring is at most some 60 × 60 of them), so the points are put
+    in cell order by a stable counting sort of 16-bit keys and each cell's minimum is found by
+    one reduction, not by a two-key sort (about 3 times faster). Non-finite coordinates (whose
+    keys are meaningless) or more cells take the two-key sort (:func:`_lowest_per_cell_sorted`)."""
     ix, iy = np.floor(dx / cell).astype(np.int64), np.floor(dy / cell).astype(np.int64)
     key = (ix - ix.min(initial=0)) * (int(iy.max(initial=0) - iy.min(initial=0)) + 1) + (iy - iy.min(initial=0))
+    if len(key) == 0 or not (np.isfinite(dx).all() and np.isfinite(dy).all() and np.isfinite(z).all()):
+        return _lowest_per_cell_sorted(key, z)
+    cells = int(key.max()) + 1
+    if cells > _CELL_SORT_MAX:
+        return _lowest_per_cell_sorted(key, z)
+    by_cell = np.argsort(key.astype(np.int16), kind="stable")  # radix sort: linear in the points
+    counts = np.bincount(key, minlength=cells)
+    counts = counts[counts > 0]
+    z_by_cell = z[by_cell]
+    lowest = np.minimum.reduceat(z_by_cell, np.cumsum(counts) - counts)
+    at_lowest = np.flatnonzero(z_by_cell == np.repeat(lowest, counts))
+    # the first lowest point of each cell: a stable sort keeps a cell's points in index order
+    group = np.repeat(np.arange(len(counts)), counts)[at_lowest]
+    first = np.ones(len(at_lowest), bool)
+    first[1:] = group[1:] != group[:-1]
+    return by_cell[at_lowest[first]]
+
+
+#: Most cells :func:`_lowest_per_cell` counts (16-bit keys); beyond, it sorts.
+_CELL_SORT_MAX = 32767
+
+
+def _lowest_per_cell_sorted(key: NDArray[np.int64], z: F64) -> NDArray[np.intp]:
+    """:func:`_lowest_per_cell` by one sort of (key, z): any keys, NaN heights last in a cell."""
     order = np.lexsort((z, key))
     first = np.ones(len(order), bool)
     first[1:] = key[order][1:] != key[order][:-1]
@@ -523,7 +553,23 @@ def _footprint_free(boxes: Boxes3D, new_box: F64, skip: int, margin: float = 0.2
 def _on_roi(scene: Scene, box: F64) -> bool:
     if scene.roi is None:
         return True
-    return bool(scene.roi.contains_xy(bev_corners(box[None])[0]).all())
+    return bool(scene.roi.contains_xy(_footprint(box)).all())
+
+
+#: The footprint's corners in the box frame, in :func:`bev_corners`' order, as fractions of (l, w).
+_FOOTPRINT_UNIT = np.array([[0.5, -0.5], [0.5, 0.5], [-0.5, 0.5], [-0.5, -0.5]])
+
+
+def _footprint(box: F64) -> F64:
+    """``bev_corners(box[None])[0]`` (4×2), the same arithmetic on the four bottom corners only: a
+    place search tests tens of footprints, and the eight corners cost twice as much."""
+    local = _FOOTPRINT_UNIT * box[3:5]
+    yaw = box[6:7]  # an array, as bev_corners' column of yaws: the same cos and sin loop
+    c, s = np.cos(yaw), np.sin(yaw)
+    corners = np.empty((4, 2))
+    corners[:, 0] = local[:, 0] * c - local[:, 1] * s + box[0]
+    corners[:, 1] = local[:, 0] * s + local[:, 1] * c + box[1]
+    return corners
 
 
 def _clutter(pts: _Pts, box: F64, ground: _Ground, own: NDArray[np.intp]) -> int:
@@ -658,8 +704,8 @@ def _wedge_of(xyz: NDArray[np.floating], ring: NDArray[np.floating] | None, inde
     az, elev, depth = _spherical(xyz, centre)
     ring_of_row: F64 | None = None
     if ring is not None and len(index) and np.all(ring >= 0):
-        rings, inverse = np.unique(ring, return_inverse=True)
-        order = np.lexsort((elev, inverse))
+        rings, inverse = _ring_ids(ring)
+        order = _order_within(elev, inverse, len(rings))
         starts = np.searchsorted(inverse[order], np.arange(len(rings)))
         ends = np.append(starts[1:], len(order))
         ring_elev = elev[order][(starts + ends) // 2]  # median elevation of each ring
@@ -685,7 +731,7 @@ def _wedge_of(xyz: NDArray[np.floating], ring: NDArray[np.floating] | None, inde
         row, elevations = np.zeros(0, np.intp), np.deg2rad(np.array([-25.0, 3.0]))
     az_step = np.deg2rad(0.2)
     if len(index) > 1:
-        order = np.lexsort((az, row))
+        order = _order_within(az, row, len(elevations))
         gaps = np.diff(az[order])[np.diff(row[order]) == 0]
         gaps = gaps[gaps > 1e-5]
         if len(gaps) >= 8:
@@ -693,6 +739,27 @@ def _wedge_of(xyz: NDArray[np.floating], ring: NDArray[np.floating] | None, inde
     col = np.floor(az / az_step).astype(np.intp)
     return _Wedge(index, np.asarray(row, np.intp), col, depth, np.asarray(elevations, np.float64), ring_of_row,
                   az_step, centre)
+
+
+def _ring_ids(ring: NDArray[np.floating]) -> tuple[NDArray[np.floating], NDArray[np.intp]]:
+    """``np.unique(ring, return_inverse=True)`` (rings ≥ 0): by counting when the rings are whole
+    numbers below 32767, as a ring channel's are (no sort)."""
+    whole = ring.astype(np.int64)
+    if len(ring) == 0 or not np.array_equal(whole, ring) or whole.max() >= 32767:
+        rings, inverse = np.unique(ring, return_inverse=True)
+        return rings, inverse.reshape(-1)
+    present = np.bincount(whole)
+    return np.flatnonzero(present).astype(ring.dtype), (np.cumsum(present > 0) - 1)[whole]
+
+
+def _order_within(values: F64, group: NDArray[np.intp], groups: int) -> NDArray[np.intp]:
+    """An order of the points by ``group`` (0 ≤ group < ``groups``), then by ``values``: the values
+    in that order are those of ``np.lexsort((values, group))`` (only ties may be ordered otherwise).
+    A sort of the values, then a stable counting sort of 16-bit groups: faster than ``lexsort``'s
+    two merge sorts."""
+    by_value = np.argsort(values)
+    grouped = group[by_value]
+    return by_value[np.argsort(grouped.astype(np.int16) if groups <= 32767 else grouped, kind="stable")]
 
 
 def _azimuth_span(xyz: NDArray[np.floating]) -> tuple[float, float]:
@@ -717,16 +784,32 @@ def _silhouette(key: NDArray[np.intp], depth: F64, shape: tuple[int, int],
                 size: tuple[int, int]) -> tuple[NDArray[np.bool_], F64]:
     """Pixels an object's points cover (holes up to ``size`` closed) and the depth behind which
     the object hides what is there (its nearest return in a pixel, its farthest nearby one in a
-    filled hole), both flattened."""
-    nearest = np.full(shape[0] * shape[1], np.inf)
-    np.minimum.at(nearest, key, depth)
-    image = np.where(np.isfinite(nearest), nearest, 0.0).reshape(shape)
+    filled hole), both flattened.
+
+    Both are zero farther than ``size`` from the object's pixels (the closing only fills between
+    them, the maximum filter reaches ``size`` − 1), so they are computed on the object's rows and
+    columns with twice that margin, clipped to the image (the image's own edges stay the filters'
+    edges), and put into zeros: the same arrays as over the whole range image, for a fraction of
+    its pixels."""
+    covered = np.zeros(shape[0] * shape[1], bool)
+    occluder = np.zeros(shape[0] * shape[1])
+    if len(key) == 0:
+        return covered, occluder
+    row, col = np.divmod(key, shape[1])
+    top, bottom = max(int(row.min()) - 2 * size[0], 0), min(int(row.max()) + 2 * size[0] + 1, shape[0])
+    left, right = max(int(col.min()) - 2 * size[1], 0), min(int(col.max()) + 2 * size[1] + 1, shape[1])
+    crop = (bottom - top, right - left)
+    nearest = np.full(crop[0] * crop[1], np.inf)
+    np.minimum.at(nearest, (row - top) * crop[1] + (col - left), depth)
+    image = np.where(np.isfinite(nearest), nearest, 0.0).reshape(crop)
     # here: scipy.ndimage takes 0.3 s to import, and every operator listing imports this module
     from scipy import ndimage
 
     filled = ndimage.binary_closing(image > 0, structure=np.ones(size, bool), border_value=0) | (image > 0)
-    occluder = np.where(image > 0, image, ndimage.maximum_filter(image, size=size)).ravel()
-    return filled.ravel() & (occluder > 0), occluder
+    nearby = np.where(image > 0, image, ndimage.maximum_filter(image, size=size))
+    covered.reshape(shape)[top:bottom, left:right] = filled & (nearby > 0)
+    occluder.reshape(shape)[top:bottom, left:right] = nearby
+    return covered, occluder
 
 
 def _closing_size(spacing: tuple[float, float]) -> tuple[int, int]:
