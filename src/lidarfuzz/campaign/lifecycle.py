@@ -135,6 +135,19 @@ def get_task(store: Store, task_id: int) -> Task:
         return task
 
 
+def task_status(store: Store, task_id: int) -> Status:
+    """A task's status alone (one column: loading the task with its subtasks costs milliseconds).
+
+    Raises:
+        NotFoundError: There is no such task.
+    """
+    with store.session() as s:
+        status = s.scalar(select(Task.status).where(Task.id == task_id))
+    if status is None:
+        raise NotFoundError(f"no task {task_id}")
+    return status
+
+
 # -- liveness and cancelling ------------------------------------------------------------
 def heartbeat_age(task: Task) -> float | None:
     """Seconds since the process running ``task`` last reported (None: it never did)."""
@@ -403,7 +416,7 @@ class KindImplementation(Protocol):
 def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOptions) -> RunOutcome:
     """Run (or resume) task ``task_id`` with its kind's implementation, through the lifecycle
     above: a done task is left alone; else claimed, run, and ended in one of the four states."""
-    if get_task(store, task_id).status == Status.DONE:
+    if task_status(store, task_id) == Status.DONE:
         return RunOutcome(task_id, Status.DONE, RunStats())
     mark_running(store, task_id, below_trial=kind.counted_below)
     task = get_task(store, task_id)
@@ -437,4 +450,5 @@ def drive(store: Store, task_id: int, kind: KindImplementation, options: RunOpti
 __all__ = ["CHECK_EVERY", "HEARTBEAT_EVERY", "INTERRUPTED_NOTE", "STALE_AFTER", "STOPPED_NOTE", "CancelledError",
            "Heartbeat", "KindImplementation", "KindRun", "ProgressEvent", "RunOptions", "RunOutcome", "RunStats",
            "StopSignal", "Watch", "cancel_task", "data_fault_note", "data_faults", "drive", "finish", "get_task",
-           "heartbeat_age", "looks_alive", "mark_running", "now", "recount", "set_status", "task_row", "worker_name"]
+           "heartbeat_age", "looks_alive", "mark_running", "now", "recount", "set_status", "task_row", "task_status",
+           "worker_name"]
