@@ -8,18 +8,23 @@ cases (ties, signed zeros, NaN, points at the edge of a region, near-equal farth
 from __future__ import annotations
 
 import json
+import threading
 from typing import Any
 
 import numpy as np
 import pytest
 
+from lidarfuzz.operators import available
 from lidarfuzz.operators.lidar.common import (
     COLUMN_BLOCK,
+    SCRATCH_KEEP_LIMIT,
     copy_with_maximum,
     in_axis_box,
     intensity_scale,
     mod_period,
+    release_scratch,
     scene_intensity_scale,
+    scratch,
 )
 from lidarfuzz.operators.lidar.geometric import CHUNK, transformed_points
 from lidarfuzz.operators.lidar.points import (
@@ -60,18 +65,29 @@ from lidarfuzz.operators.lidar.sensor import (
     time_of_azimuth,
 )
 from lidarfuzz.operators.lidar.weather import _BLOCK as WEATHER_BLOCK
+from lidarfuzz.operators.lidar.weather import _GAUSS_NODES as GAUSS_NODES
+from lidarfuzz.operators.lidar.weather import _GAUSS_WEIGHTS as GAUSS_WEIGHTS
 from lidarfuzz.operators.lidar.weather import _GROUND_BLOCK as WET_BLOCK
+from lidarfuzz.operators.lidar.weather import _PARTICLE_REACH as PARTICLE_REACH
+from lidarfuzz.operators.lidar.weather import _TABLE_NODES_PER_DECADE as TABLE_NODES_PER_DECADE
+from lidarfuzz.operators.lidar.weather import _TABLE_RANGE_STEP as TABLE_RANGE_STEP
 from lidarfuzz.operators.lidar.weather import (
     FOG_OVERLAP,
+    MIN_DIAMETER,
     SPEED_OF_LIGHT,
     WATER_INDEX,
+    Rain,
+    Snow,
     WetGround,
     WetGroundParams,
     _fresnel,
     _ground,
+    _interp_near,
     _rescaled,
+    cutoff_range,
     fog_soft_response,
     ground_plane,
+    particle_table,
 )
 from lidarfuzz.scene.calib import KittiCalibration
 from lidarfuzz.scene.geometry import box_corners
@@ -814,3 +830,168 @@ def test_fog_soft_response_with_the_cached_pulse_kernel_is_the_former_table(tau_
         for now, before in zip(fog_soft_response(alpha, tau_h, step), _fog_soft_response_before(alpha, tau_h, step),
                                strict=True):
             assert now.tobytes() == before.tobytes()
+
+
+# --------------------------------------------------------------------------- scratch arrays, particle table (h26)
+def test_scratch_is_reused_per_name_and_thread_and_grown() -> None:
+    """One array per (name, dtype) and thread: the same memory on the next call, a longer one when a
+    longer cloud comes, another thread's its own, none kept beyond the limit, dropped on release."""
+    release_scratch()
+    first = scratch("test.values", 1_000)
+    assert first.shape == (1_000,) and first.dtype == np.float64
+    assert np.shares_memory(scratch("test.values", 400), first)  # a shorter request: the same memory
+    assert not np.shares_memory(scratch("test.values", 1_000, bool), first)  # another dtype: another array
+    assert not np.shares_memory(scratch("test.other", 1_000), first)
+    grown = scratch("test.values", 5_000)
+    assert grown.shape == (5_000,) and not np.shares_memory(grown, first)
+    assert np.shares_memory(scratch("test.values", 10), grown)
+    elsewhere: list[np.ndarray] = []
+    thread = threading.Thread(target=lambda: elsewhere.append(scratch("test.values", 5_000)))
+    thread.start()
+    thread.join()
+    assert not np.shares_memory(elsewhere[0], grown)
+    huge = scratch("test.huge", SCRATCH_KEEP_LIMIT + 1, bool)
+    assert not np.shares_memory(scratch("test.huge", SCRATCH_KEEP_LIMIT + 1, bool), huge)  # not kept
+    release_scratch()
+    assert not np.shares_memory(scratch("test.values", 10), grown)
+    release_scratch()
+
+
+def test_power_draws_into_a_buffer_are_the_same_numbers() -> None:
+    out = np.full(60_000, np.nan)
+    assert power_draws(77, 50_000, out=out[:50_000]).tobytes() == power_draws(77, 50_000).tobytes()
+    assert np.isnan(out[50_000:]).all()
+
+
+@pytest.mark.parametrize("name", ["fog", "rain", "snow"])
+def test_weather_outputs_are_fresh_and_independent_of_stale_scratch(name: str) -> None:
+    """An operator's result does not depend on what an earlier call (of any weather operator) left
+    in this thread's scratch arrays — the same bytes as on a thread that never used them — and
+    does not share memory with them: the next call cannot change it."""
+    from lidarfuzz.sim.dataset import GenerationConfig, render_frames
+
+    scene = next(iter(render_frames(GenerationConfig(frames=1, seed=3, sensor="VLP-16"))))
+    op = available()[name].at_severity(5)
+    params = op.sample(np.random.default_rng(9), scene)
+    fresh: list[bytes] = []
+
+    def on_a_new_thread() -> None:
+        release_scratch()
+        fresh.append(op.apply(scene, params).points.data.tobytes())
+
+    thread = threading.Thread(target=on_a_new_thread)
+    thread.start()
+    thread.join()
+    for other in ("fog", "rain", "snow"):  # leave other contents behind, on a longer cloud too
+        longer = scene.with_points(PointCloud(np.concatenate([scene.points.data] * 2), scene.points.channels))
+        available()[other].at_severity(3)(longer, np.random.default_rng(1))
+    result = op.apply(scene, params).points.data
+    assert result.tobytes() == fresh[0]
+    kept = result.copy()
+    op.apply(scene, op.sample(np.random.default_rng(10), scene))
+    assert result.tobytes() == kept.tobytes()
+    pool = _scratch_arrays()
+    assert pool and not any(np.shares_memory(result, array) for array in pool)
+
+
+def _scratch_arrays() -> list[np.ndarray]:
+    from lidarfuzz.operators.lidar import common
+
+    return list(getattr(common._scratch, "pool", {}).values())
+
+
+def former_particle_table(n0: float, lam: float, alpha: float, rho_p: float, theta: float, min_range: float,
+                          p_min: float) -> np.ndarray | None:
+    """weather.particle_table's counts as built before: every cell of the grid integrated (most of
+    them past their bar's cut-off, where the exponentials underflow), then those zeroed."""
+    end = max(PARTICLE_REACH, min_range)
+    edge = max(min_range, TABLE_RANGE_STEP)
+    bar_high = rho_p / (edge * edge * np.exp(2.0 * alpha * edge))
+    if end <= min_range or bar_high <= p_min:
+        return None
+    n_bars = max(int(np.ceil(np.log10(bar_high / p_min) * TABLE_NODES_PER_DECADE)) + 1, 2)
+    log_bars = np.linspace(np.log(p_min), np.log(bar_high), n_bars)
+    n_ranges = int(np.ceil((end - min_range) / TABLE_RANGE_STEP)) + 1
+    ranges = min_range + np.arange(n_ranges, dtype=np.float64) * TABLE_RANGE_STEP
+    bars = np.exp(log_bars)
+    r_max = cutoff_range(bars, alpha, rho_p)
+    root = np.sqrt(bars / rho_p)
+    left = ranges[:-1]
+    cells = np.zeros((n_bars, n_ranges - 1))
+    for node, weight in zip(GAUSS_NODES, GAUSS_WEIGHTS, strict=True):
+        r = left + node * TABLE_RANGE_STEP
+        d_need = np.maximum(np.multiply.outer(root, 1e3 * theta * r * r * np.exp(alpha * r)), MIN_DIAMETER)
+        cells += (weight * TABLE_RANGE_STEP) * (r * r) * np.exp(-lam * d_need)
+    full = ranges[None, 1:] <= r_max[:, None]
+    partial_row = np.flatnonzero((r_max > ranges[0]) & (r_max < ranges[-1]))
+    partial_col = np.searchsorted(ranges, r_max[partial_row], side="right") - 1
+    cells[~full] = 0.0
+    start = left[partial_col]
+    width = np.maximum(r_max[partial_row] - start, 0.0)
+    partial = np.zeros(len(partial_row))
+    for node, weight in zip(GAUSS_NODES, GAUSS_WEIGHTS, strict=True):
+        r = start + node * width
+        d_need = np.maximum(root[partial_row] * 1e3 * theta * r * r * np.exp(alpha * r), MIN_DIAMETER)
+        partial += weight * width * r * r * np.exp(-lam * d_need)
+    cells[partial_row, partial_col] = partial
+    cells *= np.pi * theta**2 / 4.0 * n0 / lam
+    counts = np.zeros((n_bars, n_ranges))
+    np.cumsum(cells, axis=1, out=counts[:, 1:])
+    return counts
+
+
+@pytest.mark.parametrize("cls", [Rain, Snow], ids=lambda cls: cls.name)
+@pytest.mark.parametrize(("min_range", "detection_threshold", "divergence"),
+                         [(1.5, 0.4, 3e-3), (0.0, 0.4, 3e-3), (1.5, 0.05, 3e-3), (3.0, 0.025, 1e-3), (0.5, 0.4, 6e-3)])
+def test_particle_table_inside_the_cut_offs_is_the_whole_grid_build(cls: Any, min_range: float,
+                                                                    detection_threshold: float,
+                                                                    divergence: float) -> None:
+    """Each severity's rate range (its ends and rates drawn inside), several sensors: the same bytes
+    as integrating every cell and zeroing those past the cut-off."""
+    rng = np.random.default_rng(17)
+    for low, high in (severity["rate_range"] for severity in cls.SEVERITIES.values()):
+        for rate in (low, high, *rng.uniform(low, high, 3)):
+            n0, lam = cls.distribution(rate)
+            args = (n0, lam, cls.extinction(rate), cls.particle_reflectance, float(np.tan(divergence)), min_range,
+                    detection_threshold / 100.0**2)
+            table, before = particle_table.__wrapped__(*args), former_particle_table(*args)
+            assert table is not None and before is not None
+            assert table.counts.tobytes() == before.tobytes()
+
+
+def former_interp_near(ranges: np.ndarray, grid: np.ndarray, tables: tuple[np.ndarray, ...]) -> list[np.ndarray]:
+    """weather._interp_near as it was: np.interp on the ranges within the grid, the last value beyond."""
+    near = np.flatnonzero(ranges < grid[-1])
+    results = []
+    for table in tables:
+        values = np.full(len(ranges), table[-1])
+        values[near] = np.interp(ranges[near], grid, table)
+        results.append(values)
+    return results
+
+
+@pytest.mark.parametrize(("tau_h", "step"), [(20e-9, 0.05), (10e-9, 0.05), (35e-9, 0.1), (20e-9, 0.02), (20e-9, 0.07)])
+def test_interp_near_on_the_uniform_grid_is_np_interp(tau_h: float, step: float) -> None:
+    """The fog tables of every severity's visibilities, at random ranges, at every node and the
+    floats on either side of it (where the cell found from the step must be corrected), at 0 and
+    the grid's end, and at ranges no frame should have (inf, NaN, huge)."""
+    rng = np.random.default_rng(23)
+    for mor in (40.0, 55.5, 100.0, 199.99, 450.0, 900.0, 5000.0):
+        grid, *tables = fog_soft_response(float(np.log(20.0) / mor), tau_h, step)
+        ranges = np.concatenate([rng.uniform(0.0, 1.2 * grid[-1], 20_000), grid, np.nextafter(grid, 0.0),
+                                 np.nextafter(grid, np.inf), [0.0, 0.9, 1.0, 5e-324, np.inf, np.nan, 1e30]])
+        rng.shuffle(ranges)
+        for now, before in zip(_interp_near(ranges, grid, tuple(tables)),
+                               former_interp_near(ranges, grid, tuple(tables)), strict=True):
+            assert now.tobytes() == before.tobytes()
+        assert _interp_near(np.array([grid[-1], 50.0]), grid, (tables[0],))[0].tolist() == [tables[0][-1]] * 2
+
+
+@pytest.mark.parametrize("step", [0.05, 0.02, 0.07])
+def test_interp_near_corrects_the_cell_both_ways(step: float) -> None:
+    """Longer uniform grids, where ``r / step`` truncates to the cell below as well as above."""
+    grid = np.arange(400) * step
+    table = np.random.default_rng(29).random(400)
+    ranges = np.concatenate([grid, np.nextafter(grid, 0.0), np.nextafter(grid, np.inf)])
+    assert (np.take(grid, np.minimum((ranges * (1.0 / step)).astype(np.intp) + 1, 399)) <= ranges).any()  # reached
+    assert _interp_near(ranges, grid, (table,))[0].tobytes() == former_interp_near(ranges, grid, (table,))[0].tobytes()

@@ -99,10 +99,13 @@ def power_draw_stream(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, 0x9E7]))
 
 
-def power_draws(seed: int, n: int) -> F64:
+def power_draws(seed: int, n: int, out: F64 | None = None) -> F64:
     """Uniform draws in [0, 1) for the unresolved returns, from a stream of their own (so an
-    operator's other draws from ``seed`` are unchanged by them)."""
-    return power_draw_stream(seed).random(n)
+    operator's other draws from ``seed`` are unchanged by them); written into ``out`` (n float64
+    elements) when given — the same numbers, in a buffer the caller reuses."""
+    if out is None:
+        return power_draw_stream(seed).random(n)
+    return power_draw_stream(seed).random(out=out[:n])
 
 
 def effective_reflectivity(intensity: NDArray[np.floating], ranges: NDArray[np.floating], *, scale: float,

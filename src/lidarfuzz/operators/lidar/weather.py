@@ -46,7 +46,7 @@ from lidarfuzz.operators.base import (
     draw_seed,
     uniform,
 )
-from lidarfuzz.operators.lidar.common import intensity_scale, scene_intensity_scale
+from lidarfuzz.operators.lidar.common import intensity_scale, scene_intensity_scale, scratch
 from lidarfuzz.operators.lidar.power import (
     HDL64E_DETECTION_THRESHOLD,
     effective_reflectivity,
@@ -111,20 +111,23 @@ def _rescaled(cloud: PointCloud, keep: NDArray[np.bool_], ranges: F64, new_range
     of the kept rows; only the points whose range changed are rescaled (in float64). Where most
     rows moved (rain's range noise moves them all), x, y and z are scaled column by column with
     a factor of exactly 1 for the others — the same bytes, without the gathers and N×3
-    temporaries of a fancy-indexed update."""
-    # Every temporary is made before the output (``data``), the largest allocation: freed, they
-    # leave the heap below it, where the next call finds them again, instead of at its top, where
-    # the allocator returns them to the system and the next call faults fresh pages in (~4 ms of
-    # system time per rain frame).
-    rows = np.flatnonzero(keep)
-    source = np.flatnonzero(keep & (new_range != ranges))  # kept points that moved
-    kept_intensity = np.take(intensity, rows)
-    air = np.searchsorted(rows, np.flatnonzero(in_air & keep))
-    if 4 * len(source) > len(rows):
-        kept_ranges, kept_new = np.take(ranges, rows), np.take(new_range, rows)
-        factor = np.empty(min(_BLOCK, len(rows)))
-        data = np.take(cloud.data, rows, axis=0)  # ~4× faster than cloud.data[rows], same bytes
-        for block in _blocks(len(rows)):
+    temporaries of a fancy-indexed update. The kept rows' values are gathered into this thread's
+    scratch arrays (:func:`~lidarfuzz.operators.lidar.common.scratch`): fresh N-long temporaries
+    were faulted in afresh on every call; only the output is new."""
+    n = len(keep)
+    kept = int(np.count_nonzero(keep))
+    moved_mask = np.not_equal(new_range, ranges, out=scratch("rescaled.moved", n, bool))
+    moved_mask &= keep  # kept points that moved
+    n_moved = int(np.count_nonzero(moved_mask))
+    kept_intensity = np.compress(keep, intensity, out=scratch("rescaled.intensity", kept))
+    # Kept rows whose return comes from the air, as rows of the copy.
+    air = np.flatnonzero(np.compress(keep, in_air, out=scratch("rescaled.air", kept, bool)))
+    data = np.compress(keep, cloud.data, axis=0)  # as fast as a take of the kept rows, ~3× a boolean index
+    if 4 * n_moved > kept:
+        kept_ranges = np.compress(keep, ranges, out=scratch("rescaled.ranges", kept))
+        kept_new = np.compress(keep, new_range, out=scratch("rescaled.new_range", kept))
+        factor = np.empty(min(_BLOCK, kept))
+        for block in _blocks(kept):
             f = factor[:block.stop - block.start]
             f.fill(1.0)
             np.divide(kept_new[block], kept_ranges[block], out=f, where=kept_ranges[block] > 0)
@@ -132,9 +135,9 @@ def _rescaled(cloud: PointCloud, keep: NDArray[np.bool_], ranges: F64, new_range
             for axis in range(3):
                 moved_rows[:, axis] = moved_rows[:, axis] * f
     else:
-        moved = np.searchsorted(rows, source)  # their rows in the copy
+        source = np.flatnonzero(moved_mask)
+        moved = np.flatnonzero(np.compress(keep, moved_mask, out=scratch("rescaled.moved_kept", kept, bool)))
         factor = np.divide(new_range[source], ranges[source], out=np.ones(len(source)), where=ranges[source] > 0)
-        data = np.take(cloud.data, rows, axis=0)
         if len(source):
             data[moved, :3] = data[moved, :3] * factor[:, None]
     data[:, 3] = kept_intensity
@@ -199,11 +202,17 @@ def fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F
     r = np.arange(n) * step
     overlap = np.clip((r - r1) / (r2 - r1), 0.0, 1.0)
     g = np.divide(overlap * np.exp(-2.0 * alpha * r), r**2, out=np.zeros(n), where=r > 0)
-    weights = _pulse_kernel(n, step, width) * g[None, :] * step
+    # Only the fog in front of a target within the table counts (r_k ≤ R0 < r[n_r0]): the first
+    # n_r0 columns, whose prefix sums do not depend on the others.
+    weights = _pulse_kernel(n, step, width)[:, :n_r0] * g[None, :n_r0] * step
     cumulative = np.cumsum(weights, axis=1)  # C[j, k]: fog up to r_k, seen at R_j
     j = np.arange(n)[:, None]
     m = np.arange(n_r0)[None, :]
-    seen = cumulative[j, np.minimum(j, m)]  # fog only in front of the target: r ≤ R0
+    # seen[j, m] = C[j, min(j, m)] (fog only in front of the target: r ≤ R0): C[j, m], or the
+    # diagonal C[j, j] where m > j — a selection, not a gather of n × n_r0 elements.
+    diagonal = np.zeros(n)
+    diagonal[:n_r0] = cumulative[np.arange(n_r0), np.arange(n_r0)]
+    seen = np.where(m > j, diagonal[:, None], cumulative)
     best = np.argmax(seen, axis=0)
     integral = seen[best, np.arange(n_r0)]
     distance = np.maximum(r[best] - width / 2, r1)
@@ -226,8 +235,9 @@ def _pulse_kernel(n: int, step: float, width: float) -> F64:
 
 @lru_cache(maxsize=64)
 def _cached_fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) -> tuple[F64, F64, F64]:
-    """:func:`fog_soft_response`, built once per (α, τ_H, step): rebuilding it cost a millisecond
-    a call and a campaign replays the same few visibilities. Read-only, being shared."""
+    """:func:`fog_soft_response`, kept per (α, τ_H, step): a replay, a shrink or a fixed-MOR
+    configuration asks for the same table again. A campaign draws each frame's MOR from its
+    severity's range, so most calls build a new one (~0.3 ms). Read-only, being shared."""
     tables = fog_soft_response(alpha, tau_h, step)
     for table in tables:
         table.flags.writeable = False
@@ -235,17 +245,35 @@ def _cached_fog_soft_response(alpha: float, tau_h: float, step: float = 0.05) ->
 
 
 def _interp_near(ranges: F64, grid: F64, tables: tuple[F64, ...]) -> list[F64]:
-    """``np.interp(ranges, grid, table)`` for each table, interpolating only the points within the
-    grid: beyond its end every table is constant, and np.interp returns exactly its last value
-    there, so the result is the same to the bit at a fraction of the cost (most returns lie far
-    beyond the few metres the fog's soft response depends on)."""
+    """``np.interp(ranges, grid, table)`` for each table of the uniform, finite ``grid``
+    (``grid[k] = k · step``, as :func:`fog_soft_response` makes it), interpolating only the points
+    within the grid: beyond its end every table is constant, and np.interp returns exactly its last
+    value there, so the result is the same to the bit at a fraction of the cost (most returns lie
+    far beyond the few metres the fog's soft response depends on).
+
+    Within the grid, np.interp's own arithmetic: the cell ``grid[j] ≤ r < grid[j+1]`` its search
+    finds, the node's value where ``r`` is a node, else ``slope[j] · (r − grid[j]) + table[j]``
+    with ``slope[j] = (table[j+1] − table[j]) / (grid[j+1] − grid[j])``. The cell comes from the
+    uniform step (one multiplication, corrected by one where rounding put it in the neighbour)
+    instead of a binary search per point and table: np.interp cost ~40 ns a point per table here."""
     near = np.flatnonzero(ranges < grid[-1])
-    results = []
-    for table in tables:
-        values = np.full(len(ranges), table[-1])
-        if len(near):
-            values[near] = np.interp(ranges[near], grid, table)
-        results.append(values)
+    results = [np.full(len(ranges), table[-1]) for table in tables]
+    if len(near) == 0:
+        return results
+    x = np.take(ranges, near)
+    j = (x * (1.0 / (grid[1] - grid[0]))).astype(np.intp)
+    np.clip(j, 0, len(grid) - 2, out=j)
+    j -= np.take(grid, j) > x
+    j += np.take(grid, j + 1) <= x
+    offset = x - np.take(grid, j)
+    nodes = np.flatnonzero(offset == 0.0)
+    spacing = grid[1:] - grid[:-1]
+    for values, table in zip(results, tables, strict=True):
+        inside = np.take((table[1:] - table[:-1]) / spacing, j)
+        inside *= offset
+        inside += np.take(table, j)
+        inside[nodes] = table[j[nodes]]
+        np.put(values, near, inside)
     return results
 
 
@@ -324,9 +352,11 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
 
         gain = beta * np.pi / FOG_REFERENCE_REFLECTIVITY * (2.0 / SPEED_OF_LIGHT)
         n = len(cloud)
-        draws = power_draws(params.seed, n)
-        ranges, fog_range, intensity = np.empty(n), np.empty(n), np.empty(n)
-        in_fog, keep = np.empty(n, bool), np.empty(n, bool)
+        # The per-point arrays are this thread's scratch arrays (see _rescaled), never returned.
+        draws = power_draws(params.seed, n, out=scratch("weather.draws", n))
+        ranges, fog_range = scratch("weather.ranges", n), scratch("weather.fog_range", n)
+        intensity = scratch("weather.intensity", n)
+        in_fog, keep = scratch("weather.in_fog", n, bool), scratch("weather.keep", n, bool)
         unattenuated = True  # every hard return keeps its power (no extinction at all)
         # One pass, block by block (see _BLOCK): the same float64 arithmetic per point as over the
         # whole cloud at once, so the same bytes.
@@ -349,7 +379,8 @@ class Fog(Operator[Scene, FogConfig, FogParams]):
         if not in_fog.any() and keep.all() and unattenuated:
             return sample
         rng = np.random.default_rng(params.seed)
-        new_range = ranges.copy()
+        new_range = scratch("weather.new_range", n)
+        np.copyto(new_range, ranges)
         new_range[in_fog] = np.minimum(fog_range[in_fog] + FOG_RETURN_JITTER * rng.beta(2.0, 20.0, int(in_fog.sum())),
                                        ranges[in_fog])
         return sample.with_points(_rescaled(cloud, keep, ranges, new_range, intensity, in_fog))
@@ -390,7 +421,7 @@ class ParticleTable:
 
     Why a table: the integral used to be taken per point (28 nodes each, ten N × 28 float64
     temporaries a call, 80 % of the operator's time) although it depends on two numbers only.
-    The table (about 93 × 771 nodes: 40 per decade of bar, 5 cm in range) costs ~2.5 ms to build
+    The table (about 93 × 771 nodes: 40 per decade of bar, 5 cm in range) costs ~0.6 ms to build
     and is cached per configuration. Its error is bounded in ``tests/operators/test_weather_fast.py``
     (linear interpolation of a cumulative integral is off by at most h·osc(ν)/4 per direction):
     within 0.1 % of the exact frame total, and the drawn set of affected points within 1 % (total
@@ -490,8 +521,9 @@ def cutoff_range(bar: F64, alpha: float, rho_p: float) -> F64:
 @lru_cache(maxsize=16)
 def particle_table(n0: float, lam: float, alpha: float, rho_p: float, theta: float, min_range: float,
                    p_min: float) -> ParticleTable | None:
-    """The :class:`ParticleTable` of one configuration (cached: a campaign replays the same
-    rates), or None where no particle can win (everything beyond reach or the blind zone)."""
+    """The :class:`ParticleTable` of one configuration, or None where no particle can win
+    (everything beyond reach or the blind zone). Kept for a replay, a shrink or a fixed rate; a
+    campaign draws each frame's rate from its severity's range, so most calls build one (~0.6 ms)."""
     end = max(_PARTICLE_REACH, min_range)
     # Beyond this bar not even a drop at the blind zone's edge covering the whole beam wins.
     edge = max(min_range, _TABLE_RANGE_STEP)
@@ -506,19 +538,27 @@ def particle_table(n0: float, lam: float, alpha: float, rho_p: float, theta: flo
     bars = np.exp(log_bars)
     r_max = cutoff_range(bars, alpha, rho_p)
     # Inside the cut-off d_need = max(√(bar/ρ_p) · 10³ θ r² e^{αr}, D_min): an outer product of a
-    # factor per bar and one per range, so a full cell costs one exponential per Gauss node.
+    # factor per bar and one per range, so a cell costs one exponential per Gauss node. Only the
+    # cells wholly inside their bar's cut-off are integrated here — a prefix of each row, 16 % of
+    # the table (the rest held exponentials, most underflowing, that were then zeroed): gathered
+    # into one contiguous array, the same elementwise operations give the same bits at a sixth
+    # of the cost (an exponential of a contiguous array does not depend on its neighbours).
     root = np.sqrt(bars / rho_p)
     left = ranges[:-1]
-    cells = np.zeros((n_bars, n_ranges - 1))
+    n_full = np.searchsorted(ranges[1:], r_max, side="right")  # cell j of row i is full ⇔ ranges[j+1] ≤ r_max[i]
+    starts = np.cumsum(n_full) - n_full
+    row = np.repeat(np.arange(n_bars), n_full)
+    col = np.arange(len(row)) - np.repeat(starts, n_full)
+    full_cells = np.zeros(len(row))
     for node, weight in zip(_GAUSS_NODES, _GAUSS_WEIGHTS, strict=True):
         r = left + node * _TABLE_RANGE_STEP
-        d_need = np.maximum(np.multiply.outer(root, 1e3 * theta * r * r * np.exp(alpha * r)), MIN_DIAMETER)
-        cells += (weight * _TABLE_RANGE_STEP) * (r * r) * np.exp(-lam * d_need)
+        d_need = np.maximum(root[row] * (1e3 * theta * r * r * np.exp(alpha * r))[col], MIN_DIAMETER)
+        full_cells += ((weight * _TABLE_RANGE_STEP) * (r * r))[col] * np.exp(-lam * d_need)
     # No particle wins beyond the cut-off: cells past it hold nothing, the one it cuts only its part.
-    full = ranges[None, 1:] <= r_max[:, None]
+    cells = np.zeros((n_bars, n_ranges - 1))
+    cells.ravel()[row * (n_ranges - 1) + col] = full_cells
     partial_row = np.flatnonzero((r_max > ranges[0]) & (r_max < ranges[-1]))
     partial_col = np.searchsorted(ranges, r_max[partial_row], side="right") - 1  # ranges[col] ≤ r_max < ranges[col+1]
-    cells[~full] = 0.0
     start = left[partial_col]
     width = np.maximum(r_max[partial_row] - start, 0.0)
     partial = np.zeros(len(partial_row))
@@ -603,9 +643,13 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
         n = len(cloud)
 
         table = particle_table(n0, lam, alpha, rho_p, theta, params.min_range, p_min)
-        draws = power_draws(params.seed, n)
-        ranges, bar, reach, expected = np.empty(n), np.empty(n), np.empty(n), np.zeros(n)
-        intensity, sigma, lost = np.empty(n), np.empty(n), np.empty(n, bool)
+        # The per-point arrays are this thread's scratch arrays (see _rescaled), never returned.
+        draws = power_draws(params.seed, n, out=scratch("weather.draws", n))
+        ranges, bar, reach = scratch("weather.ranges", n), scratch("weather.bar", n), scratch("weather.reach", n)
+        expected = scratch("weather.expected", n)
+        expected.fill(0.0)
+        intensity, sigma = scratch("weather.intensity", n), scratch("weather.sigma", n)
+        lost = scratch("weather.lost", n, bool)
         noise_scale = params.range_accuracy**2 * p_min / 2.0
         # One pass, block by block (see _BLOCK), over everything a point needs before the draws.
         for block in _blocks(n):
@@ -635,11 +679,13 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
                 np.maximum(reach[block], params.min_range, out=reach[block])
                 expected[block] = table.expected(b, reach[block])
 
-        scattered = np.zeros(n, bool)
-        new_range = ranges.copy()
+        scattered = scratch("weather.scattered", n, bool)
+        scattered.fill(False)
+        new_range = scratch("weather.new_range", n)
+        np.copyto(new_range, ranges)
         # Independent Poisson counts per beam, drawn as one Poisson total spread over the beams in
         # proportion to their expectations: the same distribution, without N Poisson draws.
-        cumulative = np.cumsum(expected)
+        cumulative = np.cumsum(expected, out=scratch("weather.cumulative", n))
         total = float(cumulative[-1])
         count = int(rng.poisson(total)) if table is not None and total > 0 else 0
         if table is not None and count:
@@ -670,7 +716,8 @@ class _Precipitation(Operator[Scene, PrecipitationConfig, PrecipitationParams]):
                 z = rng.standard_normal(out=noise[: block.stop - block.start])
                 z *= sigma[block]
                 new_range[block] += z
-        return sample.with_points(_rescaled(cloud, ~lost, ranges, new_range, intensity, scattered))
+        kept = np.logical_not(lost, out=scratch("weather.keep", n, bool))
+        return sample.with_points(_rescaled(cloud, kept, ranges, new_range, intensity, scattered))
 
 
 class Rain(_Precipitation):
