@@ -104,34 +104,40 @@ def check_yaml(text: str, path: str | PathLike[str], *, depth_limit: int = MAX_D
     sizes: dict[str, int] = {}
     stack: list[list[Any]] = [[None, 0]]  # [anchor, values below] per open collection
     total = 0
-    for event in yaml.parse(text, Loader=_LOADER):
-        if isinstance(event, yaml.CollectionStartEvent):
-            stack.append([event.anchor, 1])
-            if len(stack) - 1 > depth_limit:
-                raise _too_deep(path, event, depth_limit)
-        elif isinstance(event, yaml.CollectionEndEvent):
-            anchor, count = stack.pop()
-            if anchor is not None:
-                sizes[anchor] = count
-            stack[-1][1] += count
-        elif isinstance(event, (yaml.ScalarEvent, yaml.AliasEvent)):
-            count = 1
-            if isinstance(event, yaml.AliasEvent):
-                count = sizes.get(str(event.anchor), 1)
-            else:
-                if scalar_limit is not None and len(event.value) > scalar_limit:
-                    raise DataFormatError(path, f"a value of {len(event.value):,} characters (at most "
-                                          f"{scalar_limit:,})", line=event.start_mark.line + 1)
-                if not event.style and len(event.value) > MAX_DIGITS and _INTEGER.fullmatch(event.value):
-                    raise DataFormatError(path, f"a number of {len(event.value):,} digits (at most {MAX_DIGITS:,})",
-                                          line=event.start_mark.line + 1)
-                if event.anchor is not None:
-                    sizes[event.anchor] = 1
-            stack[-1][1] += count
-            total = stack[0][1] + sum(level[1] for level in stack[1:])
-            if total > value_limit:
-                raise DataFormatError(path, f"expands to more than {value_limit:,} values through its aliases "
-                                      "(&anchor … *anchor)", line=event.start_mark.line + 1)
+    try:
+        for event in yaml.parse(text, Loader=_LOADER):
+            if isinstance(event, yaml.CollectionStartEvent):
+                stack.append([event.anchor, 1])
+                if len(stack) - 1 > depth_limit:
+                    raise _too_deep(path, event, depth_limit)
+            elif isinstance(event, yaml.CollectionEndEvent):
+                anchor, count = stack.pop()
+                if anchor is not None:
+                    sizes[anchor] = count
+                stack[-1][1] += count
+            elif isinstance(event, (yaml.ScalarEvent, yaml.AliasEvent)):
+                count = 1
+                if isinstance(event, yaml.AliasEvent):
+                    count = sizes.get(str(event.anchor), 1)
+                else:
+                    if scalar_limit is not None and len(event.value) > scalar_limit:
+                        raise DataFormatError(path, f"a value of {len(event.value):,} characters (at most "
+                                              f"{scalar_limit:,})", line=event.start_mark.line + 1)
+                    if not event.style and len(event.value) > MAX_DIGITS and _INTEGER.fullmatch(event.value):
+                        raise DataFormatError(path, f"a number of {len(event.value):,} digits (at most {MAX_DIGITS:,})",
+                                              line=event.start_mark.line + 1)
+                    if event.anchor is not None:
+                        sizes[event.anchor] = 1
+                stack[-1][1] += count
+                total = stack[0][1] + sum(level[1] for level in stack[1:])
+                if total > value_limit:
+                    raise DataFormatError(path, f"expands to more than {value_limit:,} values through its aliases "
+                                          "(&anchor … *anchor)", line=event.start_mark.line + 1)
+    except yaml.MarkedYAMLError as exc:  # libyaml >= 0.2.6 stops at 1,000 levels, scanning ahead of the events
+        if exc.problem_mark is None or "nesting depth" not in (exc.problem or ""):
+            raise
+        raise DataFormatError(path, f"nested deeper than {depth_limit} levels",
+                              line=exc.problem_mark.line + 1) from None
 
 
 def load_structured(path: str | PathLike[str], what: str) -> Any:
