@@ -25,7 +25,7 @@ import pytest
 from benchmarks.kills import Snapshot, Workspaces, compare, differences, snapshot, whole
 from sqlalchemy import func, select
 
-from lidarfuzz.campaign.cluster import ClusterError, RayExecutor, import_ray, require_shared_store
+from lidarfuzz.campaign.cluster import CLOSE_SECONDS, ClusterError, RayExecutor, import_ray, require_shared_store
 from lidarfuzz.campaign.executor import Executor, InlineExecutor, ProcessExecutor
 from lidarfuzz.campaign.runner import ProgressEvent, run_task
 from lidarfuzz.campaign.spec import parse_campaign
@@ -357,12 +357,15 @@ def run_in_thread(store: Store, task_id: int, executor: Executor,
     return runner, outcomes, errors, stored_at
 
 
-def stalls(runner: threading.Thread, stored_at: list[float]) -> bool:
+def stalls(runner: threading.Thread, stored_at: list[float], *, units: int | None = None,
+           closing: float = 0.0) -> bool:
     """Wait for the run in ``runner`` to end; True as soon as it stalls (nothing stored, or no end
-    after its last unit, for :data:`STALL_SECONDS`)."""
+    after its last unit, for :data:`STALL_SECONDS`; ``closing`` seconds more once all ``units``
+    are stored, where the executor may wait that long to close an actor)."""
     since = time.monotonic()
     while runner.is_alive():
-        if time.monotonic() - max(since, stored_at[-1] if stored_at else since) > STALL_SECONDS:
+        allowed = STALL_SECONDS + (closing if units is not None and len(stored_at) >= units else 0.0)
+        if time.monotonic() - max(since, stored_at[-1] if stored_at else since) > allowed:
             return True
         runner.join(0.05)
     return False
@@ -441,8 +444,10 @@ def test_a_worker_node_killed_mid_campaign_loses_and_repeats_nothing(ray_nodes: 
         killed_at = len(stored_at)
         ray_nodes.kill_worker()
         # the lost actor's replacement waits for room (on the lost node until the head counts it
-        # dead, 10-30 s): the run goes on without it
-        stalled = stalls(runner, stored_at)
+        # dead, 10-30 s): the run goes on without it. When the lost actor had no unit left when its
+        # node died (the others ran them), nothing tells the driver it is gone before the head does:
+        # closing waits for its answer up to CLOSE_SECONDS (as a user's run would)
+        stalled = stalls(runner, stored_at, units=UNITS, closing=CLOSE_SECONDS)
         if stalled:  # a node back gives it room, so that the run can end
             ray_nodes.add_worker()
             runner.join(120)
