@@ -809,6 +809,14 @@ def _window_panes(footprints: NDArray[np.object_], heights: NDArray[np.float64],
     slot_index, floor_index = rank // floors_here, rank % floors_here
     u = slots[slot_index]
     z = 1.0 + 3.0 * floor_index  # np.arange(1.0, …, 3.0)'s values, exactly
+    return _pane_quads(a, unit, outward, edge_index, u, z).reshape(-1, 3), edge_of[edge_index]
+
+
+def _pane_quads(a: NDArray[np.float64], unit: NDArray[np.float64], outward: NDArray[np.float64],
+                edge_index: NDArray[np.intp], u: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Window panes 1.4 m wide and 1.5 m tall, 3 cm proud of facade edges starting at ``a`` (along
+    ``unit``, facing ``outward``): one per (edge, slot centre ``u`` along it, sill height ``z``),
+    corners counter-clockwise seen from outside, (panes, 4, 3)."""
     base = a[edge_index] + outward[edge_index] * 0.03
     left = base + (u - 0.7)[:, None] * unit[edge_index]
     right = base + (u + 0.7)[:, None] * unit[edge_index]
@@ -816,7 +824,7 @@ def _window_panes(footprints: NDArray[np.object_], heights: NDArray[np.float64],
     quad[:, 0, :2], quad[:, 1, :2], quad[:, 2, :2], quad[:, 3, :2] = left, right, right, left
     quad[:, 0, 2] = quad[:, 1, 2] = z
     quad[:, 2, 2] = quad[:, 3, 2] = z + 1.5
-    return quad.reshape(-1, 3), edge_of[edge_index]
+    return quad
 
 
 def _building(b: Building) -> Mesh:
@@ -849,13 +857,7 @@ def _windows(footprint: Polygon, height: float) -> Mesh:
         (slots[None, :] < (length[:, None] - 1.0))[:, :, None] & np.ones(len(floors), bool)[None, None, :])
     u = slots[slot_index]
     z = floors[floor_index]
-    base = a[edge_index] + outward[edge_index] * 0.03
-    left = base + (u - 0.7)[:, None] * unit[edge_index]
-    right = base + (u + 0.7)[:, None] * unit[edge_index]
-    quad = np.empty((len(u), 4, 3))
-    quad[:, 0, :2], quad[:, 1, :2], quad[:, 2, :2], quad[:, 3, :2] = left, right, right, left
-    quad[:, 0, 2] = quad[:, 1, 2] = z
-    quad[:, 2, 2] = quad[:, 3, 2] = z + 1.5
+    quad = _pane_quads(a, unit, outward, edge_index, u, z)
     base_index = np.arange(len(u), dtype=np.int32)[:, None] * 4
     faces = np.concatenate([base_index + np.array([0, 1, 2]), base_index + np.array([0, 2, 3])]).astype(np.int32)
     return Mesh.of(quad.reshape(-1, 3), faces, "window")

@@ -496,6 +496,17 @@ class IntensityScaleParams(Params):
         return self.ratio == 0 or self.factor_low == self.factor_high == 1.0
 
 
+def _copy_with_limit(sample: Scene) -> tuple[NDArray[np.float32], float]:
+    """A copy of the frame's points and the largest intensity a scaled one may take: the data's own
+    scale (scene_intensity_scale: declared by its reader, else inferred, here from the maximum read
+    as the data is copied): [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255."""
+    declared = declared_intensity_scale(sample)
+    if declared is None:
+        data, top = copy_with_maximum(sample.points.data, 3)
+        return data, scale_of_maximum(top)
+    return sample.points.data.copy(), declared
+
+
 class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParams]):
     """Reflectivity errors on scattered returns (wet or dirty surfaces, receiver gain jitter):
     a random share of the points get their intensity multiplied by a random factor each
@@ -531,14 +542,7 @@ class IntensityScaling(Operator[Scene, IntensityScaleConfig, IntensityScaleParam
             return sample
         rng = np.random.default_rng(params.seed)
         chosen = rng.choice(len(cloud), size=count, replace=False)
-        declared = declared_intensity_scale(sample)
-        # The limit is the data's own scale (scene_intensity_scale: declared by its reader, else inferred,
-        # here from the maximum read as the data is copied): [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255.
-        if declared is None:
-            data, top = copy_with_maximum(cloud.data, 3)
-            limit = scale_of_maximum(top)
-        else:
-            data, limit = cloud.data.copy(), declared
+        data, limit = _copy_with_limit(sample)
         # float64 for the chosen points only: the others would round-trip float32 → float64 exactly
         # the chosen intensities as flat positions: take/put on the flat array gather and scatter
         # them ~2× faster than data[chosen, 3] (no 2-D fancy-index machinery); same values
@@ -619,14 +623,7 @@ class RegionIntensityScaling(Operator[Scene, RegionIntensityConfig, RegionIntens
         inside = _in_column(cloud.xyz, params.center, params.size)
         if not inside.any():
             return sample
-        declared = declared_intensity_scale(sample)
-        # The limit is the data's own scale (scene_intensity_scale: declared by its reader, else inferred,
-        # here from the maximum read as the data is copied): [0, 1] clouds stay in [0, 1], 8-bit ones in 0–255.
-        if declared is None:
-            data, top = copy_with_maximum(cloud.data, 3)
-            limit = scale_of_maximum(top)
-        else:
-            data, limit = cloud.data.copy(), declared
+        data, limit = _copy_with_limit(sample)
         # float64 for the region's points only: the others would round-trip float32 → float64 exactly;
         # their intensities as flat positions (take/put: no 2-D fancy-index machinery), as IntensityScaling
         flat, where = data.reshape(-1), np.flatnonzero(inside) * data.shape[1] + 3
